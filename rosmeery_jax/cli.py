@@ -1,0 +1,81 @@
+"""The ``rosmeery`` command line (also ``python -m rosmeery_jax``).
+
+Every sub-command turns bad input into one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rosmeery_jax.errors import InputError
+
+
+def _cmd_worlds(args) -> int:
+    from rosmeery_jax.world import load_world, world_names
+
+    worlds = [load_world(n) for n in world_names()]
+    summaries = [w.summary() for w in worlds]
+    if args.pictures:
+        from rosmeery_jax.world.draw import save_world_picture
+
+        for w, s in zip(worlds, summaries):
+            s["picture"] = str(save_world_picture(w, Path(args.pictures) / f"{w.name}.png"))
+    if args.json:
+        print(json.dumps(summaries, indent=2))
+        return 0
+    print(f"{'world':<14}{'title':<15}{'objects':>8}{'samples':>9}{'boxes':>7}{'reach m2':>10}  categories")
+    for s in summaries:
+        cats = ", ".join(f"{c} x{k}" for c, k in s["categories"].items())
+        print(f"{s['name']:<14}{s['title']:<15}{s['objects']:>8}{s['samples']:>9}{s['boxes']:>7}"
+              f"{s['reachable_area_m2']:>10.1f}  {cats}")
+    for s in summaries:
+        if "picture" in s:
+            print(f"wrote {s['picture']}")
+    return 0
+
+
+def _cmd_world_show(args) -> int:
+    from rosmeery_jax.world import load_world
+    from rosmeery_jax.world.draw import save_world_picture
+
+    world = load_world(args.world)
+    out = save_world_picture(world, args.out)
+    print(f"wrote {out} ({world.title}: {world.truth.num_objects} objects)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("worlds", help="list the built-in worlds with object and sample counts")
+    p.add_argument("--json", action="store_true", help="print one JSON list instead of a table")
+    p.add_argument("--pictures", metavar="DIR", help="also draw every world's top-down map into DIR")
+    p.set_defaults(func=_cmd_worlds)
+
+    p = sub.add_parser("world", help="commands on one world")
+    wsub = p.add_subparsers(dest="world_command", required=True)
+    s = wsub.add_parser("show", help="draw a world's top-down map with labelled objects")
+    s.add_argument("world", metavar="NAME_OR_PATH", help="built-in world name or path to an MJCF file")
+    s.add_argument("--out", required=True, metavar="FILE.png")
+    s.set_defaults(func=_cmd_world_show)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except InputError as err:
+        print(f"rosmeery: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rosmeery: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

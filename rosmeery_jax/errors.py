@@ -1,0 +1,21 @@
+"""One error type for bad user input.
+
+Every problem with a file the user handed us (world, config, weights, recording, map)
+raises :class:`InputError`. Its message is one line that names the file and the field or
+element; the CLI prints exactly that line and exits with status 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class InputError(ValueError):
+    """Bad user input; ``str(err)`` is one line naming the file and the field."""
+
+    def __init__(self, source: str | Path, where: str, problem: str):
+        self.source = str(source)
+        self.where = where
+        self.problem = problem
+        location = f"{self.source}: {where}" if where else self.source
+        super().__init__(f"{location}: {problem}".replace("\n", " "))

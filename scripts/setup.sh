@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Create (or update) the project's virtual environment in .venv and install the package
+# with its test and detector extras. Safe to run again: pip skips what is satisfied.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+pick_python() {
+    for py in python3.11 python3.12 python3.13 python3; do
+        if command -v "$py" >/dev/null 2>&1 &&
+           "$py" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' 2>/dev/null; then
+            echo "$py"; return 0
+        fi
+    done
+    echo "rosmeery setup: Python >= 3.11 is required and none was found on PATH" >&2
+    return 1
+}
+
+if [ ! -x .venv/bin/python ]; then
+    "$(pick_python)" -m venv .venv
+fi
+stamp=.venv/.rosmeery-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    .venv/bin/python -m pip install --quiet --upgrade pip
+    # torch pinned here too, so no resolver path can reach a newer, CUDA-laden build.
+    .venv/bin/python -m pip install --quiet -e ".[test,detector]" "torch==2.13.0"
+    touch "$stamp"
+fi

@@ -1,0 +1,51 @@
+"""Shared test helpers: tiny hand-made worlds written as MJCF."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+# One persistent compilation cache for the whole suite (and across CI runs on one machine).
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".jax_cache"))
+
+
+def room_xml(bodies: str, categories: dict[str, str], spawn=(0.0, 0.0, 0.0), half: float = 2.0,
+             walls: bool = True, extra_custom: str = "") -> str:
+    """A square room of side 2*half (walls 0.1 m thick, 2 m high) around the origin."""
+    wall = ""
+    if walls:
+        t, h = 0.05, half + 0.05
+        wall = "\n".join(
+            f'<geom name="wall_{i}" type="box" pos="{x} {y} 1" size="{sx} {sy} 1"/>'
+            for i, (x, y, sx, sy) in enumerate([(h, 0, t, h + t), (-h, 0, t, h + t), (0, h, h + t, t), (0, -h, h + t, t)])
+        )
+    cats = "\n".join(f'<text name="rosmeery:category:{b}" data="{c}"/>' for b, c in categories.items())
+    return f"""<mujoco model="test_room">
+  <compiler angle="radian"/>
+  <asset><material name="floor" rgba="0.7 0.7 0.7 1"/></asset>
+  <custom>
+    <numeric name="rosmeery:spawn" data="{spawn[0]} {spawn[1]} {spawn[2]}"/>
+    {cats}
+    {extra_custom}
+  </custom>
+  <worldbody>
+    <geom name="floor" type="plane" size="0 0 0.05" material="floor"/>
+    {wall}
+    {bodies}
+  </worldbody>
+</mujoco>
+"""
+
+
+@pytest.fixture
+def write_world(tmp_path):
+    """write_world(xml, name='w') -> Path of the file."""
+
+    def _write(xml: str, name: str = "room") -> Path:
+        path = tmp_path / f"{name}.xml"
+        path.write_text(xml)
+        return path
+
+    return _write
