@@ -59,7 +59,7 @@ def rasterize(scene: Scene, mask: np.ndarray, origin, shape, res: float) -> np.n
     ys = origin[1] + (np.arange(h) + 0.5) * res
     gx, gy = np.meshgrid(xs, ys)
     pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], -1)
-    sub = Scene(*(a[mask] if np.ndim(a) and a.shape[0] == mask.shape[0] else a for a in scene))
+    sub = scene.select(mask)
     grown = sub._replace(half=sub.half + np.array([res / 2, res / 2, np.inf]))
     return grown.inside(pts).any(axis=1).reshape(h, w)
 

@@ -244,7 +244,7 @@ def _spawn(model, path) -> np.ndarray:
 
 def _scene(model, data, path, objects) -> Scene:
     index = {b: n for n, b in enumerate(objects)}
-    centers, halves, yaws, owners, rgbs = [], [], [], [], []
+    centers, halves, yaws, owners, rgbs, geoms = [], [], [], [], [], []
     floors = 0
     for g in range(model.ngeom):
         gname = _name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
@@ -270,10 +270,12 @@ def _scene(model, data, path, objects) -> Scene:
         owners.append(index[root] if root != 0 else WALL)
         mat = model.geom_matid[g]
         rgbs.append((model.mat_rgba[mat] if mat >= 0 else model.geom_rgba[g])[:3].copy())
+        geoms.append(g)
     if not floors:
         raise InputError(path, "worldbody", "has no floor (a geom of type plane at z = 0)")
     f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
-    return Scene(f32(centers), f32(halves), f32(yaws), np.asarray(owners, np.int32), f32(rgbs), f32(FLOOR_RGB))
+    return Scene(f32(centers), f32(halves), f32(yaws), np.asarray(owners, np.int32), f32(rgbs), f32(FLOOR_RGB),
+                 np.asarray(geoms, np.int32))
 
 
 def _truth(path, model, data, scene, objects, categories, taxonomy, config) -> GroundTruth:

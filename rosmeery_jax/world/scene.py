@@ -25,6 +25,7 @@ class Scene(NamedTuple):
     object_id: (G,) owner: object index >= 0, or WALL.
     rgb:    (G, 3) diffuse colour in [0, 1].
     floor_rgb: (3,) colour of the floor plane.
+    geom:   (G,) MuJoCo geom id of each box in the world model.
     """
 
     center: np.ndarray
@@ -33,10 +34,16 @@ class Scene(NamedTuple):
     object_id: np.ndarray
     rgb: np.ndarray
     floor_rgb: np.ndarray
+    geom: np.ndarray
 
     @property
     def num_boxes(self) -> int:
         return int(self.center.shape[0])
+
+    def select(self, mask: np.ndarray) -> "Scene":
+        """The boxes where ``mask`` (G,) is set."""
+        return self._replace(center=self.center[mask], half=self.half[mask], yaw=self.yaw[mask],
+                             object_id=self.object_id[mask], rgb=self.rgb[mask], geom=self.geom[mask])
 
     def footprint_corners(self) -> np.ndarray:
         """(G, 4, 2) plan corners of every box, counter-clockwise."""
