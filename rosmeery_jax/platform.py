@@ -4,8 +4,12 @@ The robot is added to a world's MjSpec: slide joints in x and y and a hinge abou
 velocity actuators on each. A differential drive has no lateral motion, so the commanded
 (v, w) becomes the world-frame velocity (v cos yaw, v sin yaw, w); contacts may still push
 the body sideways along a wall (as a real base skids). The collision body is a sphere (MJX
-has no cylinder-box collision) riding 5 cm above the floor, so it touches everything that
-reaches below its top and never the floor; it is ``skin`` larger than the robot's body. Only robot-vs-static pairs collide and MJX keeps
+has no cylinder-box collision) is a sphere ``skin`` larger than the robot's plan radius.
+The robot only cares about footprints (as the free-space map does), so every box that
+reaches below the robot's height enters the physics model as a prism extruded from the
+floor to 1 m, and the sphere rides at 0.5 m: each contact is horizontal, an exact 2D
+disc-against-footprint collision (a sphere meeting a low board with its curved bottom would
+ride over it, since z is not free to move). The floor is not in the physics model. Only robot-vs-static pairs collide and MJX keeps
 the nearest few pairs (PERF-NOTES: the difference between 1k and 60k steps/s).
 """
 
@@ -22,14 +26,17 @@ from mujoco import mjx
 from rosmeery_jax.world import World
 
 
+PROXY_HALF_HEIGHT = 0.5
+
+
 @dataclass(frozen=True)
 class RobotConfig:
-    """Platform parameters (SPEC section 5). Body about 0.4 x 0.35 m: collision sphere of
-    radius 0.2 m. Limits 1.0 m/s and 3.0 rad/s (the original navigation capped speed at
+    """Platform parameters (SPEC section 5). Body about 0.4 x 0.35 m: a disc of radius
+    0.2 m in plan. Limits 1.0 m/s and 3.0 rad/s (the original navigation capped speed at
     0.12 m/s; set ``max_speed`` for that)."""
 
     radius: float = 0.2
-    clearance: float = 0.05  # sphere bottom above the floor
+    height: float = 0.5  # boxes reaching below this block the robot (as in the free-space map)
     mass: float = 10.0
     max_speed: float = 1.0
     max_turn_rate: float = 3.0
@@ -37,9 +44,10 @@ class RobotConfig:
     substeps: int = 5  # physics dt = 0.02 s
     kv_lin: float = 200.0
     kv_yaw: float = 4.0
-    skin: float = 0.02  # the collision sphere is this much larger than the body: at 1 m/s a
+    skin: float = 0.02  # the collision spheres are this much larger than the body: at 1 m/s a
     # 0.02 s substep moves 2 cm, and MJX sees a contact only once it penetrates (it ignores
     # geom margins for sphere-box), so the skin absorbs that overshoot
+    max_pairs: int = 6  # robot-box pairs MJX collides per substep, nearest first
     max_piece: float = 1.0  # collision proxies are split into pieces no longer than this
     max_force: float = 60.0  # N per axis: 6 m/s^2 for the 10 kg base, and it keeps
     # contact forces (hence soft-contact penetration) to millimetres when pushing a wall
@@ -60,15 +68,17 @@ def robot_model(world: World, cfg: RobotConfig) -> mujoco.MjModel:
     spec.option.ls_iterations = 6
     spec.add_material(name="static", rgba=[0.7, 0.7, 0.7, 1])  # mjx needs one material
     s = world.scene
-    top = cfg.clearance + 2 * cfg.radius + cfg.skin
+    top = cfg.height
     for g in np.flatnonzero(s.center[:, 2] - s.half[:, 2] < top):
         for center, half in _pieces(s.center[g], s.half[g], float(s.yaw[g]), cfg.max_piece):
             yaw = float(s.yaw[g])
+            # Extruded to a prism spanning the sphere's equator: every contact is horizontal.
+            center[2], half[2] = PROXY_HALF_HEIGHT, PROXY_HALF_HEIGHT
             spec.worldbody.add_geom(
                 type=mujoco.mjtGeom.mjGEOM_BOX, pos=center.tolist(), size=half.tolist(),
                 quat=[np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)], contype=0, conaffinity=1, material="static")
     sx, sy, syaw = (float(v) for v in world.spawn)
-    body = spec.worldbody.add_body(name="robot", pos=[sx, sy, cfg.clearance + cfg.radius])
+    body = spec.worldbody.add_body(name="robot", pos=[sx, sy, PROXY_HALF_HEIGHT])
     body.add_joint(name="x", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
     body.add_joint(name="y", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 1, 0])
     body.add_joint(name="yaw", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
@@ -81,8 +91,8 @@ def robot_model(world: World, cfg: RobotConfig) -> mujoco.MjModel:
                           biastype=mujoco.mjtBias.mjBIAS_AFFINE, biasprm=[0, 0, -kv] + [0] * 7,
                           dyntype=mujoco.mjtDyn.mjDYN_NONE, forcelimited=1,
                           forcerange=[-cfg.max_force, cfg.max_force])
-    spec.add_numeric(name="max_contact_points", data=[4])
-    spec.add_numeric(name="max_geom_pairs", data=[4])
+    spec.add_numeric(name="max_contact_points", data=[cfg.max_pairs])
+    spec.add_numeric(name="max_geom_pairs", data=[cfg.max_pairs])
     model = spec.compile()
     model.qpos0[:] = [0.0, 0.0, syaw]  # slide joints measure from the body's spawn position
     return model
@@ -97,7 +107,7 @@ def _pieces(center, half, yaw, max_len):
     nx = max(1, int(np.ceil(2 * half[0] / max_len)))
     ny = max(1, int(np.ceil(2 * half[1] / max_len)))
     c, s = np.cos(yaw), np.sin(yaw)
-    ph = np.array([half[0] / nx, half[1] / ny, half[2]])
+    ph = np.array([half[0] / nx, half[1] / ny, half[2]], dtype=float)
     for i in range(nx):
         for j in range(ny):
             lx = -half[0] + (2 * i + 1) * ph[0]
@@ -142,16 +152,12 @@ class Platform:
 
 
 def penetration(world: World, cfg: RobotConfig, pose: np.ndarray) -> np.ndarray:
-    """How far (m) the robot sphere at ``pose`` (..., 3) reaches into any solid; 0 if clear.
-
-    Ground-truth check for tests, independent of MJX: distance from the sphere centre to each
-    box that reaches below the sphere's top, minus the radius.
-    """
+    """How far (m) the robot's footprint disc at ``pose`` (..., 3) reaches into any box that
+    reaches below the robot's height; 0 if clear. Ground truth for tests, independent of MJX."""
     s = world.scene
-    z = cfg.clearance + cfg.radius
-    pts = np.concatenate([np.asarray(pose, float).reshape(-1, 3)[:, :2], np.full((np.size(pose) // 3, 1), z)], -1)
-    local = s.to_local(pts)
-    dist = np.linalg.norm(np.maximum(np.abs(local) - s.half[None], 0.0), axis=-1)
-    low = (s.center[:, 2] - s.half[:, 2]) < z + cfg.radius
+    xy = np.asarray(pose, float)[..., :2].reshape(-1, 2)
+    local = s.to_local(np.concatenate([xy, np.zeros((len(xy), 1))], -1))[..., :2]
+    dist = np.linalg.norm(np.maximum(np.abs(local) - s.half[None, :, :2], 0.0), axis=-1)
+    low = (s.center[:, 2] - s.half[:, 2]) < cfg.height
     depth = np.where(low[None], cfg.radius - dist, 0.0).max(axis=1)
     return np.maximum(depth, 0.0).reshape(np.shape(pose)[:-1])
