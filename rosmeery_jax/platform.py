@@ -44,7 +44,7 @@ class RobotConfig:
     substeps: int = 5  # physics dt = 0.02 s
     kv_lin: float = 200.0
     kv_yaw: float = 4.0
-    skin: float = 0.02  # the collision spheres are this much larger than the body: at 1 m/s a
+    skin: float = 0.02  # the collision sphere is this much larger than the body: at 1 m/s a
     # 0.02 s substep moves 2 cm, and MJX sees a contact only once it penetrates (it ignores
     # geom margins for sphere-box), so the skin absorbs that overshoot
     max_pairs: int = 6  # robot-box pairs MJX collides per substep, nearest first
@@ -57,7 +57,7 @@ def robot_model(world: World, cfg: RobotConfig) -> mujoco.MjModel:
     """The physics model: the robot plus, as world geoms, the static boxes it can touch.
 
     Sensing uses the raycast scene, so physics needs only collision proxies: every box that
-    reaches below the robot's top, directly under the world body (no furniture bodies to
+    reaches below the robot's height, directly under the world body (no furniture bodies to
     carry through MJX's kinematics each substep).
     """
     spec = mujoco.MjSpec()

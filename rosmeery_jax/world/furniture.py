@@ -135,7 +135,7 @@ def round_table(size, center, top=LIGHT_WOOD, legs=DARK_WOOD) -> list[Part]:
     """An octagonal top (two squares 45 degrees apart) on a pedestal with a cross base."""
     f = _Frame(size, center)
     r = 0.5 * min(f.sx, f.sy)
-    half_side = r / math.sqrt(2.0) * 1.0  # square inscribed so the octagon fits the box
+    half_side = r / math.sqrt(2.0)  # each square's corners reach r, so the octagon fits the box
     zt = f.z1 - 0.02
     base_r = 0.35 * r
     return [
@@ -277,11 +277,9 @@ def sink(size, center) -> list[Part]:
 def toilet(size, center, front: str = "-y") -> list[Part]:
     """Pedestal, bowl, seat and cistern; the cistern sits on the side opposite ``front``."""
     f = _Frame(size, center)
-    depth = f.sy
     tank = (f.y1 - 0.2, f.y1) if front == "-y" else (f.y0, f.y0 + 0.2)
     bowl = (f.y0, f.y1 - 0.2) if front == "-y" else (f.y0 + 0.2, f.y1)
     seat_z = f.z0 + 0.45 * f.sz
-    del depth
     return [
         f.part("pedestal", f.cx - 0.1, f.cx + 0.1, bowl[0] + 0.1, bowl[1], f.z0, seat_z - 0.15, WHITE),
         f.part("bowl", f.x0 + 0.02, f.x1 - 0.02, bowl[0], bowl[1], seat_z - 0.15, seat_z - 0.02, WHITE),
