@@ -5,3 +5,12 @@ imports no torch; the detector lives in its own package.
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    # ``rosmeery_jax.make`` without importing jax / MuJoCo for CLI paths that never need them.
+    if name == "make":
+        from rosmeery_jax.env import make
+
+        return make
+    raise AttributeError(f"module 'rosmeery_jax' has no attribute {name!r}")

@@ -47,6 +47,29 @@ def _cmd_world_show(args) -> int:
     return 0
 
 
+def _int_list(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: batch sizes must be >= 1")
+    return values
+
+
+def _cmd_bench(args) -> int:
+    from rosmeery_jax.bench import BenchConfig, format_table, run_bench
+    from rosmeery_jax.world import load_world
+
+    load_world(args.world)  # a bad name fails here, in one line, before any compile
+    cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,
+                      memory_batch=args.memory_batch)
+    quiet = (lambda msg: print(msg, file=sys.stderr)) if args.json else print
+    result = run_bench(cfg, progress=quiet)
+    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -62,6 +85,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("world", metavar="NAME_OR_PATH", help="built-in world name or path to an MJCF file")
     s.add_argument("--out", required=True, metavar="FILE.png")
     s.set_defaults(func=_cmd_world_show)
+
+    p = sub.add_parser("bench", help="env-steps/s by batch size, stage breakdown, and the C MuJoCo peer")
+    p.add_argument("--world", default="large_office", metavar="NAME_OR_PATH")
+    p.add_argument("--batches", type=_int_list, default=(1, 16, 64, 256), metavar="B,B,...")
+    p.add_argument("--steps", type=int, default=20, help="env-steps per timed chunk")
+    p.add_argument("--memory-batch", type=int, default=1024, metavar="B",
+                   help="also measure peak memory at this batch in a child process (0: skip)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (progress goes to stderr)")
+    p.set_defaults(func=_cmd_bench)
     return parser
 
 

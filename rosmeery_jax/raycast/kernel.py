@@ -125,6 +125,15 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float) -> 
     best0 = jnp.full(dx.shape, inf_bits, jnp.int32)
     best, _ = jax.lax.scan(chunk, best0, xs)
     box = best & ~keep  # (B, R)
+    out = _resolve(rs, o, d, box, max_range)
+    r = d.shape[1]
+    return Hit(*(a.reshape(*lead, r, *a.shape[2:]) for a in out))
+
+
+def _resolve(rs: RayScene, o: jax.Array, d: jax.Array, box: jax.Array, max_range: float) -> Hit:
+    """Exact distance, label and normal of rays o (B, 3) + t d (B, R, 3) against the chosen
+    box (B, R) or the floor, whichever is nearer."""
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
 
     # Exact distance and normal for the winning box.
     c, h = rs.center[box], rs.half[box]
@@ -146,11 +155,68 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float) -> 
     normal = jnp.where(floor_first[..., None], jnp.array([0.0, 0.0, 1.0]), n_box)
     label = jnp.where(floor_first, FLOOR, rs.label[box])
     box = jnp.where(floor_first, -1, box)
-    out = Hit(
+    return Hit(
         jnp.where(hit, t, max_range),
         jnp.where(hit, box, -1),
         jnp.where(hit, label, NOTHING),
         jnp.where(hit[..., None], normal, 0.0),
     )
-    r = d.shape[1]
-    return Hit(*(a.reshape(*lead, r, *a.shape[2:]) for a in out))
+
+
+def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float) -> Hit:
+    """Cast a level camera's rays (H, W, 3): every column shares one horizontal direction.
+
+    Exact, like :func:`cast`, and about twice as fast for camera images: the x / y slab test
+    runs once per column and box, and each pixel adds only the z slab. Along a column,
+    parameterise each ray by its horizontal distance s; a box's x / y slabs give an interval
+    [s0, s1] for the column, its z slab an interval per pixel, and the pixel's nearest box is
+    the one with the smallest entry s (t = s / |horizontal part of d|, the same order).
+    origin (..., 3); dirs (..., H, W, 3) with each column's horizontal direction constant.
+    """
+    lead = origin.shape[:-1]
+    h_, w_ = dirs.shape[-3], dirs.shape[-2]
+    o = origin.reshape(-1, 3)
+    d = dirs.reshape(o.shape[0], h_, w_, 3)
+    dc = jnp.swapaxes(d, 1, 2)  # (B, W, H, 3): a column's pixels on the minor axis
+    horiz = jnp.linalg.norm(dc[..., :2], axis=-1)  # (B, W, H)
+    ex = dc[:, :, 0, 0] / horiz[:, :, 0]  # (B, W) unit horizontal direction per column
+    ey = dc[:, :, 0, 1] / horiz[:, :, 0]
+    slope = dc[..., 2] / horiz  # dz per metre of horizontal travel
+    islope = 1.0 / jnp.where(jnp.abs(slope) < 1e-12, 1e-12, slope)  # (B, H, W)
+    bits = _index_bits(rs.num_boxes)
+    keep = jnp.int32(~((1 << bits) - 1))
+    inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
+    big = jnp.float32(1e30)
+    iex_ = lambda a: 1.0 / jnp.where(jnp.abs(a) < 1e-12, 1e-12, a)  # noqa: E731
+
+    def chunk(best, xs):
+        base, c, h, cs, sn = xs
+        for k in range(CHUNK):
+            ox, oy = o[:, 0] - c[k, 0], o[:, 1] - c[k, 1]  # (B,)
+            lx = (cs[k] * ox + sn[k] * oy)[:, None]
+            ly = (-sn[k] * ox + cs[k] * oy)[:, None]
+            ix = iex_(cs[k] * ex + sn[k] * ey)  # (B, W)
+            iy = iex_(-sn[k] * ex + cs[k] * ey)
+            tx1, tx2 = (-h[k, 0] - lx) * ix, (h[k, 0] - lx) * ix
+            ty1, ty2 = (-h[k, 1] - ly) * iy, (h[k, 1] - ly) * iy
+            s0 = jnp.maximum(jnp.minimum(tx1, tx2), jnp.minimum(ty1, ty2))[:, :, None]  # (B, W, 1)
+            s1 = jnp.minimum(jnp.maximum(tx1, tx2), jnp.maximum(ty1, ty2))[:, :, None]
+            zlo = (c[k, 2] - h[k, 2] - o[:, 2])[:, None, None]
+            zhi = (c[k, 2] + h[k, 2] - o[:, 2])[:, None, None]
+            z1, z2 = zlo * islope, zhi * islope  # (B, W, H)
+            enter = jnp.maximum(s0, jnp.minimum(z1, z2))
+            leave = jnp.minimum(s1, jnp.maximum(z1, z2))
+            t = jnp.where((leave >= enter) & (enter > 0.0), enter, big)
+            t = jnp.minimum(t, jnp.float32(3e38))
+            packed = (jax.lax.bitcast_convert_type(t, jnp.int32) & keep) | (base + k)
+            best = jnp.minimum(best, packed)
+        return best, None
+
+    n = rs.num_boxes // CHUNK
+    xs = (jnp.arange(n, dtype=jnp.int32) * CHUNK,
+          rs.center.reshape(n, CHUNK, 3), rs.half.reshape(n, CHUNK, 3),
+          rs.cos.reshape(n, CHUNK), rs.sin.reshape(n, CHUNK))
+    best, _ = jax.lax.scan(chunk, jnp.full(islope.shape, inf_bits, jnp.int32), xs)
+    box = jnp.swapaxes(best & ~keep, 1, 2).reshape(o.shape[0], h_ * w_)
+    out = _resolve(rs, o, d.reshape(o.shape[0], h_ * w_, 3), box, max_range)
+    return Hit(*(a.reshape(*lead, h_ * w_, *a.shape[2:]) for a in out))

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.raycast.kernel import RayScene, cast
+from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns
 from rosmeery_jax.world.scene import NOTHING
 
 
@@ -47,6 +47,10 @@ class CameraConfig:
     mount_height: float = 0.5
     mount_x: float = 0.1
     pitch: float = 0.0
+    cull: int = 128  # boxes cast per frame: the nearest ones that can appear in the frustum
+    # (0 = all). Exact whenever no more than this many boxes lie in the frustum and range;
+    # beyond that the farthest are dropped (they are nearly always hidden behind nearer
+    # ones: `rosmeery bench` reports the share of pixels that differ from casting all).
 
     def focal(self, width: int) -> float:
         return 0.5 * width / np.tan(0.5 * self.hfov)
@@ -84,6 +88,50 @@ def camera_pose(cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, jax.Arra
     return origin, axis
 
 
+def half_angle(cfg: CameraConfig, width: int, height: int) -> float:
+    """Largest horizontal angle (rad) between a camera ray and the optical axis' heading."""
+    d = camera_rays(cfg, width, height)
+    if np.any(d[:, 0] <= 0):
+        return float(np.pi)
+    return float(np.max(np.abs(np.arctan2(d[:, 1], d[:, 0]))))
+
+
+def frustum_boxes(rs: RayScene, cfg: CameraConfig, origin: jax.Array, yaw: jax.Array,
+                  width: int, height: int) -> RayScene:
+    """The ``cfg.cull`` boxes nearest the camera among those whose plan-view bounding circle
+    meets the camera's horizontal field of view within range (the whole scene if ``cull`` is 0
+    or not smaller than it). Conservative per box: a box left out cannot be hit unless more
+    than ``cull`` boxes pass the test."""
+    k = -(-cfg.cull // 16) * 16
+    if cfg.cull <= 0 or k >= rs.num_boxes:
+        return rs
+    rel = rs.center[:, :2] - origin[:2]
+    dist = jnp.linalg.norm(rel, axis=-1)
+    radius = jnp.linalg.norm(rs.half[:, :2], axis=-1)
+    near = dist - radius
+    off = jnp.abs(_wrap(jnp.arctan2(rel[:, 1], rel[:, 0]) - yaw))
+    spread = jnp.arcsin(jnp.clip(radius / jnp.maximum(dist, 1e-6), 0.0, 1.0))
+    seen = (near <= cfg.max_range) & ((off <= half_angle(cfg, width, height) + spread) | (dist <= radius))
+    _, idx = jax.lax.top_k(-jnp.where(seen, near, jnp.inf), k)
+    return RayScene(rs.center[idx], rs.half[idx], rs.cos[idx], rs.sin[idx], rs.label[idx], rs.rgb[idx], rs.floor_rgb)
+
+
+def _wrap(a):
+    return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
+
+
+def _camera_cast(rs: RayScene, cfg: CameraConfig, pose: jax.Array, width: int, height: int):
+    """(hit, world ray directions (H*W, 3), culled scene) for a camera image of width x height."""
+    o, _ = camera_pose(cfg, pose)
+    d = _yaw_rotate(jnp.asarray(camera_rays(cfg, width, height)), pose[2])
+    rs = frustum_boxes(rs, cfg, o, pose[2], width, height)
+    if cfg.pitch == 0.0:  # a level camera: its columns are vertical fans (cast_columns)
+        hit = cast_columns(rs, o, d.reshape(height, width, 3), cfg.max_range)
+    else:
+        hit = cast(rs, o, d, cfg.max_range)
+    return hit, d, rs
+
+
 def laser(rs: RayScene, cfg: LaserConfig, pose: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Ranges (beams,) and labels (beams,) for a robot pose (3,). No return: max_range, NOTHING."""
     ang = pose[2] + jnp.asarray(laser_dirs(cfg))
@@ -96,9 +144,8 @@ def laser(rs: RayScene, cfg: LaserConfig, pose: jax.Array) -> tuple[jax.Array, j
 
 def depth_seg(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Depth (H, W) along the optical axis (max_range where nothing) and labels (H, W)."""
-    o, axis = camera_pose(cfg, pose)
-    d = _yaw_rotate(jnp.asarray(camera_rays(cfg, cfg.width, cfg.height)), pose[2])
-    hit = cast(rs, o, d, cfg.max_range)
+    _, axis = camera_pose(cfg, pose)
+    hit, d, _ = _camera_cast(rs, cfg, pose, cfg.width, cfg.height)
     depth = jnp.where(hit.label == NOTHING, cfg.max_range, hit.dist * (d @ axis))
     return depth.reshape(cfg.height, cfg.width), hit.label.reshape(cfg.height, cfg.width)
 
@@ -110,8 +157,7 @@ def rgb(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, ja
     distance fade, so shapes read as they would in a plain rendered scene.
     """
     o, _ = camera_pose(cfg, pose)
-    d = _yaw_rotate(jnp.asarray(camera_rays(cfg, cfg.rgb_width, cfg.rgb_height)), pose[2])
-    hit = cast(rs, o, d, cfg.max_range)
+    hit, d, rs = _camera_cast(rs, cfg, pose, cfg.rgb_width, cfg.rgb_height)
     base = jnp.where((hit.box >= 0)[..., None], rs.rgb[jnp.maximum(hit.box, 0)], rs.floor_rgb)
     p = o + hit.dist[..., None] * d
     grid = (jnp.abs(p[..., 0] - jnp.round(p[..., 0])) < 0.01) | (jnp.abs(p[..., 1] - jnp.round(p[..., 1])) < 0.01)

@@ -1,0 +1,279 @@
+"""``rosmeery bench``: how fast the batched platform steps, and the C MuJoCo peer on the same work.
+
+One env-step is 0.1 s of simulated time: MJX physics substeps, the laser, the depth +
+segmentation camera, the occupancy map and the navigator, with every robot driving to its
+own random reachable target (target action mode). Figures per batch size B: env-steps/s
+(median of ``repeats`` timed chunks of ``steps`` steps inside one ``lax.scan``) and the
+first call's compile time. At the reference batch: a per-stage breakdown (each stage jitted
+and vmapped alone), the share of camera pixels the frustum cull changes, and the CPU peer:
+C MuJoCo physics through ``mujoco.rollout`` (threads = cores) plus ``mj_multiRay`` for the
+same laser and camera rays from the same poses (a thread pool of cores; the binding releases
+the GIL). The peer does no mapping or navigation, so the comparison flatters it. Its
+physics runs open-loop over the whole chunk in one call, its best case.
+
+Peak memory of a 1,024-robot batch is measured in a child process (``--memory-batch``),
+so the figure is that batch's alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    world: str = "large_office"
+    batches: tuple[int, ...] = (1, 16, 64, 256)
+    reference_batch: int = 64
+    steps: int = 20
+    repeats: int = 3
+    memory_batch: int = 1024
+    seed: int = 0
+
+
+def random_targets(world, n: int, seed: int) -> np.ndarray:
+    """(n, 3) target poses at random reachable free-space cells, random yaw."""
+    fs = world.free_space
+    rng = np.random.default_rng(seed)
+    ii, jj = np.nonzero(fs.reachable)
+    k = rng.integers(len(ii), size=n)
+    x = fs.origin[0] + (jj[k] + 0.5) * fs.resolution
+    y = fs.origin[1] + (ii[k] + 0.5) * fs.resolution
+    return np.stack([x, y, rng.uniform(-np.pi, np.pi, n)], -1).astype(np.float32)
+
+
+def _timed(fn, *args, repeats: int) -> tuple[float, list[float], object]:
+    """(first-call seconds, steady-call seconds, last output) of a jitted fn."""
+    import jax
+
+    t = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - t
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t)
+    return first, times, out
+
+
+def _rollout_fn(env, steps: int):
+    import jax
+
+    @jax.jit
+    def run(state, targets):
+        def body(s, _):
+            return jax.vmap(env.step)(s, targets), None
+
+        return jax.lax.scan(body, state, None, length=steps)[0]
+
+    return run
+
+
+def env_throughput(env, batch: int, cfg: BenchConfig) -> dict:
+    """Full-step env-steps/s and compile time at one batch size; also returns the final state."""
+    import jax
+    import jax.numpy as jnp
+
+    keys = jax.random.split(jax.random.key(cfg.seed), batch)
+    state = jax.jit(jax.vmap(env.reset))(keys)
+    targets = jnp.asarray(random_targets(env.world, batch, cfg.seed))
+    run = _rollout_fn(env, cfg.steps)
+    t = time.perf_counter()
+    compiled = run.lower(state, targets).compile()
+    compile_s = time.perf_counter() - t
+    state = jax.block_until_ready(compiled(state, targets))  # warm: robots on their way
+    _, times, state = _timed(compiled, state, targets, repeats=cfg.repeats)
+    return {"batch": batch, "env_steps_per_s": batch * cfg.steps / statistics.median(times),
+            "compile_s": compile_s, "state": state}
+
+
+def stage_breakdown(env, state, cfg: BenchConfig) -> dict[str, float]:
+    """Milliseconds per step of each stage alone at the state's batch size."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax import mapping
+    from rosmeery_jax.raycast.sensors import depth_seg, laser
+
+    c = env.config
+    batch = state.pose.shape[0]
+    cmd = jnp.tile(jnp.array([0.5, 0.3], jnp.float32), (batch, 1))
+    ranges, labels = jax.vmap(lambda p: laser(env.rays, c.laser, p))(state.pose)
+    occupied = jax.vmap(env.occupancy)(state) == mapping.OCCUPIED
+
+    def per_step(f):
+        """Seconds per call of jitted f, over ``steps`` calls queued back to back."""
+        g = jax.jit(f)
+        def many(*args):
+            for _ in range(cfg.steps):
+                out = g(*args)
+            return out
+        return many
+
+    def update_map(lo, p, r, lab):
+        return mapping.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
+
+    stages = {
+        "physics": (jax.vmap(env.platform.step), (state.physics, cmd)),
+        "laser": (jax.vmap(lambda p: laser(env.rays, c.laser, p)), (state.pose,)),
+        "mapping": (jax.vmap(update_map), (state.logodds, state.pose, ranges, labels)),
+        "camera": (jax.vmap(lambda p: depth_seg(env.rays, c.camera, p)), (state.pose,)),
+        "navigation": (jax.vmap(env.navigator.step), (state.nav, state.pose, occupied)),
+    }
+    out = {}
+    for name, (f, args) in stages.items():
+        _, times, _ = _timed(per_step(f), *args, repeats=cfg.repeats)
+        out[name] = 1e3 * statistics.median(times) / cfg.steps
+    return out
+
+
+def cull_error(env, poses) -> float:
+    """Share of camera pixels whose label differs between the culled and the all-box cast."""
+    import jax
+    from dataclasses import replace
+
+    from rosmeery_jax.raycast.sensors import depth_seg
+
+    full = replace(env.config.camera, cull=0)
+    _, a = jax.jit(jax.vmap(lambda p: depth_seg(env.rays, env.config.camera, p)))(poses)
+    _, b = jax.jit(jax.vmap(lambda p: depth_seg(env.rays, full, p)))(poses)
+    return float(np.mean(np.asarray(a) != np.asarray(b)))
+
+
+def mujoco_peer(env, batch: int, cfg: BenchConfig, threads: int) -> dict:
+    """C MuJoCo physics (rollout) + mj_multiRay for the same sensors: env-steps/s."""
+    import mujoco
+    from mujoco import rollout
+
+    from rosmeery_jax.raycast.sensors import camera_rays, laser_dirs
+
+    m = env.platform.mj_model
+    rc = env.config.robot
+    nstep = cfg.steps * rc.substeps
+    datas = [mujoco.MjData(m) for _ in range(threads)]
+    init = np.zeros((batch, mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)))
+    d0 = mujoco.MjData(m)
+    mujoco.mj_forward(m, d0)
+    mujoco.mj_getState(m, d0, init[0], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    init[:] = init[0]
+    rng = np.random.default_rng(cfg.seed)
+    ctrl = np.repeat(rng.uniform(-1, 1, (batch, cfg.steps, m.nu)), rc.substeps, axis=1)
+    rollout.rollout(m, datas, init, ctrl, nstep=nstep)  # warm the pool
+    t = time.perf_counter()
+    states, _ = rollout.rollout(m, datas, init, ctrl, nstep=nstep)
+    physics_s = time.perf_counter() - t
+
+    # Sensors from every env's pose after each control step, on the world's own MjModel.
+    wm = env.world.mj_model
+    qpos = states[:, rc.substeps - 1::rc.substeps, 1:4]  # (B, T, 3): state = time, qpos, ...
+    poses = (qpos + np.r_[env.world.spawn[:2], 0.0]).reshape(-1, 3)
+    cam = camera_rays(env.config.camera, env.config.camera.width, env.config.camera.height).astype(np.float64)
+    beams = laser_dirs(env.config.laser).astype(np.float64)
+    c, lz = env.config.camera, env.config.laser.height
+
+    def cast_chunk(chunk):
+        d = mujoco.MjData(wm)
+        mujoco.mj_forward(wm, d)
+        n_cam, n_las = len(cam), len(beams)
+        gid_c, dist_c = np.zeros(n_cam, np.int32), np.zeros(n_cam)
+        gid_l, dist_l = np.zeros(n_las, np.int32), np.zeros(n_las)
+        for x, y, yaw in chunk:
+            cs, sn = np.cos(yaw), np.sin(yaw)
+            vec = np.stack([cs * cam[:, 0] - sn * cam[:, 1], sn * cam[:, 0] + cs * cam[:, 1], cam[:, 2]], -1)
+            pnt = np.array([x + c.mount_x * cs, y + c.mount_x * sn, c.mount_height])
+            mujoco.mj_multiRay(wm, d, pnt, vec.ravel(), None, 1, -1, gid_c, dist_c, None, n_cam, c.max_range)
+            las = np.stack([np.cos(yaw + beams), np.sin(yaw + beams), np.zeros_like(beams)], -1)
+            mujoco.mj_multiRay(wm, d, np.array([x, y, lz]), las.ravel(), None, 1, -1, gid_l, dist_l, None,
+                               n_las, env.config.laser.max_range)
+
+    chunks = np.array_split(poses, threads)
+    with ThreadPoolExecutor(threads) as pool:
+        t = time.perf_counter()
+        list(pool.map(cast_chunk, chunks))
+        rays_s = time.perf_counter() - t
+    n = batch * cfg.steps
+    return {"env_steps_per_s": n / (physics_s + rays_s), "physics_env_steps_per_s": n / physics_s,
+            "sensor_env_steps_per_s": n / rays_s, "threads": threads}
+
+
+def memory_probe(world: str, batch: int, steps: int) -> float:
+    """Peak resident memory (GB) of a child process that runs ``steps`` env-steps at ``batch``."""
+    code = (
+        "import resource, jax, jax.numpy as jnp;"
+        "from rosmeery_jax.env import make; from rosmeery_jax.bench import random_targets, _rollout_fn;"
+        f"env = make({world!r}); keys = jax.random.split(jax.random.key(0), {batch});"
+        "s = jax.jit(jax.vmap(env.reset))(keys);"
+        f"t = jnp.asarray(random_targets(env.world, {batch}, 0));"
+        f"jax.block_until_ready(_rollout_fn(env, {steps})(s, t));"
+        "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return int(out.stdout.strip().splitlines()[-1]) / 1e6  # ru_maxrss is KiB on Linux
+
+
+def run_bench(cfg: BenchConfig, progress=print) -> dict:
+    import jax
+
+    from rosmeery_jax.env import make
+
+    env = make(cfg.world)
+    threads = os.cpu_count() or 1
+    result: dict = {"world": cfg.world, "steps_per_chunk": cfg.steps, "cores": threads,
+                    "jax": jax.__version__, "env_steps_per_s": {}, "compile_s": {}}
+    ref_state = None
+    for b in cfg.batches:
+        progress(f"batch {b} ...")
+        r = env_throughput(env, b, cfg)
+        result["env_steps_per_s"][str(b)] = round(r["env_steps_per_s"], 1)
+        result["compile_s"][str(b)] = round(r["compile_s"], 2)
+        if b == cfg.reference_batch:
+            ref_state = r["state"]
+    if ref_state is None:
+        ref_state = env_throughput(env, cfg.reference_batch, cfg)["state"]
+    progress(f"stages at batch {cfg.reference_batch} ...")
+    result["stages_ms"] = {k: round(v, 3) for k, v in stage_breakdown(env, ref_state, cfg).items()}
+    result["camera_cull_pixel_error"] = cull_error(env, ref_state.pose)
+    progress("C MuJoCo peer ...")
+    peer = mujoco_peer(env, cfg.reference_batch, cfg, threads)
+    result["mujoco_c"] = {k: (round(v, 1) if isinstance(v, float) else v) for k, v in peer.items()}
+    ours = result["env_steps_per_s"].get(str(cfg.reference_batch)) or env_throughput(env, cfg.reference_batch, cfg)["env_steps_per_s"]
+    result["speedup_vs_mujoco_c"] = round(ours / peer["env_steps_per_s"], 2)
+    result["reference_batch"] = cfg.reference_batch
+    result["peak_memory_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 2)
+    if cfg.memory_batch:
+        progress(f"memory at batch {cfg.memory_batch} ...")
+        result["memory_batch"] = cfg.memory_batch
+        result["memory_batch_peak_gb"] = round(memory_probe(cfg.world, cfg.memory_batch, 2), 2)
+    return result
+
+
+def format_table(r: dict) -> str:
+    lines = [f"rosmeery bench: {r['world']}, {r['cores']} cores, jax {r['jax']}, one step = 0.1 s simulated",
+             "", f"{'batch':>6}{'env-steps/s':>14}{'compile s':>11}"]
+    for b, v in r["env_steps_per_s"].items():
+        lines.append(f"{b:>6}{v:>14,.0f}{r['compile_s'][b]:>11.1f}")
+    ref = r["reference_batch"]
+    lines += ["", f"stages at batch {ref} (each alone, ms per step):"]
+    total = sum(r["stages_ms"].values())
+    for k, v in r["stages_ms"].items():
+        lines.append(f"  {k:<11}{v:>8.2f} ms  {100 * v / total:>4.0f}%")
+    lines.append(f"  camera cull changes {100 * r['camera_cull_pixel_error']:.3f}% of pixels")
+    p = r["mujoco_c"]
+    lines += ["", f"C MuJoCo peer at batch {ref} ({p['threads']} threads): {p['env_steps_per_s']:,.0f} env-steps/s "
+              f"(physics alone {p['physics_env_steps_per_s']:,.0f}, sensors alone {p['sensor_env_steps_per_s']:,.0f})",
+              f"speedup vs MuJoCo C: {r['speedup_vs_mujoco_c']:.2f}x",
+              f"peak memory (this process): {r['peak_memory_gb']:.2f} GB"]
+    if "memory_batch" in r:
+        lines.append(f"peak memory at batch {r['memory_batch']}: {r['memory_batch_peak_gb']:.2f} GB")
+    return "\n".join(lines)
