@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
+from rosmeery_jax.mjx import mjx
 
 from rosmeery_jax import mapping
 from rosmeery_jax.errors import InputError

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+from rosmeery_jax.mjx import mjx
 
 from rosmeery_jax.world import World
 
