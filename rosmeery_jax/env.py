@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from rosmeery_jax.mjx import mjx
 
 from rosmeery_jax import mapping
+from rosmeery_jax.knowledge import Knowledge, KnowledgeConfig, ObjectLog, SpatialKnowledge
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.mapping import GridGeometry, MapConfig
 from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
@@ -39,6 +40,9 @@ class EnvConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     mapping: MapConfig = field(default_factory=MapConfig)
     nav: NavConfig = field(default_factory=NavConfig)
+    knowledge: KnowledgeConfig = field(default_factory=KnowledgeConfig)
+    labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
+    # (detector off); "detections": only what `Env.attach` folds in (a detector)
 
     def with_overrides(self, **overrides: Any) -> "EnvConfig":
         """Override top-level fields, or nested ones as ``section__field=value``."""
@@ -55,6 +59,8 @@ class EnvConfig:
                 cfg = replace(cfg, **{section: replace(sub, **{name: value})})
             else:
                 cfg = replace(cfg, **{section: value})
+        if cfg.labels not in ("observed", "detections"):
+            raise InputError("config", "labels", f"{cfg.labels!r} is not 'observed' or 'detections'")
         if cfg.action_mode not in ("velocity", "target"):
             raise InputError("config", "action_mode", f"{cfg.action_mode!r} is not 'velocity' or 'target'")
         return cfg
@@ -65,7 +71,8 @@ class State(NamedTuple):
 
     physics: MJX data; pose (3,) x, y, yaw; logodds (H, W) the robot's occupancy map;
     nav: navigator state; ranges (K,) laser; depth (h, w) and seg (h, w) camera;
-    t int32 control steps since reset; key: PRNG key for stochastic consumers.
+    t int32 control steps since reset; key: PRNG key for stochastic consumers;
+    knowledge: the spatial knowledge (coverage of the ground-truth samples, labels).
     """
 
     physics: mjx.Data
@@ -77,6 +84,7 @@ class State(NamedTuple):
     seg: jax.Array
     t: jax.Array
     key: jax.Array
+    knowledge: Knowledge
 
 
 class Env:
@@ -91,6 +99,7 @@ class Env:
         self.navigator = Navigator(self.grid, config.nav, r.control_dt, r.max_speed, r.max_turn_rate)
         self.beam_angles = jnp.asarray(laser_dirs(config.laser))
         self.dt = r.control_dt
+        self.sk = SpatialKnowledge(world, config.knowledge, config.camera)
 
     def reset(self, key: jax.Array) -> State:
         pose = jnp.asarray(self.world.spawn, jnp.float32)
@@ -98,7 +107,7 @@ class Env:
                       jnp.zeros(self.config.laser.beams, jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.int32),
-                      jnp.int32(0), key)
+                      jnp.int32(0), key, self.sk.init())
         return self._sense(state)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -120,7 +129,22 @@ class Env:
         logodds = mapping.update(state.logodds, self.grid, self.config.mapping, state.pose[:2],
                                  state.pose[2] + self.beam_angles, ranges, labels)
         depth, seg = depth_seg(self.rays, self.config.camera, state.pose)
-        return state._replace(ranges=ranges, logodds=logodds, depth=depth, seg=seg)
+        knowledge = self.sk.observe(state.knowledge, state.pose, depth)
+        return state._replace(ranges=ranges, logodds=logodds, depth=depth, seg=seg, knowledge=knowledge)
+
+    def attach(self, state: State, obj: jax.Array, label: jax.Array, conf: jax.Array) -> State:
+        """Fold detections (D,) object index / category / confidence into the knowledge."""
+        return state._replace(knowledge=self.sk.attach(state.knowledge, obj, label, conf))
+
+    def knowledge(self, state: State) -> Knowledge:
+        """The knowledge with the label rule of ``config.labels`` applied."""
+        if self.config.labels == "observed":
+            return self.sk.label_observed(state.knowledge)
+        return state.knowledge
+
+    def log(self, state: State) -> ObjectLog:
+        """Per-object row for the metrics (one env; vmap for a batch)."""
+        return self.sk.log(self.knowledge(state))
 
     def occupancy(self, state: State) -> jax.Array:
         """(…, H, W) int8 UNKNOWN / FREE / OCCUPIED of the robot's own map."""
