@@ -1,0 +1,77 @@
+"""Semantic map export: SM = <R, M, P> of one env at one time.
+
+- M, the segmented point cloud: ``<stem>.ply`` (binary, written with trimesh). One vertex per
+  ground-truth surface sample the robot's depth camera has observed, at its position in the
+  map frame (float x, y, z) with ``object_id`` (int, index into the JSON's objects), ``label``
+  (int, category index in the taxonomy, -1 when the robot holds no label) and ``confidence``
+  (float, of the held label).
+- R and P: ``<stem>.json`` (schema: ``rosmeery_jax/data/semantic_map.schema.json``):
+  ``frame`` (id, world, units, axes, time_s), ``objects`` (per object with at least one
+  observed point: id, name, label, confidence, observed_points and the axis-aligned bounding
+  box of its observed points in the map frame: what the robot perceived, not the ground
+  truth box) and ``predicates`` (the triples the robot declares from its labels).
+
+The map frame is the world frame (z up, metres): the robot is told its pose.
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from rosmeery_jax.results import write_atomic
+
+SCHEMA_PATH = resources.files("rosmeery_jax") / "data" / "semantic_map.schema.json"
+
+
+def semantic_map(world, knowledge, time_s: float) -> tuple[trimesh.Trimesh, dict]:
+    """(point cloud with vertex attributes, R + P as a JSON-ready dict) from one env's
+    :class:`Knowledge` (numpy or jax arrays, no batch axis)."""
+    truth = world.truth
+    seen = np.asarray(knowledge.seen) > 0.5
+    obj = np.asarray(truth.samples.object)[seen]
+    label = np.asarray(knowledge.label)
+    conf = np.asarray(knowledge.confidence, np.float32)
+    pts = np.asarray(truth.samples.points)[seen]
+    cloud = trimesh.Trimesh(vertices=pts, faces=np.zeros((0, 3), np.int64), process=False)
+    cloud.vertex_attributes["object_id"] = obj.astype(np.int32)
+    cloud.vertex_attributes["label"] = label[obj].astype(np.int32)
+    cloud.vertex_attributes["confidence"] = conf[obj]
+    names = world.taxonomy.names
+    objects, predicates = [], []
+    for n in np.unique(obj):
+        p = pts[obj == n].astype(np.float64)
+        lo, hi = p.min(0), p.max(0)
+        k = int(label[n])
+        name = truth.names[n]
+        objects.append({
+            "id": int(n), "name": name, "label": names[k] if k >= 0 else None,
+            "confidence": round(float(conf[n]), 6), "observed_points": int(len(p)),
+            "bbox": {"center": ((lo + hi) / 2).round(4).tolist(), "size": (hi - lo).round(4).tolist(), "yaw": 0.0},
+        })
+        if k >= 0:
+            predicates += [list(t) for t in world.taxonomy.predicates(name, names[k])]
+    meta = {
+        "frame": {"id": "map", "world": world.name, "units": "m", "axes": "x forward, y left, z up (world)",
+                  "time_s": float(time_s)},
+        "objects": objects,
+        "predicates": predicates,
+    }
+    return cloud, meta
+
+
+def write_semantic_map(directory: str | Path, stem: str, world, knowledge, time_s: float) -> tuple[Path, Path]:
+    """Write ``<stem>.ply`` and ``<stem>.json`` into directory (atomically)."""
+    cloud, meta = semantic_map(world, knowledge, time_s)
+    d = Path(directory)
+    ply = write_atomic(d / f"{stem}.ply", trimesh.exchange.ply.export_ply(cloud, encoding="binary", include_attributes=True))
+    js = write_atomic(d / f"{stem}.json", json.dumps(meta, indent=1))
+    return ply, js
+
+
+def load_schema() -> dict:
+    return json.loads(SCHEMA_PATH.read_text())

@@ -1,0 +1,283 @@
+"""Coverage, spatial knowledge, metrics, semantic map export and `rosmeery replay`."""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import jax
+import jax.numpy as jnp
+import jsonschema
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from conftest import room_xml
+from rosmeery_jax import metrics
+from rosmeery_jax.cli import main
+from rosmeery_jax.env import make
+from rosmeery_jax.export import load_schema
+from rosmeery_jax.knowledge import GroundTruthTable, ObjectLog, predicate_tables
+from rosmeery_jax.replay import replay
+from rosmeery_jax.taxonomy import load_taxonomy
+
+# A room 8 m across. The camera (robot at the origin facing +x: camera at (0.1, 0, 0.5))
+# sees the 1 m x 1 m front face of "front" (x = 1.7), and nothing else of it: its sides lie
+# in the planes y = +-0.5, on either side of the camera, and its top (z = 1 m, above the
+# camera) is not observable. "hidden" stands right behind it; "behind" is behind the camera.
+_BOXES = """
+<body name="front" pos="2.0 0 0.5"><geom type="box" size="0.3 0.5 0.5"/></body>
+<body name="hidden" pos="3.2 0 0.3"><geom type="box" size="0.2 0.3 0.3"/></body>
+<body name="behind" pos="-2.0 0 0.3"><geom type="box" size="0.3 0.3 0.3"/></body>
+"""
+_CATEGORIES = {"front": "cabinet", "hidden": "chair", "behind": "couch"}
+
+
+@pytest.fixture(scope="module")
+def three_box_world(tmp_path_factory):
+    path = tmp_path_factory.mktemp("worlds") / "three_boxes.xml"
+    path.write_text(room_xml(_BOXES, _CATEGORIES, half=4.0))
+    return path
+
+
+@functools.lru_cache(maxsize=None)
+def _env(path: str, **overrides):
+    return make(path, **overrides)
+
+
+def _one_pose(env):
+    return replay(env, np.array([0.0]), np.zeros((1, 3), np.float32))
+
+
+def test_single_box_covers_its_visible_face_and_nothing_hidden(three_box_world):
+    env = _env(str(three_box_world))
+    truth = env.world.truth
+    run = _one_pose(env)
+    ps = run.logs.ps[-1]
+    front, hidden, behind = (truth.names.index(n) for n in ("front", "hidden", "behind"))
+    # By hand: observable surface of "front" = front + back faces (1 x 1 m each) + the two
+    # side faces (0.6 x 1 m each) = 3.2 m^2 (top above the camera, bottom on the floor);
+    # the visible front face is 1 m^2 of it.
+    assert ps[front] / truth.ps_G[front] == pytest.approx(1.0 / 3.2, abs=0.02)
+    # Exactly the samples on the face looking at the camera, all of them.
+    s = truth.samples
+    on_front_face = (s.object == front) & (s.normals[:, 0] < -0.99)
+    seen = run.knowledge.seen
+    assert np.array_equal(seen & (s.object == front), on_front_face)
+    assert ps[hidden] == 0
+    assert ps[behind] == 0
+
+
+def test_object_beyond_camera_range_is_not_covered(three_box_world):
+    env = _env(str(three_box_world), camera__max_range=1.5)  # "front" is 1.6 m away
+    assert int(_one_pose(env).logs.ps[-1].sum()) == 0
+
+
+def test_turning_round_covers_the_box_behind(three_box_world):
+    env = _env(str(three_box_world))
+    behind = env.world.truth.names.index("behind")
+    run = replay(env, np.array([0.0, 1.0]), np.array([[0, 0, 0], [0, 0, np.pi]], np.float32))
+    assert run.logs.ps[0, behind] == 0 and run.logs.ps[1, behind] > 0
+
+
+def test_soft_coverage_is_a_smooth_version_of_the_hard_test(three_box_world):
+    hard = _one_pose(_env(str(three_box_world)))
+    from rosmeery_jax.coverage import CoverageConfig
+    from rosmeery_jax.knowledge import KnowledgeConfig
+
+    env = _env(str(three_box_world), knowledge=KnowledgeConfig(coverage=CoverageConfig(soft=True, temperature=0.01)))
+    soft = _one_pose(env)
+    front = env.world.truth.names.index("front")
+    assert soft.logs.ps[-1, front] == pytest.approx(hard.logs.ps[-1, front], rel=0.1)
+    # and it has a gradient with respect to the pose
+    from rosmeery_jax import coverage
+    from rosmeery_jax.raycast.sensors import depth_seg
+
+
+    def covered(x):
+        pose = jnp.array([0.0, 0.0, 0.0]) + jnp.array([x, 0.0, 0.0])
+        depth, _ = depth_seg(env.rays, env.config.camera, pose)
+        return coverage.observed_soft(env.sk.table, env.sk.cfg.coverage, env.config.camera, pose, depth).sum()
+
+    g = jax.grad(covered)(0.0)
+    assert np.isfinite(g) and g != 0.0
+
+
+def _table_log():
+    # Two objects, two times. Hand arithmetic in the test below.
+    log = ObjectLog(ps=np.array([[0, 0], [50, 25]], float), conf_true=np.array([[0, 0], [0.8, 0]]),
+                    conf_any=np.array([[0, 0], [0.8, 0.5]]), label=np.array([[-1, -1], [3, 7]]),
+                    declared=np.array([[0, 0], [3, 3]]), correct=np.array([[0, 0], [3, 1]]))
+    truth = GroundTruthTable(ps_G=np.array([100, 50]), P_G=np.array([3, 3]), category=np.array([3, 5]))
+    return log, truth
+
+
+def test_metrics_match_hand_arithmetic():
+    log, truth = _table_log()
+    c = metrics.compute(log, truth)
+    # ORI(t1) = 1 - (|100 - 50| / 100 + |50 - 25| / 50) / 2 = 0.5
+    np.testing.assert_allclose(c["ori"], [0.0, 0.5], atol=1e-6)
+    # cORI(t1) = 1 - (|100 - 0.8 * 50| / 100 + |50 - 0| / 50) / 2 = 1 - (0.6 + 1) / 2 = 0.2
+    np.testing.assert_allclose(c["cori"], [0.0, 0.2], atol=1e-6)
+    # label-agnostic: 1 - (0.6 + |50 - 0.5 * 25| / 50) / 2 = 1 - (0.6 + 0.75) / 2 = 0.325
+    np.testing.assert_allclose(c["cori_any"], [0.0, 0.325], atol=1e-6)
+    # OPI(t1) = 1 - (0 + 0) / 2 = 1; strict: object 2 has 1 correct, 2 false:
+    # 1 - (0 + (|3 - 1| + 2) / 3) / 2 = 1 - 2 / 3
+    np.testing.assert_allclose(c["opi"], [0.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(c["opi_strict"], [0.0, 1 / 3], atol=1e-6)
+
+
+def test_summary_figures():
+    t = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
+    s = metrics.summarize(t, np.array([0.0, 0.2, 0.5, 0.9, 1.0]))
+    assert s["final"] == 1.0
+    assert s["auc"] == pytest.approx((0.1 + 0.35 + 0.7 + 0.95) / 4)
+    assert s["t50_s"] == 2.0 and s["t90_s"] == 3.0
+    assert np.isnan(metrics.summarize(t, np.zeros(5))["t50_s"])
+
+
+def test_predicates_from_labels_count_correct_levels():
+    tax = load_taxonomy()
+    declared, correct = predicate_tables(tax, ("chair", "refrigerator"))
+    assert set(declared) == {3}
+    assert correct[0, tax.index("chair")] == 3
+    assert correct[0, tax.index("couch")] == 2  # same macro (seating) and root
+    assert correct[0, tax.index("desk")] == 1  # same root (furniture) only
+    assert correct[1, tax.index("chair")] == 0
+
+
+def test_unknown_metric_is_one_clear_error():
+    with pytest.raises(Exception, match="unknown metric 'nope'"):
+        metrics.resolve(["ori", "nope"])
+
+
+_TRAJ_LEN = 6
+
+
+@functools.lru_cache(maxsize=None)
+def _small_office():
+    return make("small_office")
+
+
+@st.composite
+def _trajectories(draw):
+    env = _small_office()
+    cells = np.argwhere(env.world.free_space.reachable)
+    fs = env.world.free_space
+    idx = draw(st.lists(st.integers(0, len(cells) - 1), min_size=_TRAJ_LEN, max_size=_TRAJ_LEN))
+    yaw = draw(st.lists(st.floats(-np.pi, np.pi), min_size=_TRAJ_LEN, max_size=_TRAJ_LEN))
+    c = cells[idx]
+    return np.stack([fs.origin[0] + (c[:, 1] + 0.5) * fs.resolution, fs.origin[1] + (c[:, 0] + 0.5) * fs.resolution,
+                     np.asarray(yaw)], -1).astype(np.float32)
+
+
+@settings(max_examples=8, deadline=None)
+@given(_trajectories(), st.integers(0, 2**31 - 1))
+def test_metric_invariants_on_random_trajectories(poses, det_seed):
+    env = _small_office()
+    times = np.arange(_TRAJ_LEN, dtype=float)
+    run = replay(env, times, poses)
+    # Detections with random labels and confidences, attached as a detector would, so cORI
+    # and OPI-strict see wrong labels and confidences below 1.
+    rng = np.random.default_rng(det_seed)
+    n, ncat = env.world.truth.num_objects, len(env.world.taxonomy.names)
+    k = env.sk.init()._replace(seen=jnp.asarray(run.knowledge.seen))
+    logs = []
+    for _ in range(_TRAJ_LEN):
+        obj = rng.integers(-1, n, 5)
+        lab = np.where(rng.random(5) < 0.5, np.asarray(env.world.truth.category_index)[np.maximum(obj, 0)],
+                       rng.integers(0, ncat, 5))
+        k = env.sk.attach(k, jnp.asarray(obj, jnp.int32), jnp.asarray(lab, jnp.int32), jnp.asarray(rng.random(5), jnp.float32))
+        logs.append(env.sk.log(k))
+    det_logs = jax.tree.map(lambda *a: np.stack(a), *logs)
+    for log in (run.logs, det_logs):
+        c = metrics.compute(log, env.sk.truth)
+        for name, curve in c.items():
+            assert np.all((curve >= 0) & (curve <= 1)), name
+        assert np.all(np.diff(c["ori"]) >= -1e-9)
+        assert np.all(np.diff(c["opi"]) >= -1e-9)
+        assert np.all(c["cori"] <= c["ori"] + 1e-9)
+        assert np.all(c["cori_any"] <= c["ori"] + 1e-9)
+    again = replay(env, times, poses)
+    for a, b in zip(run.logs, again.logs):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_env_rollout_coverage_grows_and_logs_vmap():
+    env = _small_office()
+    keys = jax.random.split(jax.random.key(0), 2)
+    state = jax.jit(jax.vmap(env.reset))(keys)
+    step = jax.jit(jax.vmap(env.step))
+    log = jax.jit(jax.vmap(env.log))
+    first = log(state).ps.sum(-1)
+    target = jnp.tile(jnp.asarray(env.world.spawn, jnp.float32) + jnp.array([0.0, 0.0, np.pi]), (2, 1))
+    for _ in range(15):
+        state = step(state, target)
+    last = log(state)
+    assert np.all(np.asarray(last.ps.sum(-1)) > np.asarray(first))
+    assert np.all(np.asarray(last.ps) <= np.asarray(env.world.truth.ps_G))
+
+
+
+
+@metrics.register("half_ori")
+def _half_ori(log, truth):
+    return 0.5 * metrics.REGISTRY["ori"](log, truth)
+
+
+@pytest.fixture(scope="module")
+def replay_dir(tmp_path_factory):
+    """`rosmeery replay` on a turn on the spot in the Small Office, with a user metric."""
+    from rosmeery_jax.world import load_world
+
+    d = tmp_path_factory.mktemp("replay")
+    sx, sy, syaw = load_world("small_office").spawn
+    t = np.arange(0.0, 8.0, 0.5)
+    pd.DataFrame({"t": t, "x": sx, "y": sy, "yaw": syaw + np.linspace(0, 2 * np.pi, len(t))}).to_csv(d / "p.csv", index=False)
+    assert main(["replay", "--world", "small_office", "--poses", str(d / "p.csv"), "--out", str(d / "out"),
+                 "--metrics", "ori,cori,opi,half_ori"]) == 0
+    return d / "out"
+
+
+def test_replay_writes_curves_with_a_user_metric(replay_dir):
+    df = pd.read_csv(replay_dir / "metrics.csv")
+    assert list(df.columns) == ["world", "policy", "detector", "seed", "time_s", "metric", "value"]
+    assert set(df.metric) == {"ori", "cori", "opi", "half_ori"}
+    assert set(df.policy) == {"replay"}
+    ori = df[df.metric == "ori"].value.to_numpy()
+    np.testing.assert_allclose(df[df.metric == "half_ori"].value.to_numpy(), 0.5 * ori)
+    assert ori[-1] > 0.1 and np.all(np.diff(ori) >= 0)
+    objects = pd.read_csv(replay_dir / "objects.csv")
+    assert list(objects.columns) == ["world", "policy", "detector", "seed", "object", "category", "ps_G", "ps",
+                                     "coverage", "label", "confidence", "P_G", "p"]
+    assert len(objects) == 11 and (objects.ps <= objects.ps_G).all()
+
+
+def test_exported_semantic_map_opens_and_validates(replay_dir):
+    cloud = trimesh.load(replay_dir / "semantic_map.ply", process=False)
+    raw = cloud.metadata["_ply_raw"]["vertex"]["data"]
+    assert set(raw.dtype.names) == {"x", "y", "z", "object_id", "label", "confidence"}
+    meta = json.loads((replay_dir / "semantic_map.json").read_text())
+    jsonschema.validate(meta, load_schema())
+    objects = pd.read_csv(replay_dir / "objects.csv")
+    assert len(cloud.vertices) == objects.ps.sum()
+    assert {o["name"] for o in meta["objects"]} == set(objects.object[objects.ps > 0])
+    assert len(meta["predicates"]) == objects.p.sum()
+
+
+@pytest.mark.parametrize("text, field", [
+    ("t,x,y\n0,1,2\n", "columns"),
+    ("t,x,y,yaw\n0,1,2,0\n0,1,2,0\n", "row 3, column t"),
+    ("t,x,y,yaw\n0,1,abc,0\n", "row 2, column y"),
+    ("", "file"),
+])
+def test_bad_pose_file_is_one_line_naming_file_and_field(tmp_path, capsys, text, field):
+    path = tmp_path / "poses.csv"
+    path.write_text(text)
+    assert main(["replay", "--world", "small_office", "--poses", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and field in err
+    assert not (tmp_path / "o").exists()
