@@ -39,6 +39,7 @@ class CoverageConfig:
     max_incidence: float = np.deg2rad(80.0)  # grazing views beyond this count as this
     min_facing: float = 0.0  # cos(incidence) must exceed this ("faces the camera")
     soft: bool = False
+    enabled: bool = True  # False: coverage stays empty (platform-only benchmarks, teleop)
     temperature: float = 0.05  # soft mode: margin scale (in each test's unit, times 20 for pixels)
 
 
@@ -121,6 +122,8 @@ def observed_soft(table: SampleTable, cfg: CoverageConfig, cam: CameraConfig, po
 def accumulate(seen: jax.Array, table: SampleTable, cfg: CoverageConfig, cam: CameraConfig,
                pose: jax.Array, depth: jax.Array) -> jax.Array:
     """New coverage (S,): bool ``seen | observed`` or, soft, float ``1 - (1-seen)(1-p)``."""
+    if not cfg.enabled:
+        return seen
     if cfg.soft:
         return 1.0 - (1.0 - seen) * (1.0 - observed_soft(table, cfg, cam, pose, depth))
     return seen | observed(table, cfg, cam, pose, depth)
