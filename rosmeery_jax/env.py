@@ -146,6 +146,16 @@ class Env:
         """Per-object row for the metrics (one env; vmap for a batch)."""
         return self.sk.log(self.knowledge(state))
 
+    def rollout(self, state: State, actions: jax.Array) -> tuple[State, ObjectLog]:
+        """Step through actions (T, A) in one ``lax.scan``, logging every step: returns the
+        final state and the per-object logs with (T, N) fields. One env; vmap for B."""
+
+        def body(s, a):
+            s = self.step(s, a)
+            return s, self.log(s)
+
+        return jax.lax.scan(body, state, actions)
+
     def occupancy(self, state: State) -> jax.Array:
         """(…, H, W) int8 UNKNOWN / FREE / OCCUPIED of the robot's own map."""
         return mapping.classify(state.logodds, self.config.mapping)

@@ -219,6 +219,12 @@ def test_env_rollout_coverage_grows_and_logs_vmap():
     last = log(state)
     assert np.all(np.asarray(last.ps.sum(-1)) > np.asarray(first))
     assert np.all(np.asarray(last.ps) <= np.asarray(env.world.truth.ps_G))
+    # The same through Env.rollout, which logs every step: ORI non-decreasing per env.
+    state = jax.jit(jax.vmap(env.reset))(keys)
+    _, logs = jax.jit(jax.vmap(env.rollout))(state, jnp.broadcast_to(target[:, None], (2, 15, 3)))
+    ori = metrics.compute(jax.tree.map(np.asarray, logs), env.sk.truth, ["ori"])["ori"]
+    assert ori.shape == (2, 15) and np.all(np.diff(ori, axis=-1) >= -1e-9)
+    assert np.asarray(logs.ps)[:, -1].sum() == np.asarray(last.ps).sum()
 
 
 
