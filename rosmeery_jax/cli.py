@@ -98,6 +98,46 @@ def _cmd_replay(args) -> int:
     return 0
 
 
+def _cmd_run(args) -> int:
+    from rosmeery_jax.session import Session, load_config
+
+    cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
+                      duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics)
+    print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
+          f"{cfg.duration:g} s -> {cfg.out}")
+    out = Session(cfg, progress=not args.quiet).run(resume=args.resume)
+    _print_summary(out)
+    return 0
+
+
+def _print_summary(out: Path) -> None:
+    import pandas as pd
+
+    from rosmeery_jax import metrics
+
+    df = pd.read_csv(out / "metrics.csv")
+    print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final':>14}{'auc':>8}{'t90 s':>8}")
+    for (w, p, m), g in df.groupby(["world", "policy", "metric"], sort=False):
+        per_seed = [metrics.summarize(s.time_s.to_numpy(), s.value.to_numpy()) for _, s in g.groupby("seed")]
+        final = [x["final"] for x in per_seed]
+        auc = sum(x["auc"] for x in per_seed) / len(per_seed)
+        t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
+        print(f"{w:<14}{p:<18}{m:<12}{sum(final) / len(final):>8.3f} ±{pd.Series(final).std(ddof=0):.3f}"
+              f"{auc:>8.3f}{t90:>8.1f}")
+    print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
+
+
+def _cmd_plot(args) -> int:
+    from rosmeery_jax import plots, results
+
+    d = Path(args.dir)
+    if not (d / "metrics.csv").is_file():
+        raise InputError(str(d / "metrics.csv"), "file", "not found: not a results folder")
+    written = plots.plot_results(results.load(d), d / "plots")
+    print(f"wrote {len(written)} plots to {d / 'plots'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -129,6 +169,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/replay", metavar="DIR")
     p.add_argument("--metrics", metavar="NAME,...", help="active metrics (default: all built-in)")
     p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser("run", help="run a benchmark session (worlds x policies x seeds) and write results")
+    p.add_argument("--config", metavar="FILE.toml", help="session options (the same names as below)")
+    p.add_argument("--worlds", metavar="A,B", help="built-in names or MJCF paths (default: the four paper worlds)")
+    p.add_argument("--policies", metavar="P,Q", help="default: frontier,random")
+    p.add_argument("--seeds", type=int, metavar="N", help="runs per world and policy, batched (default 5)")
+    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds per run (default 300)")
+    p.add_argument("--detector", help="off (ground-truth labels of observed objects)")
+    p.add_argument("--metrics", metavar="M,N", help="active metrics (default: all built-in)")
+    p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("plot", help="redraw the plots of a results folder")
+    p.add_argument("dir", metavar="DIR")
+    p.set_defaults(func=_cmd_plot)
     return parser
 
 

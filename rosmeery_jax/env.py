@@ -41,6 +41,8 @@ class EnvConfig:
     mapping: MapConfig = field(default_factory=MapConfig)
     nav: NavConfig = field(default_factory=NavConfig)
     knowledge: KnowledgeConfig = field(default_factory=KnowledgeConfig)
+    start_yaw: str = "spawn"  # "spawn": the world's spawn yaw; "random": uniform from the key
+    # (the session runner's default, so seeds of a deterministic policy differ)
     labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
     # (detector off); "detections": only what `Env.attach` folds in (a detector)
 
@@ -59,6 +61,8 @@ class EnvConfig:
                 cfg = replace(cfg, **{section: replace(sub, **{name: value})})
             else:
                 cfg = replace(cfg, **{section: value})
+        if cfg.start_yaw not in ("spawn", "random"):
+            raise InputError("config", "start_yaw", f"{cfg.start_yaw!r} is not 'spawn' or 'random'")
         if cfg.labels not in ("observed", "detections"):
             raise InputError("config", "labels", f"{cfg.labels!r} is not 'observed' or 'detections'")
         if cfg.action_mode not in ("velocity", "target"):
@@ -103,6 +107,9 @@ class Env:
 
     def reset(self, key: jax.Array) -> State:
         pose = jnp.asarray(self.world.spawn, jnp.float32)
+        if self.config.start_yaw == "random":
+            key, sub = jax.random.split(key)
+            pose = pose.at[2].set(jax.random.uniform(sub, (), minval=-jnp.pi, maxval=jnp.pi))
         state = State(self.platform.init(pose), pose, mapping.empty_map(self.grid), self.navigator.init(),
                       jnp.zeros(self.config.laser.beams, jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.float32),

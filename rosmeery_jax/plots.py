@@ -1,0 +1,57 @@
+"""Metric curves in the style of the paper's Figures 4-5: one line per policy (mean over
+seeds) with a shaded band of one standard deviation, x = simulated seconds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; no display needed
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from rosmeery_jax.results import write_atomic  # noqa: E402
+
+LABELS = {"ori": "ORI", "cori": "cORI", "cori_any": "cORI (any label)", "opi": "OPI", "opi_strict": "OPI (strict)"}
+
+
+def mean_std(df: pd.DataFrame) -> pd.DataFrame:
+    """Per (world, policy, detector, metric, time_s): mean and std over seeds."""
+    g = df.groupby(["world", "policy", "detector", "metric", "time_s"])["value"]
+    return g.agg(["mean", "std", "count"]).reset_index().fillna({"std": 0.0})
+
+
+def plot_curves(df: pd.DataFrame, world: str, metric: str, ax=None):
+    """Draw one world's metric curves (all policies) on ax; returns the axes."""
+    ax = ax or plt.subplots(figsize=(6, 3.6))[1]
+    stats = mean_std(df[(df.world == world) & (df.metric == metric)])
+    for (policy, detector), s in stats.groupby(["policy", "detector"]):
+        name = policy if detector == "off" else f"{policy} ({detector})"
+        line, = ax.plot(s.time_s, s["mean"], label=f"{name} (n={int(s['count'].max())})")
+        ax.fill_between(s.time_s, (s["mean"] - s["std"]).clip(0, 1), (s["mean"] + s["std"]).clip(0, 1),
+                        color=line.get_color(), alpha=0.2, linewidth=0)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(LABELS.get(metric, metric))
+    ax.set_ylim(0, 1.02)
+    ax.set_title(f"{world}: {LABELS.get(metric, metric)}")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    return ax
+
+
+def plot_results(df: pd.DataFrame, directory: str | Path) -> list[Path]:
+    """Write ``<world>_<metric>.png`` for every world and metric in df into directory."""
+    import io
+
+    out = []
+    for world in sorted(df.world.unique()):
+        for metric in sorted(df.metric.unique()):
+            fig, ax = plt.subplots(figsize=(6, 3.6))
+            plot_curves(df, world, metric, ax)
+            fig.tight_layout()
+            buf = io.BytesIO()
+            fig.savefig(buf, format="png", dpi=110)
+            plt.close(fig)
+            out.append(write_atomic(Path(directory) / f"{world}_{metric}.png", buf.getvalue()))
+    return out

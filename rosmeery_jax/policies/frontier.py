@@ -1,0 +1,129 @@
+"""``frontier``: frontier-based exploration on the robot's own occupancy map.
+
+Frontier cells are known-free cells next to unknown ones, on a coarse grid
+(``resolution``, default 0.2 m: a coarse cell is free when it holds a free fine cell and no
+occupied one, unknown when it holds neither). Frontiers are the 8-connected groups of
+frontier cells (label propagation, a ``lax.while_loop``), groups smaller than ``min_size``
+cells are ignored, and the robot goes to:
+
+- ``biggest`` (the paper's definition): the largest frontier, at its cell nearest to the
+  frontier's centroid;
+- ``nearest``: the frontier cell nearest to the robot (straight-line distance).
+
+It keeps its target while the target is still a frontier cell and the navigator is moving,
+remembers targets the navigator gave up on (stuck, unreachable, timeout) and avoids frontier
+cells within ``blacklist_radius`` of them. When no frontier is left it stops where it is.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rosmeery_jax import mapping
+from rosmeery_jax.navigation import STUCK, TIMEOUT, UNREACHABLE
+from rosmeery_jax.policies.base import Policy, needs_target
+
+
+class FrontierState(NamedTuple):
+    target: jax.Array  # (3,)
+    failed: jax.Array  # (K, 2) targets given up on (far away when unused)
+    nfailed: jax.Array  # int32, ring-buffer write count
+    done: jax.Array  # bool: no frontier left
+
+
+class FrontierPolicy(Policy):
+    def __init__(self, env, choose: str = "biggest", resolution: float = 0.2, min_size: int = 3,
+                 blacklist: int = 16, blacklist_radius: float = 0.6):
+        super().__init__(env)
+        self.name = "frontier" if choose == "biggest" else f"frontier_{choose}"
+        self.choose = choose
+        geo = env.grid
+        self.f = max(1, int(round(resolution / geo.resolution)))
+        h, w = geo.shape
+        self.shape = (-(-h // self.f), -(-w // self.f))
+        self.res = geo.resolution * self.f
+        self.origin = np.asarray(geo.origin, np.float32)
+        hc, wc = self.shape
+        jj, ii = np.meshgrid(np.arange(wc), np.arange(hc))
+        self.centers = jnp.asarray(np.stack([self.origin[0] + (jj + 0.5) * self.res,
+                                             self.origin[1] + (ii + 0.5) * self.res], -1), jnp.float32)
+        self.min_size, self.k, self.radius = min_size, blacklist, blacklist_radius
+
+    def init(self, key):
+        return FrontierState(jnp.zeros(3, jnp.float32), jnp.full((self.k, 2), 1e6, jnp.float32),
+                             jnp.int32(0), jnp.bool_(False))
+
+    def frontier_cells(self, occupancy: jax.Array) -> jax.Array:
+        """(Hc, Wc) bool frontier cells from the robot's (H, W) UNKNOWN/FREE/OCCUPIED map."""
+        f = self.f
+        h, w = occupancy.shape
+        hc, wc = self.shape
+        occ = jnp.pad(occupancy, ((0, hc * f - h), (0, wc * f - w)))  # pads UNKNOWN (0)
+        blocks = occ.reshape(hc, f, wc, f)
+        any_occ = (blocks == mapping.OCCUPIED).any(axis=(1, 3))
+        any_free = (blocks == mapping.FREE).any(axis=(1, 3))
+        free = any_free & ~any_occ
+        unknown = ~any_free & ~any_occ
+        p = jnp.pad(unknown, 1)
+        near_unknown = p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
+        return free & near_unknown
+
+    def components(self, frontier: jax.Array) -> jax.Array:
+        """(Hc, Wc) int32 component label (0 = not frontier) by max-label propagation."""
+        hc, wc = self.shape
+        start = jnp.where(frontier, jnp.arange(1, hc * wc + 1, dtype=jnp.int32).reshape(hc, wc), 0)
+
+        def spread(lab):
+            p = jnp.pad(lab, 1)
+            rows = jnp.maximum(jnp.maximum(p[:-2], p[1:-1]), p[2:])
+            m = jnp.maximum(jnp.maximum(rows[:, :-2], rows[:, 1:-1]), rows[:, 2:])
+            return jnp.where(frontier, m, 0)
+
+        def cond(c):
+            return c[1]
+
+        def body(c):
+            new = spread(c[0])
+            return new, jnp.any(new != c[0])
+
+        return jax.lax.while_loop(cond, body, (start, jnp.bool_(True)))[0]
+
+    def decide(self, state, ps: FrontierState, key):
+        hc, wc = self.shape
+        n = hc * wc + 1
+        frontier = self.frontier_cells(self.env.occupancy(state))
+        # Cells near targets the navigator gave up on are not candidates.
+        d_fail = jnp.linalg.norm(self.centers[:, :, None, :] - ps.failed[None, None], axis=-1).min(-1)
+        frontier = frontier & (d_fail > self.radius)
+        labels = self.components(frontier)
+        flat = labels.ravel()
+        size = jax.ops.segment_sum(jnp.ones_like(flat), flat, n).at[0].set(0)
+        valid = frontier & (size[labels] >= self.min_size)
+        xy = self.centers.reshape(-1, 2)
+        pose = state.pose
+        if self.choose == "biggest":
+            best = jnp.argmax(size)
+            cx = jax.ops.segment_sum(xy, flat, n)[best] / jnp.maximum(size[best], 1)
+            score = jnp.where(valid.ravel() & (flat == best), jnp.linalg.norm(xy - cx, axis=-1), jnp.inf)
+        else:
+            score = jnp.where(valid.ravel(), jnp.linalg.norm(xy - pose[:2], axis=-1), jnp.inf)
+        cell = jnp.argmin(score)
+        any_left = jnp.isfinite(score[cell])
+        goal = xy[cell]
+        heading = jnp.arctan2(goal[1] - pose[1], goal[0] - pose[0])
+        fresh = jnp.where(any_left, jnp.concatenate([goal, heading[None]]), pose)
+
+        status = state.nav.status
+        gave_up = (status == STUCK) | (status == UNREACHABLE) | (status == TIMEOUT)
+        failed = jnp.where(gave_up, ps.failed.at[ps.nfailed % self.k].set(ps.target[:2]), ps.failed)
+        nfailed = ps.nfailed + gave_up.astype(jnp.int32)
+        ti = jnp.clip(((ps.target[1] - self.origin[1]) / self.res).astype(jnp.int32), 0, hc - 1)
+        tj = jnp.clip(((ps.target[0] - self.origin[0]) / self.res).astype(jnp.int32), 0, wc - 1)
+        still_frontier = valid[ti, tj]
+        renew = needs_target(state) | ~still_frontier
+        target = jnp.where(renew, fresh, ps.target)
+        return target, FrontierState(target, failed, nfailed, ~any_left)

@@ -1,0 +1,263 @@
+"""The benchmark session: worlds x policies x seeds x duration, written as it goes.
+
+One *run* is one (world, policy) pair with all its seeds batched by ``vmap``. A run steps
+in chunks (``chunk_s`` of simulated time per jitted call, a ``lax.scan`` over decisions,
+each a ``lax.scan`` over ``decide_every`` control steps), logs every object every step, and
+when it ends writes its files atomically:
+
+    OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
+    OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
+    OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end
+    OUT/metrics.csv, OUT/objects.csv          all finished runs, rewritten after each run
+    OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
+    OUT/config.json                           resolved configuration, versions, git revision
+
+``--resume`` skips runs whose files exist (the configuration must match); without it an
+existing results folder is refused rather than overwritten.
+"""
+
+from __future__ import annotations
+
+import json
+import platform as _platform
+import subprocess
+import time
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rosmeery_jax import metrics, results
+from rosmeery_jax.errors import InputError
+
+DETECTORS = ("off",)  # the torch detector ("yolo") and its "oracle" come with the detector issue
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    worlds: tuple[str, ...] = ("kitchen", "laboratory", "small_office", "large_office")
+    policies: tuple[str, ...] = ("frontier", "random")
+    seeds: int = 5
+    duration: float = 300.0  # simulated seconds per run
+    detector: str = "off"
+    metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
+    decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
+    chunk_s: float = 30.0  # simulated seconds per jitted call (progress granularity)
+    sample_s: float = 1.0  # seconds between rows of metrics.csv
+    out: str = "results/session"
+    env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
+
+    def validate(self, source: str = "config") -> "SessionConfig":
+        from rosmeery_jax.policies import POLICIES
+        from rosmeery_jax.world import world_names
+
+        for w in self.worlds:
+            if w not in world_names() and not Path(w).is_file():
+                raise InputError(source, "worlds", f"{w!r} is neither a built-in world nor an MJCF file")
+        for p in self.policies:
+            if p not in POLICIES:
+                raise InputError(source, "policies", f"unknown policy {p!r} (built in: {', '.join(POLICIES)})")
+        if self.detector not in DETECTORS:
+            raise InputError(source, "detector", f"{self.detector!r} is not available (available: {', '.join(DETECTORS)})")
+        for name, v in (("seeds", self.seeds), ("decide_every", self.decide_every)):
+            if not isinstance(v, int) or v < 1:
+                raise InputError(source, name, f"{v!r} must be a whole number >= 1")
+        for name, v in (("duration", self.duration), ("chunk_s", self.chunk_s), ("sample_s", self.sample_s)):
+            if not isinstance(v, (int, float)) or not v > 0:
+                raise InputError(source, name, f"{v!r} must be a number > 0")
+        metrics.resolve(self.metrics)
+        _decisions(self, 0.1)  # the control period is fixed at 0.1 s
+        return self
+
+
+def load_config(path: str | Path | None, **overrides) -> SessionConfig:
+    """Built-in defaults, then the TOML file, then command-line overrides (None = unset)."""
+    values: dict = {}
+    source = "command line"
+    if path is not None:
+        source = str(path)
+        try:
+            values = tomllib.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise InputError(source, "file", "not found") from None
+        except tomllib.TOMLDecodeError as err:
+            raise InputError(source, "file", f"not valid TOML ({err})") from None
+        values = values.get("session", values)
+        known = {f.name for f in fields(SessionConfig)}
+        for key in values:
+            if key not in known:
+                raise InputError(source, key, f"unknown option (options: {', '.join(sorted(known))})")
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    for key in ("worlds", "policies", "metrics"):
+        if isinstance(values.get(key), str):
+            values[key] = tuple(x.strip() for x in values[key].split(",") if x.strip())
+        elif key in values:
+            values[key] = tuple(values[key])
+    if isinstance(values.get("duration"), int):
+        values["duration"] = float(values["duration"])
+    return replace(SessionConfig(), **values).validate(source)
+
+
+def _run_name(world: str, policy: str) -> str:
+    return f"{Path(world).stem}__{policy}"
+
+
+def _versions() -> dict:
+    out = {"python": _platform.python_version()}
+    for pkg in ("rosmeery-jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "pandas"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent,
+                             timeout=5)
+        out["git"] = rev.stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        out["git"] = None
+    return out
+
+
+def _check_out(cfg: SessionConfig, out: Path, resume: bool) -> None:
+    saved = out / "config.json"
+    if saved.exists():
+        if not resume:
+            raise InputError(str(out), "out", "already holds results: pass --resume to continue, or choose another --out")
+        old = json.loads(saved.read_text())["session"]
+        new = json.loads(json.dumps(asdict(cfg)))
+        for key in ("seeds", "duration", "detector", "decide_every", "sample_s", "env"):
+            if old.get(key) != new.get(key):
+                raise InputError(str(saved), key, f"was {old.get(key)!r}, now {new.get(key)!r}: resume needs the same setting")
+
+
+class Session:
+    def __init__(self, cfg: SessionConfig, progress: bool = True):
+        self.cfg, self.progress = cfg, progress
+
+    def run(self, resume: bool = False) -> Path:
+        cfg = self.cfg
+        out = Path(cfg.out)
+        _check_out(cfg, out, resume)
+        results.write_atomic(out / "config.json", json.dumps({"session": asdict(cfg), "versions": _versions()}, indent=2))
+        todo = [(w, p) for w in cfg.worlds for p in cfg.policies
+                if not (out / "runs" / f"{_run_name(w, p)}.metrics.csv").exists()]
+        total = len(todo) * cfg.duration
+        bar = _bar(total, self.progress)
+        for world, policy in todo:
+            self._one(world, policy, out, bar)
+            self._merge(out)
+        bar.close()
+        self._merge(out)
+        return out
+
+    def _one(self, world_name: str, policy_name: str, out: Path, bar) -> None:
+        import jax
+        import jax.numpy as jnp
+
+        from rosmeery_jax.env import make
+        from rosmeery_jax.export import write_semantic_map
+        from rosmeery_jax.policies import make_policy
+
+        cfg = self.cfg
+        env = make(world_name, **{"start_yaw": "random", **cfg.env})
+        policy = make_policy(policy_name, env)
+        b = cfg.seeds
+        keys = jax.vmap(jax.random.key)(jnp.arange(b))
+        k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
+        state = jax.jit(jax.vmap(env.reset))(k_env)
+        pstate = jax.vmap(policy.init)(k_pol)
+        steps_per_decision = cfg.decide_every
+        total_decisions = _decisions(cfg, env.dt)
+        # The largest chunk that divides the run evenly, so one compiled function serves.
+        want = max(1, int(round(cfg.chunk_s / (env.dt * steps_per_decision))))
+        decisions = max(d for d in range(1, min(want, total_decisions) + 1) if total_decisions % d == 0)
+        chunk_fn = _chunk_fn(env, policy, steps_per_decision, decisions)
+        logs, first_log = [], jax.tree.map(np.asarray, jax.jit(jax.vmap(env.log))(state))
+        label = f"{env.world.name}/{policy.name}"
+        for _ in range(total_decisions // decisions):
+            t0 = time.perf_counter()
+            state, pstate, k_run, chunk_logs = chunk_fn(state, pstate, k_run)
+            chunk_logs = jax.tree.map(np.asarray, chunk_logs)  # (B, n, N)
+            wall = time.perf_counter() - t0
+            n = decisions * steps_per_decision
+            logs.append(chunk_logs)
+            bar.update(n * env.dt)
+            bar.set_postfix_str(f"{label} {b * n / wall:,.0f} env-steps/s")
+        logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), *logs)  # (B, T, N)
+        logs = jax.tree.map(lambda a, f: np.concatenate([f[:, None], a], axis=1), logs, first_log)
+        times = np.arange(logs.ps.shape[1]) * env.dt
+        every = max(1, int(round(cfg.sample_s / env.dt)))
+        keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
+        curves = metrics.compute(logs, env.sk.truth, cfg.metrics)  # {name: (B, T)}
+        frames, objects = [], []
+        tags = dict(world=env.world.name, policy=policy.name, detector=cfg.detector)
+        knowledge = jax.tree.map(np.asarray, jax.jit(jax.vmap(env.knowledge))(state))
+        name = _run_name(world_name, policy_name)
+        for seed in range(b):
+            frames.append(results.metric_frame({m: c[seed, keep] for m, c in curves.items()}, times[keep],
+                                               seed=seed, **tags))
+            final = jax.tree.map(lambda a: a[seed, -1], logs)
+            objects.append(results.object_frame(env.world, final, seed=seed, policy=policy.name, detector=cfg.detector))
+            write_semantic_map(out / "maps", f"{name}__seed{seed}", env.world,
+                               jax.tree.map(lambda a: a[seed], knowledge), float(times[-1]))
+        results.write_csv(pd.concat(objects, ignore_index=True), out / "runs" / f"{name}.objects.csv")
+        # The metrics file last: its presence marks the run finished (resume).
+        results.write_csv(pd.concat(frames, ignore_index=True), out / "runs" / f"{name}.metrics.csv")
+
+    def _merge(self, out: Path) -> None:
+        from rosmeery_jax import plots
+
+        runs = sorted((out / "runs").glob("*.metrics.csv")) if (out / "runs").exists() else []
+        if not runs:
+            return
+        df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
+        results.write_csv(df, out / "metrics.csv")
+        objs = [p.with_name(p.name.replace(".metrics.csv", ".objects.csv")) for p in runs]
+        results.write_csv(pd.concat([pd.read_csv(p) for p in objs if p.exists()], ignore_index=True),
+                          out / "objects.csv")
+        plots.plot_results(df, out / "plots")
+
+
+def _decisions(cfg: SessionConfig, dt: float) -> int:
+    """Policy decisions in one run; the duration must be a whole number of them."""
+    period = dt * cfg.decide_every
+    n = int(round(cfg.duration / period))
+    if n < 1 or abs(n * period - cfg.duration) > 1e-6:
+        raise InputError("config", "duration", f"{cfg.duration} s is not a whole number of decision periods "
+                         f"({period:g} s = decide_every x {dt:g} s)")
+    return n
+
+
+def _chunk_fn(env, policy, steps_per_decision: int, decisions: int):
+    """jit(vmap'd) function: ``decisions`` policy decisions, each followed by
+    ``steps_per_decision`` env steps; returns logs (B, decisions * steps, N)."""
+    import jax
+
+    def one_env(state, pstate, key):
+        def decide(carry, _):
+            s, ps, k = carry
+            k, sub = jax.random.split(k)
+            target, ps = policy.decide(s, ps, sub)
+
+            def step(s, _):
+                s = env.step(s, target)
+                return s, env.log(s)
+
+            s, logs = jax.lax.scan(step, s, None, length=steps_per_decision)
+            return (s, ps, k), logs
+
+        (state, pstate, key), logs = jax.lax.scan(decide, (state, pstate, key), None, length=decisions)
+        logs = jax.tree.map(lambda a: a.reshape(decisions * steps_per_decision, *a.shape[2:]), logs)
+        return state, pstate, key, logs
+
+    return jax.jit(jax.vmap(one_env))
+
+
+def _bar(total: float, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="sim-s", disable=not enabled, bar_format=(
+        "{l_bar}{bar}| {n:.0f}/{total:.0f} simulated s [{elapsed}<{remaining}{postfix}]"))
