@@ -68,8 +68,11 @@ class SessionConfig:
         for name, v in (("duration", self.duration), ("chunk_s", self.chunk_s), ("sample_s", self.sample_s)):
             if not isinstance(v, (int, float)) or not v > 0:
                 raise InputError(source, name, f"{v!r} must be a number > 0")
-        metrics.resolve(self.metrics)
-        _decisions(self, 0.1)  # the control period is fixed at 0.1 s
+        try:
+            metrics.resolve(self.metrics)
+            _decisions(self, 0.1)  # the control period is fixed at 0.1 s
+        except InputError as err:
+            raise InputError(source, err.where, err.problem) from None
         return self
 
 

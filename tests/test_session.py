@@ -1,0 +1,113 @@
+"""Policies and the benchmark session: results folder, resume, config errors, notebook."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from rosmeery_jax import results
+from rosmeery_jax.cli import main
+from rosmeery_jax.env import make
+from rosmeery_jax.navigation import MOVING
+from rosmeery_jax.policies import make_policy
+
+_ARGS = ["--worlds", "small_office", "--seeds", "2", "--duration", "4", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def session_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("session") / "out"
+    assert main(["run", *_ARGS, "--policies", "random", "--out", str(out)]) == 0
+    return out
+
+
+def test_session_writes_the_results_folder(session_dir):
+    df = results.load(session_dir)
+    assert list(df.columns) == ["world", "policy", "detector", "seed", "time_s", "metric", "value"]
+    assert set(df.seed) == {0, 1} and set(df.policy) == {"random"}
+    assert set(df.metric) >= {"ori", "cori", "opi"}
+    times = sorted(df.time_s.unique())
+    assert times[0] == 0.0 and times[-1] == pytest.approx(4.0) and np.all(np.diff(times) <= 1.0 + 1e-9)
+    for _, g in df[df.metric == "ori"].groupby("seed"):
+        assert np.all(np.diff(g.sort_values("time_s").value) >= -1e-9)
+    assert ((df.value >= 0) & (df.value <= 1)).all()
+    objects = pd.read_csv(session_dir / "objects.csv")
+    assert len(objects) == 2 * 11
+    cfg = json.loads((session_dir / "config.json").read_text())
+    assert cfg["session"]["seeds"] == 2 and "jax" in cfg["versions"]
+    assert (session_dir / "plots" / "small_office_ori.png").stat().st_size > 1000
+    assert (session_dir / "maps" / "small_office__random__seed1.ply").exists()
+
+
+def test_existing_results_are_refused_without_resume_and_resume_skips_finished_runs(session_dir, capsys):
+    assert main(["run", *_ARGS, "--policies", "random", "--out", str(session_dir)]) == 2
+    assert "--resume" in capsys.readouterr().err
+    run_file = session_dir / "runs" / "small_office__random.metrics.csv"
+    before = run_file.stat().st_mtime_ns
+    assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(session_dir), "--resume"]) == 0
+    assert run_file.stat().st_mtime_ns == before  # finished run not redone
+    df = results.load(session_dir)
+    assert set(df.policy) == {"random", "frontier"}
+    # A resume with a different setting is refused, naming the field.
+    assert main(["run", *_ARGS[:-3], "--duration", "8", "--quiet", "--out", str(session_dir), "--resume"]) == 2
+    assert "duration" in capsys.readouterr().err
+
+
+def test_plot_command_redraws(session_dir, capsys):
+    for p in (session_dir / "plots").glob("*.png"):
+        p.unlink()
+    assert main(["plot", str(session_dir)]) == 0
+    assert (session_dir / "plots" / "small_office_opi.png").exists()
+
+
+@pytest.mark.parametrize("toml, field", [
+    ("seeds = 0\n", "seeds"),
+    ("policies = ['teleport']\n", "policies"),
+    ("colour = 'red'\n", "colour"),
+    ("duration = 2.55\n", "duration"),
+    ("detector = 'magic'\n", "detector"),
+    ("metrics = ['ori', 'nope']\n", "metrics"),
+    ("seeds = [\n", "file"),
+])
+def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, toml, field):
+    path = tmp_path / "session.toml"
+    path.write_text(toml)
+    assert main(["run", "--config", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and field in err and str(path) in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_frontier_policy_explores_and_random_targets_are_reachable():
+    env = make("small_office")
+    for name in ("frontier", "frontier_nearest", "random"):
+        policy = make_policy(name, env)
+        keys = jax.random.split(jax.random.key(0), 2)
+        state = jax.vmap(env.reset)(keys)
+        target, _ = jax.jit(jax.vmap(policy.decide))(state, jax.vmap(policy.init)(keys), keys)
+        for t in np.asarray(target):
+            i, j = env.world.free_space.cell(t[:2])
+            if name == "random":
+                assert env.world.free_space.reachable[i, j]
+            # Frontier targets lie on the robot's own map, in space it has seen free.
+            assert env.world.free_space.interior[i, j]
+        assert not np.allclose(np.asarray(target)[:, :2], np.asarray(state.pose)[:, :2])
+
+
+def test_example_notebook_runs_on_a_results_folder(session_dir, tmp_path):
+    import nbformat
+    from nbclient import NotebookClient
+
+    nb = nbformat.read(os.path.join(os.path.dirname(__file__), "..", "experiments", "analysis.ipynb"), as_version=4)
+    client = NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
+    os.environ["ROSMEERY_RESULTS"] = str(session_dir)
+    client.execute()
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+    assert not any(o.get("output_type") == "error" for o in outputs)
+    assert (tmp_path / "curves.png").exists()
