@@ -86,7 +86,7 @@ def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, toml, fi
 
 def test_frontier_policy_explores_and_random_targets_are_reachable():
     env = make("small_office")
-    for name in ("frontier", "frontier_nearest", "random"):
+    for name in ("frontier", "frontier_nearest", "random", "semantic_nbv"):
         policy = make_policy(name, env)
         keys = jax.random.split(jax.random.key(0), 2)
         state = jax.vmap(env.reset)(keys)

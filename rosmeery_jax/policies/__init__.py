@@ -7,7 +7,8 @@ env; the session runner vmaps them over seeds and calls ``decide`` once every
 every step. Between decisions the navigator keeps driving to the last target.
 
 Built in: ``random`` (the paper's random walker), ``frontier`` (biggest frontier, the
-paper's; ``frontier_nearest`` for the nearest).
+paper's; ``frontier_nearest`` for the nearest), ``semantic_nbv`` (views around the objects
+the robot has labelled, scored by expected new surface per metre).
 """
 
 from __future__ import annotations
@@ -16,11 +17,13 @@ from rosmeery_jax.errors import InputError
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
 from rosmeery_jax.policies.random_walk import RandomPolicy
+from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
 
 POLICIES = {
     "random": lambda env, **kw: RandomPolicy(env, **kw),
     "frontier": lambda env, **kw: FrontierPolicy(env, choose="biggest", **kw),
     "frontier_nearest": lambda env, **kw: FrontierPolicy(env, choose="nearest", **kw),
+    "semantic_nbv": lambda env, **kw: SemanticNBVPolicy(env, **kw),
 }
 
 

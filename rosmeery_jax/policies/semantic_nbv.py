@@ -1,0 +1,111 @@
+"""``semantic_nbv``: a semantic next-best-view baseline (after the original S-Ave node).
+
+What it knows is only what the robot has perceived: the objects it holds a label for, the
+surface points of them its camera has observed (their centroid and extent), the directions
+it has already seen each object from, and its own occupancy map. Nothing from the ground
+truth beyond that.
+
+Every decision it scores candidate views: ``views`` poses on a circle of ``radius`` around
+each labelled object's observed centroid, facing it. A view's expected newly seen surface
+is the object's observed footprint area (a stand-in for its size) when the robot has not
+yet seen the object from that direction (one of ``views`` bearing sectors), else nothing.
+Score = expected new surface / (travel distance + 1 m). Candidates must lie on cells the
+robot's own map shows free, away from obstacles. With no worthwhile candidate it explores
+like ``frontier`` (biggest frontier) to find more objects.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rosmeery_jax import coverage, mapping
+from rosmeery_jax.policies.base import Policy, needs_target
+from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
+
+
+class NBVState(NamedTuple):
+    target: jax.Array  # (3,)
+    seen_from: jax.Array  # (N, V) bool: sectors the robot has seen each object from
+    last_ps: jax.Array  # (N,) observed samples at the previous decision
+    frontier: FrontierState
+    exploring: jax.Array  # bool: the current target came from the frontier fallback
+    view: jax.Array  # (2,) int32 (object, sector) of the current view target
+
+
+class SemanticNBVPolicy(Policy):
+    name = "semantic_nbv"
+
+    def __init__(self, env, views: int = 8, radius: float = 1.0, clearance: float = 0.3):
+        super().__init__(env)
+        self.v, self.radius = views, radius
+        self.frontier = FrontierPolicy(env, choose="biggest")
+        self.table = env.sk.table
+        self.n = self.table.num_objects
+        ang = np.arange(views) * 2 * np.pi / views
+        self.ring = jnp.asarray(np.stack([np.cos(ang), np.sin(ang)], -1) * radius, jnp.float32)  # (V, 2)
+        self.grow = max(1, int(round(clearance / env.grid.resolution)))
+
+    def init(self, key):
+        return NBVState(jnp.zeros(3, jnp.float32), jnp.zeros((self.n, self.v), bool), jnp.zeros(self.n, jnp.float32),
+                        self.frontier.init(key), jnp.bool_(True), jnp.zeros(2, jnp.int32))
+
+    def _objects(self, seen):
+        """Observed centroid (N, 2), footprint area (N,) and count (N,) from observed samples."""
+        w = (seen > 0.5).astype(jnp.float32)
+        count = jax.ops.segment_sum(w, self.table.object, self.n, indices_are_sorted=True)
+        pts = self.table.points  # (3, S)
+        sx = jax.ops.segment_sum(w * pts[0], self.table.object, self.n, indices_are_sorted=True)
+        sy = jax.ops.segment_sum(w * pts[1], self.table.object, self.n, indices_are_sorted=True)
+        big = 1e6
+        lo_x = jax.ops.segment_min(jnp.where(w > 0, pts[0], big), self.table.object, self.n, indices_are_sorted=True)
+        hi_x = jax.ops.segment_max(jnp.where(w > 0, pts[0], -big), self.table.object, self.n, indices_are_sorted=True)
+        lo_y = jax.ops.segment_min(jnp.where(w > 0, pts[1], big), self.table.object, self.n, indices_are_sorted=True)
+        hi_y = jax.ops.segment_max(jnp.where(w > 0, pts[1], -big), self.table.object, self.n, indices_are_sorted=True)
+        c = jnp.stack([sx, sy], -1) / jnp.maximum(count, 1.0)[:, None]
+        area = jnp.where(count > 0, jnp.maximum(hi_x - lo_x, 0.1) * jnp.maximum(hi_y - lo_y, 0.1), 0.0)
+        return c, area, count
+
+    def decide(self, state, ps: NBVState, key):
+        env = self.env
+        k = env.knowledge(state)
+        centroid, area, count = self._objects(k.seen)
+        labelled = k.label >= 0
+        # Sectors seen from: objects observed more since the last decision, from the robot's bearing.
+        now = count > ps.last_ps
+        rel = state.pose[:2] - centroid
+        sector = (jnp.floor((jnp.arctan2(rel[:, 1], rel[:, 0]) % (2 * jnp.pi)) / (2 * jnp.pi / self.v))).astype(jnp.int32)
+        seen_from = ps.seen_from | (now[:, None] & (jnp.arange(self.v)[None] == jnp.clip(sector, 0, self.v - 1)[:, None]))
+        # A view the navigator is done with (reached or given up on) is not chosen again.
+        done_view = needs_target(state) & ~ps.exploring
+        seen_from = seen_from.at[ps.view[0], ps.view[1]].set(seen_from[ps.view[0], ps.view[1]] | done_view)
+
+        # Candidates (N, V): on the ring around each labelled object, on known-free cells.
+        cand = centroid[:, None, :] + self.ring[None]
+        occ = env.occupancy(state)
+        free = occ == mapping.FREE
+        blocked = occ == mapping.OCCUPIED
+        for _ in range(self.grow):
+            p = jnp.pad(blocked, 1)
+            blocked = p[1:-1, 1:-1] | p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
+        i, j = env.grid.cell(cand)
+        ok = free[i, j] & ~blocked[i, j] & labelled[:, None] & ~seen_from
+        dist = jnp.linalg.norm(cand - state.pose[:2], axis=-1)
+        score = jnp.where(ok, area[:, None] / (dist + 1.0), -1.0)
+        best = jnp.argmax(score.ravel())
+        n_best, v_best = best // self.v, best % self.v
+        goal = cand[n_best, v_best]
+        face = jnp.arctan2(centroid[n_best, 1] - goal[1], centroid[n_best, 0] - goal[0])
+        have_view = score.ravel()[best] > 0
+
+        f_target, f_state = self.frontier.decide(state, ps.frontier._replace(target=ps.target), key)
+        # Keep driving to an object view until the navigator is done with it.
+        renew = needs_target(state) | ps.exploring
+        view_target = jnp.concatenate([goal, face[None]])
+        target = jnp.where(renew, jnp.where(have_view, view_target, f_target), ps.target)
+        exploring = jnp.where(renew, ~have_view, ps.exploring)
+        view = jnp.where(renew & have_view, jnp.stack([n_best, v_best]).astype(jnp.int32), ps.view)
+        return target, NBVState(target, seen_from, count, f_state, exploring, view)
