@@ -54,6 +54,13 @@ def test_existing_results_are_refused_without_resume_and_resume_skips_finished_r
     assert run_file.stat().st_mtime_ns == before  # finished run not redone
     df = results.load(session_dir)
     assert set(df.policy) == {"random", "frontier"}
+    # The interrupted-then-resumed folder equals one uninterrupted session.
+    whole = session_dir.parent / "whole"
+    assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(whole)]) == 0
+    key = ["world", "policy", "seed", "metric", "time_s"]
+    a = df.sort_values(key).reset_index(drop=True)
+    b = results.load(whole).sort_values(key).reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b)
     # A resume with a different setting is refused, naming the field.
     assert main(["run", *_ARGS[:-3], "--duration", "8", "--quiet", "--out", str(session_dir), "--resume"]) == 2
     assert "duration" in capsys.readouterr().err
