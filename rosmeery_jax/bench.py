@@ -17,7 +17,6 @@ so the figure is that batch's alone.
 
 from __future__ import annotations
 
-import json
 import os
 import resource
 import statistics

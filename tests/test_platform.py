@@ -90,37 +90,6 @@ def _env(mode):
     return make("small_office", action_mode=mode)
 
 
-@pytest.mark.parametrize("name", ["large_office", "small_office"])
-def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
-    """The level-camera kernel is exact; the frustum cull only drops boxes that are hidden."""
-    from dataclasses import replace
-
-    from rosmeery_jax.bench import random_targets
-    from rosmeery_jax.raycast import sensors
-
-    w = load_world(name)
-    rs = ray_scene(w.scene)
-    cfg = sensors.CameraConfig()
-    poses = jnp.asarray(random_targets(w, 16, seed=3))
-
-    def plain(p):
-        o, axis = sensors.camera_pose(cfg, p)
-        d = sensors._yaw_rotate(jnp.asarray(sensors.camera_rays(cfg, cfg.width, cfg.height)), p[2])
-        hit = cast(rs, o, d, cfg.max_range)
-        depth = jnp.where(hit.label == -3, cfg.max_range, hit.dist * (d @ axis))
-        return depth.reshape(cfg.height, cfg.width), hit.label.reshape(cfg.height, cfg.width)
-
-    ref_depth, ref_label = jax.jit(jax.vmap(plain))(poses)
-    depth, label = jax.jit(jax.vmap(lambda p: sensors.depth_seg(rs, replace(cfg, cull=0), p)))(poses)
-    np.testing.assert_array_equal(np.asarray(label), np.asarray(ref_label))
-    np.testing.assert_allclose(np.asarray(depth), np.asarray(ref_depth), rtol=1e-4, atol=1e-4)
-    _, culled = jax.jit(jax.vmap(lambda p: sensors.depth_seg(rs, cfg, p)))(poses)
-    wrong = np.mean(np.asarray(culled) != np.asarray(ref_label))
-    if w.scene.num_boxes <= cfg.cull:
-        assert wrong == 0.0
-    assert wrong <= 0.002
-
-
 @functools.lru_cache(maxsize=None)
 def _rollout(mode, steps):
     """jit(vmap) rollout of ``steps`` steps: (keys (B,), actions (steps, B, A)) -> poses, final state."""

@@ -6,7 +6,6 @@ import json
 import os
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
@@ -14,7 +13,6 @@ import pytest
 from rosmeery_jax import results
 from rosmeery_jax.cli import main
 from rosmeery_jax.env import make
-from rosmeery_jax.navigation import MOVING
 from rosmeery_jax.policies import make_policy
 
 _ARGS = ["--worlds", "small_office", "--seeds", "2", "--duration", "4", "--quiet"]

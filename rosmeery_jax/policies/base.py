@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import jax
@@ -10,8 +11,8 @@ import jax.numpy as jnp
 from rosmeery_jax.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE, IDLE
 
 
-class Policy:
-    """Subclasses set ``name`` and implement ``init`` and ``decide``."""
+class Policy(ABC):
+    """Subclasses set ``name`` and implement ``decide`` (and ``init`` when they keep state)."""
 
     name = "policy"
 
@@ -21,8 +22,9 @@ class Policy:
     def init(self, key: jax.Array) -> Any:
         return jnp.zeros(())
 
+    @abstractmethod
     def decide(self, state, pstate, key: jax.Array) -> tuple[jax.Array, Any]:
-        raise NotImplementedError
+        """One env: (target pose (3,), new pstate)."""
 
 
 def needs_target(state) -> jax.Array:

@@ -77,6 +77,18 @@ def _index_bits(num_boxes: int) -> int:
     return bits
 
 
+def _box_chunks(rs: RayScene):
+    """Scan inputs over chunks of CHUNK boxes: (first index, centers, halves, cos, sin)."""
+    n = rs.num_boxes // CHUNK
+    return (jnp.arange(n, dtype=jnp.int32) * CHUNK, rs.center.reshape(n, CHUNK, 3), rs.half.reshape(n, CHUNK, 3),
+            rs.cos.reshape(n, CHUNK), rs.sin.reshape(n, CHUNK))
+
+
+def _pack(t, keep, index):
+    """Distance bits (non-negative float, so ordered like ints) with the box index in the low bits."""
+    return (jax.lax.bitcast_convert_type(jnp.minimum(t, jnp.float32(3e38)), jnp.int32) & keep) | index
+
+
 def _slab(lx, ly, lz, dx, dy, dz, hx, hy, hz):
     """Entry distance of rays (origin l*, direction d*, box frame) into a centred box; inf if missed.
 
@@ -113,17 +125,10 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float) -> 
             ldx = cs[k] * dx + sn[k] * dy
             ldy = -sn[k] * dx + cs[k] * dy
             t = _slab(lx, ly, oz[:, None], ldx, ldy, dz, h[k, 0], h[k, 1], h[k, 2])
-            t = jnp.minimum(t, jnp.float32(3e38))
-            packed = (jax.lax.bitcast_convert_type(t, jnp.int32) & keep) | (base + k)
-            best = jnp.minimum(best, packed)
+            best = jnp.minimum(best, _pack(t, keep, base + k))
         return best, None
 
-    n = rs.num_boxes // CHUNK
-    xs = (jnp.arange(n, dtype=jnp.int32) * CHUNK,
-          rs.center.reshape(n, CHUNK, 3), rs.half.reshape(n, CHUNK, 3),
-          rs.cos.reshape(n, CHUNK), rs.sin.reshape(n, CHUNK))
-    best0 = jnp.full(dx.shape, inf_bits, jnp.int32)
-    best, _ = jax.lax.scan(chunk, best0, xs)
+    best, _ = jax.lax.scan(chunk, jnp.full(dx.shape, inf_bits, jnp.int32), _box_chunks(rs))
     box = best & ~keep  # (B, R)
     out = _resolve(rs, o, d, box, max_range)
     r = d.shape[1]
@@ -207,16 +212,10 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
             enter = jnp.maximum(s0, jnp.minimum(z1, z2))
             leave = jnp.minimum(s1, jnp.maximum(z1, z2))
             t = jnp.where((leave >= enter) & (enter > 0.0), enter, big)
-            t = jnp.minimum(t, jnp.float32(3e38))
-            packed = (jax.lax.bitcast_convert_type(t, jnp.int32) & keep) | (base + k)
-            best = jnp.minimum(best, packed)
+            best = jnp.minimum(best, _pack(t, keep, base + k))
         return best, None
 
-    n = rs.num_boxes // CHUNK
-    xs = (jnp.arange(n, dtype=jnp.int32) * CHUNK,
-          rs.center.reshape(n, CHUNK, 3), rs.half.reshape(n, CHUNK, 3),
-          rs.cos.reshape(n, CHUNK), rs.sin.reshape(n, CHUNK))
-    best, _ = jax.lax.scan(chunk, jnp.full(islope.shape, inf_bits, jnp.int32), xs)
+    best, _ = jax.lax.scan(chunk, jnp.full(islope.shape, inf_bits, jnp.int32), _box_chunks(rs))
     box = jnp.swapaxes(best & ~keep, 1, 2).reshape(o.shape[0], h_ * w_)
     out = _resolve(rs, o, d.reshape(o.shape[0], h_ * w_, 3), box, max_range)
     return Hit(*(a.reshape(*lead, h_ * w_, *a.shape[2:]) for a in out))
