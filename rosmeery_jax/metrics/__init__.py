@@ -45,22 +45,25 @@ def _index(errors, weights):
     return 1.0 - jnp.minimum(1.0, jnp.mean(errors / weights, axis=-1))
 
 
+def _reconstruction(weighted_ps, truth: GroundTruthTable):
+    """ORI-style index of (possibly confidence-weighted) observed samples (..., T, N)."""
+    g = jnp.asarray(truth.ps_G, jnp.float32)
+    return _index(jnp.abs(g - weighted_ps), g)
+
+
 @register("ori")
 def ori(log: ObjectLog, truth: GroundTruthTable):
-    g = jnp.asarray(truth.ps_G, jnp.float32)
-    return _index(jnp.abs(g - log.ps), g)
+    return _reconstruction(log.ps, truth)
 
 
 @register("cori")
 def cori(log: ObjectLog, truth: GroundTruthTable):
-    g = jnp.asarray(truth.ps_G, jnp.float32)
-    return _index(jnp.abs(g - log.conf_true * log.ps), g)
+    return _reconstruction(log.conf_true * log.ps, truth)
 
 
 @register("cori_any")
 def cori_any(log: ObjectLog, truth: GroundTruthTable):
-    g = jnp.asarray(truth.ps_G, jnp.float32)
-    return _index(jnp.abs(g - log.conf_any * log.ps), g)
+    return _reconstruction(log.conf_any * log.ps, truth)
 
 
 @register("opi")
