@@ -102,7 +102,8 @@ def _cmd_run(args) -> int:
     from rosmeery_jax.session import Session, load_config
 
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
-                      duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics)
+                      duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
+                      conf_threshold=args.conf_threshold, weights=args.weights)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
     out = Session(cfg, progress=not args.quiet).run(resume=args.resume)
@@ -124,7 +125,73 @@ def _print_summary(out: Path) -> None:
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
         print(f"{w:<14}{p:<18}{m:<12}{sum(final) / len(final):>8.3f} ±{pd.Series(final).std(ddof=0):.3f}"
               f"{auc:>8.3f}{t90:>8.1f}")
+    timings = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.timing.json"))]
+    det = sum(t["detector_s"] for t in timings)
+    if det > 0:
+        total = det + sum(t["env_s"] for t in timings)
+        frames = sum(t["frames"] for t in timings)
+        print(f"detector: {frames} frames in {det:.1f} s ({frames / det:,.0f} frames/s), "
+              f"{100 * det / total:.0f}% of simulation + detection time")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
+
+
+def _cmd_detector_dataset(args) -> int:
+    from rosmeery_jax.detector.dataset import DatasetConfig, write
+    from rosmeery_jax.world import load_world
+
+    worlds = tuple(w.strip() for w in args.worlds.split(",") if w.strip())
+    for w in worlds:
+        load_world(w)  # a bad name fails here, in one line
+    cfg = DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
+    summary = write(cfg, args.out, progress=not args.quiet)
+    print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
+          f"{summary['boxes']['train']} / {summary['boxes']['val']} boxes")
+    return 0
+
+
+def _cmd_detector_train(args) -> int:
+    from rosmeery_jax.detector.train import TrainConfig, train
+
+    cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
+                      max_images=args.max_images)
+    best = train(args.data, args.out, cfg, progress=not args.quiet)
+    print(f"best validation mAP@0.5 {best['map50']:.3f} at epoch {best['epoch']}; wrote {args.out}")
+    return 0
+
+
+def _cmd_detector_eval(args) -> int:
+    import numpy as np
+
+    from rosmeery_jax.detector import checkpoint
+    from rosmeery_jax.detector.dataset import DatasetConfig, generate, read
+    from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+    from rosmeery_jax.detector.evaluate import evaluate
+
+    weights = Path(args.weights) if args.weights else DEFAULT_WEIGHTS
+    model = checkpoint.load(weights)
+    if args.data:
+        images, rows, _ = read(args.data, "val")
+        source = f"{args.data} (val)"
+    else:  # the held-out viewpoints of the default dataset, rendered now (deterministic)
+        frames = list(generate(DatasetConfig(), splits=("val",), progress=False))
+        images = np.stack([f[3] for f in frames])
+        rows = [f[4] for f in frames]
+        source = "default dataset, held-out viewpoints (rendered now)"
+    r = evaluate(model, images, rows)
+    names = model.names
+    if args.json:
+        print(json.dumps({"weights": str(weights), "data": source, "images": len(images), "map50": r["map50"],
+                          "precision": r["precision"], "recall": r["recall"],
+                          "ap50": {names[c]: v for c, v in r["ap"].items()},
+                          "instances": {names[c]: v for c, v in r["n_gt"].items()}}, indent=2))
+        return 0
+    print(f"weights {weights}\ndata {source}: {len(images)} images")
+    print(f"{'class':<16}{'instances':>10}{'AP@0.5':>8}")
+    for c, v in sorted(r["ap"].items(), key=lambda kv: names[kv[0]]):
+        print(f"{names[c]:<16}{r['n_gt'][c]:>10}{v:>8.3f}")
+    print(f"{'all':<16}{sum(r['n_gt'].values()):>10}{r['map50']:>8.3f}   (mAP@0.5; precision {r['precision']:.3f}, "
+          f"recall {r['recall']:.3f} at conf 0.25)")
+    return 0
 
 
 def _cmd_plot(args) -> int:
@@ -176,12 +243,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policies", metavar="P,Q", help="default: frontier,random")
     p.add_argument("--seeds", type=int, metavar="N", help="runs per world and policy, batched (default 5)")
     p.add_argument("--duration", type=float, metavar="S", help="simulated seconds per run (default 300)")
-    p.add_argument("--detector", help="off (ground-truth labels of observed objects)")
+    p.add_argument("--detector", help="yolo (default: the torch YOLO-v5), oracle (simulated from ground truth) "
+                   "or off (ground-truth labels of observed objects)")
+    p.add_argument("--conf-threshold", type=float, metavar="C", help="drop detections below C (default 0.25)")
+    p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
     p.add_argument("--metrics", metavar="M,N", help="active metrics (default: all built-in)")
     p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
+    dsub = p.add_subparsers(dest="detector_command", required=True)
+    s = dsub.add_parser("dataset", help="render a YOLO-format dataset from the simulator")
+    s.add_argument("--worlds", default="kitchen,laboratory,small_office,large_office", metavar="A,B")
+    s.add_argument("--out", default="data/detector", metavar="DIR")
+    s.add_argument("--per-world", type=int, default=1500, metavar="N", help="viewpoints per world (train + val)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--quiet", action="store_true")
+    s.set_defaults(func=_cmd_detector_dataset)
+    s = dsub.add_parser("train", help="train YOLO-v5 from scratch on a dataset folder (CPU)")
+    s.add_argument("--data", default="data/detector", metavar="DIR")
+    s.add_argument("--out", default="out/detector/yolov5n.pt", metavar="FILE.pt")
+    s.add_argument("--size", default="n", choices=("n", "s"))
+    s.add_argument("--epochs", type=int, default=40)
+    s.add_argument("--batch", type=int, default=32)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--max-images", type=int, default=0, metavar="N", help="use only the first N training images")
+    s.add_argument("--quiet", action="store_true")
+    s.set_defaults(func=_cmd_detector_train)
+    s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
+    s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
+    s.add_argument("--data", metavar="DIR", help="a dataset folder (default: render the default held-out split)")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=_cmd_detector_eval)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
     p.add_argument("dir", metavar="DIR")

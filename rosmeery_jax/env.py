@@ -28,7 +28,7 @@ from rosmeery_jax.mapping import GridGeometry, MapConfig
 from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
 from rosmeery_jax.platform import Platform, RobotConfig
 from rosmeery_jax.raycast.kernel import ray_scene
-from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs
+from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb
 from rosmeery_jax.world import World, WorldConfig, load_world
 
 
@@ -138,6 +138,10 @@ class Env:
         depth, seg = depth_seg(self.rays, self.config.camera, state.pose)
         knowledge = self.sk.observe(state.knowledge, state.pose, depth)
         return state._replace(ranges=ranges, logodds=logodds, depth=depth, seg=seg, knowledge=knowledge)
+
+    def camera_rgb(self, state: State) -> tuple[jax.Array, jax.Array]:
+        """The detector's frame: RGB (Hr, Wr, 3) uint8 and object labels (Hr, Wr) int32."""
+        return rgb(self.rays, self.config.camera, state.pose)
 
     def attach(self, state: State, obj: jax.Array, label: jax.Array, conf: jax.Array) -> State:
         """Fold detections (D,) object index / category / confidence into the knowledge."""

@@ -33,7 +33,8 @@ import pandas as pd
 from rosmeery_jax import metrics, results
 from rosmeery_jax.errors import InputError
 
-DETECTORS = ("off",)  # the torch detector ("yolo") and its "oracle" come with the detector issue
+DETECTORS = ("yolo", "oracle", "off")
+MAX_DET = 32  # detections kept per frame (the most confident)
 
 
 @dataclass(frozen=True)
@@ -42,7 +43,9 @@ class SessionConfig:
     policies: tuple[str, ...] = ("frontier", "random")
     seeds: int = 5
     duration: float = 300.0  # simulated seconds per run
-    detector: str = "off"
+    detector: str = "yolo"  # "yolo" (torch), "oracle" (simulated from ground truth), "off"
+    conf_threshold: float = 0.25  # detections below it are dropped
+    weights: str = ""  # YOLO-v5 weights for "yolo" ("" = the shipped ones)
     metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
     decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
     chunk_s: float = 30.0  # simulated seconds per jitted call (progress granularity)
@@ -62,6 +65,16 @@ class SessionConfig:
                 raise InputError(source, "policies", f"unknown policy {p!r} (built in: {', '.join(POLICIES)})")
         if self.detector not in DETECTORS:
             raise InputError(source, "detector", f"{self.detector!r} is not available (available: {', '.join(DETECTORS)})")
+        if not isinstance(self.conf_threshold, (int, float)) or not 0 <= self.conf_threshold <= 1:
+            raise InputError(source, "conf_threshold", f"{self.conf_threshold!r} must be a number in [0, 1]")
+        if self.weights and not Path(self.weights).is_file():
+            raise InputError(source, "weights", f"{self.weights!r}: no such file")
+        if self.detector == "yolo":
+            try:
+                import torch  # noqa: F401
+            except ImportError:
+                raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
+                                 "(or use --detector oracle / off)") from None
         for name, v in (("seeds", self.seeds), ("decide_every", self.decide_every)):
             if not isinstance(v, int) or v < 1:
                 raise InputError(source, name, f"{v!r} must be a whole number >= 1")
@@ -131,7 +144,7 @@ def _check_out(cfg: SessionConfig, out: Path, resume: bool) -> None:
             raise InputError(str(out), "out", "already holds results: pass --resume to continue, or choose another --out")
         old = json.loads(saved.read_text())["session"]
         new = json.loads(json.dumps(asdict(cfg)))
-        for key in ("seeds", "duration", "detector", "decide_every", "sample_s", "env"):
+        for key in ("seeds", "duration", "detector", "conf_threshold", "weights", "decide_every", "sample_s", "env"):
             if old.get(key) != new.get(key):
                 raise InputError(str(saved), key, f"was {old.get(key)!r}, now {new.get(key)!r}: resume needs the same setting")
 
@@ -165,8 +178,15 @@ class Session:
         from rosmeery_jax.policies import make_policy
 
         cfg = self.cfg
-        env = make(world_name, **{"start_yaw": "random", **cfg.env})
+        detecting = cfg.detector != "off"
+        env = make(world_name, **{"start_yaw": "random", **({"labels": "detections"} if detecting else {}), **cfg.env})
         policy = make_policy(policy_name, env)
+        detector = None
+        if detecting:
+            from rosmeery_jax.detector.detections import make_detector
+
+            detector = make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
+            label_fn = _label_fn(env)
         b = cfg.seeds
         keys = jax.vmap(jax.random.key)(jnp.arange(b))
         k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
@@ -177,18 +197,29 @@ class Session:
         # The largest chunk that divides the run evenly, so one compiled function serves.
         want = max(1, int(round(cfg.chunk_s / (env.dt * steps_per_decision))))
         decisions = max(d for d in range(1, min(want, total_decisions) + 1) if total_decisions % d == 0)
-        chunk_fn = _chunk_fn(env, policy, steps_per_decision, decisions)
+        chunk_fn = _chunk_fn(env, policy, steps_per_decision, decisions, capture=detecting)
         logs, first_log = [], jax.tree.map(np.asarray, jax.jit(jax.vmap(env.log))(state))
         label = f"{env.world.name}/{policy.name}"
-        for _ in range(total_decisions // decisions):
+        timing = {"env_s": 0.0, "detector_s": 0.0, "frames": 0}
+        for c in range(total_decisions // decisions):
             t0 = time.perf_counter()
-            state, pstate, k_run, chunk_logs = chunk_fn(state, pstate, k_run)
+            state, pstate, k_run, chunk_logs, frames = chunk_fn(state, pstate, k_run)
             chunk_logs = jax.tree.map(np.asarray, chunk_logs)  # (B, n, N)
             wall = time.perf_counter() - t0
+            timing["env_s"] += wall
+            if detecting:
+                t1 = time.perf_counter()
+                state, chunk_logs = _detect(env, detector, label_fn, state, chunk_logs, frames, c * decisions,
+                                            steps_per_decision)
+                timing["detector_s"] += time.perf_counter() - t1
+                timing["frames"] += b * decisions
             n = decisions * steps_per_decision
             logs.append(chunk_logs)
             bar.update(n * env.dt)
-            bar.set_postfix_str(f"{label} {b * n / wall:,.0f} env-steps/s")
+            rate = f"{label} {b * n / wall:,.0f} env-steps/s"
+            if detecting:
+                rate += f", detector {timing['frames'] / max(timing['detector_s'], 1e-9):,.0f} frames/s"
+            bar.set_postfix_str(rate)
         logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), *logs)  # (B, T, N)
         logs = jax.tree.map(lambda a, f: np.concatenate([f[:, None], a], axis=1), logs, first_log)
         times = np.arange(logs.ps.shape[1]) * env.dt
@@ -207,6 +238,7 @@ class Session:
             write_semantic_map(out / "maps", f"{name}__seed{seed}", env.world,
                                jax.tree.map(lambda a: a[seed], knowledge), float(times[-1]))
         results.write_csv(pd.concat(objects, ignore_index=True), out / "runs" / f"{name}.objects.csv")
+        results.write_atomic(out / "runs" / f"{name}.timing.json", json.dumps(timing, indent=2))
         # The metrics file last: its presence marks the run finished (resume).
         results.write_csv(pd.concat(frames, ignore_index=True), out / "runs" / f"{name}.metrics.csv")
 
@@ -234,10 +266,13 @@ def _decisions(cfg: SessionConfig, dt: float) -> int:
     return n
 
 
-def _chunk_fn(env, policy, steps_per_decision: int, decisions: int):
+def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: bool = False):
     """jit(vmap'd) function: ``decisions`` policy decisions, each followed by
-    ``steps_per_decision`` env steps; returns logs (B, decisions * steps, N)."""
+    ``steps_per_decision`` env steps; returns logs (B, decisions * steps, N) and, with
+    ``capture``, the detector's frames after each decision: RGB (B, F, Hr, Wr, 3) and labels
+    (B, F, Hr, Wr) int16 (F = decisions); else None."""
     import jax
+    import jax.numpy as jnp
 
     def one_env(state, pstate, key):
         def decide(carry, _):
@@ -250,13 +285,65 @@ def _chunk_fn(env, policy, steps_per_decision: int, decisions: int):
                 return s, env.log(s)
 
             s, logs = jax.lax.scan(step, s, None, length=steps_per_decision)
-            return (s, ps, k), logs
+            frame = None
+            if capture:
+                img, lab = env.camera_rgb(s)
+                frame = (img, lab.astype(jnp.int16))
+            return (s, ps, k), (logs, frame)
 
-        (state, pstate, key), logs = jax.lax.scan(decide, (state, pstate, key), None, length=decisions)
+        (state, pstate, key), (logs, frames) = jax.lax.scan(decide, (state, pstate, key), None, length=decisions)
         logs = jax.tree.map(lambda a: a.reshape(decisions * steps_per_decision, *a.shape[2:]), logs)
-        return state, pstate, key, logs
+        return state, pstate, key, logs, frames
 
     return jax.jit(jax.vmap(one_env))
+
+
+def _label_fn(env):
+    """jit(vmap'd): knowledge + detections (B, F, D) -> final knowledge and the label fields
+    of the per-object log after each frame's detections (B, F, N)."""
+    import jax
+
+    def one_env(k, obj, label, conf):
+        def body(k, d):
+            k = env.sk.attach(k, *d)
+            log = env.sk.log(k)
+            return k, (log.conf_true, log.conf_any, log.label, log.declared, log.correct)
+
+        return jax.lax.scan(body, k, (obj, label, conf))
+
+    return jax.jit(jax.vmap(one_env))
+
+
+_LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
+
+
+def _detect(env, detector, label_fn, state, logs, frames, first_frame: int, steps_per_decision: int):
+    """Run the detector on a chunk's frames, fold the detections into the knowledge, and
+    rewrite the chunk's label fields from the step after each frame on, so the curves carry
+    no chunk-long lag (a frame taken at the end of decision f counts from decision f + 1)."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax.detector.detections import pad
+
+    rgb, seg = (np.asarray(a) for a in frames)  # (B, F, H, W, 3), (B, F, H, W)
+    b, f = rgb.shape[:2]
+    ids = np.stack(np.meshgrid(np.arange(b), first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
+    found = detector(rgb.reshape(b * f, *rgb.shape[2:]), seg.reshape(b * f, *seg.shape[2:]).astype(np.int32), ids)
+    dets = [pad(found[i * f:(i + 1) * f], f, MAX_DET) for i in range(b)]
+    obj, label, conf = (jnp.asarray(np.stack([d[j] for d in dets])) for j in range(3))
+    knowledge, fields = label_fn(state.knowledge, obj, label, conf)
+    state = state._replace(knowledge=knowledge)
+    fields = [np.asarray(x) for x in fields]  # each (B, F, N)
+    frame_of_step = np.arange(logs.ps.shape[1]) // steps_per_decision - 1  # -1: before the chunk's first frame
+    take = frame_of_step >= 0
+    updates = {}
+    for name, per_frame in zip(_LABEL_FIELDS, fields):
+        old = getattr(logs, name)
+        new = old.copy()
+        new[:, take] = per_frame[:, frame_of_step[take]].astype(old.dtype)
+        updates[name] = new
+    return state, logs._replace(**updates)
 
 
 def _bar(total: float, enabled: bool):

@@ -1,0 +1,133 @@
+"""Loading detector weights: our own state dicts and official YOLO-v5 checkpoints, safely.
+
+Our shipped format is a plain state dict saved by ``torch.save``: ``{"format":
+"rosmeery-yolov5", "size", "names", "imgsz", "state_dict"}``, read with
+``torch.load(weights_only=True)``.
+
+Official checkpoints pickle whole model objects (classes from the YOLO-v5 repository). They
+are read with an unpickler that never imports or runs their code: every class it names
+becomes an inert placeholder that only records its pickled attributes, and tensors are kept.
+The parameters are then gathered by walking ``_modules`` / ``_parameters`` / ``_buffers``.
+"""
+
+from __future__ import annotations
+
+import pickle
+import zipfile
+from pathlib import Path
+
+import torch
+
+from rosmeery_jax.errors import InputError
+
+FORMAT = "rosmeery-yolov5"
+
+
+class _Inert:
+    """Stands in for any class an official checkpoint pickles; keeps only its state."""
+
+    def __setstate__(self, state):
+        self.__dict__["_state"] = state
+
+
+# Globals the checkpoint may name that are plain data (anything else becomes _Inert).
+_ALLOWED = {
+    ("collections", "OrderedDict"), ("torch._utils", "_rebuild_tensor_v2"),
+    ("torch._utils", "_rebuild_parameter"), ("builtins", "set"), ("__builtin__", "set"),
+    ("torch", "Size"), ("torch", "float16"), ("torch", "float32"),
+}
+
+
+class _SafeUnpickler(pickle.Unpickler):
+    def find_class(self, module, name):
+        if (module, name) in _ALLOWED:
+            return super().find_class("builtins" if module == "__builtin__" else module, name)
+        return type(name, (_Inert,), {"__module__": f"inert.{module}"})
+
+
+class _pickle_module:  # what torch.load expects of a pickle module
+    Unpickler = _SafeUnpickler
+    load = staticmethod(pickle.load)
+    __name__ = "rosmeery_safe_pickle"
+
+
+def _state(obj) -> dict:
+    return obj.__dict__.get("_state", {}) if isinstance(obj, _Inert) else {}
+
+
+def _gather(obj, prefix: str, out: dict) -> None:
+    st = _state(obj)
+    for group in ("_parameters", "_buffers"):
+        for k, v in (st.get(group) or {}).items():
+            if isinstance(v, torch.Tensor):
+                out[prefix + k] = v.detach()
+    for k, child in (st.get("_modules") or {}).items():
+        _gather(child, f"{prefix}{k}.", out)
+
+
+def read_official(path: str | Path) -> dict:
+    """An official YOLO-v5 ``.pt``: ``{"state_dict", "names", "nc", "size"}`` without running
+    pickled code. The size comes from the checkpoint's width multiple."""
+    path = Path(path)
+    try:
+        ckpt = torch.load(path, map_location="cpu", pickle_module=_pickle_module, weights_only=False)
+    except (OSError, RuntimeError, pickle.UnpicklingError, EOFError, zipfile.BadZipFile, ValueError) as err:
+        raise InputError(str(path), "file", f"not a readable torch checkpoint ({type(err).__name__})") from None
+    model = ckpt.get("ema") or ckpt.get("model") if isinstance(ckpt, dict) else None
+    if model is None:
+        raise InputError(str(path), "model", "no model in this checkpoint")
+    sd: dict = {}
+    _gather(model, "", sd)
+    st = _state(model)
+    names = st.get("names")
+    names = [names[i] for i in sorted(names)] if isinstance(names, dict) else list(names or [])
+    yaml = st.get("yaml") or {}
+    width = float(yaml.get("width_multiple", 0.25))
+    size = {0.25: "n", 0.5: "s", 0.75: "m", 1.0: "l", 1.25: "x"}.get(width, "n")
+    return {"state_dict": sd, "names": names, "nc": int(yaml.get("nc", len(names))), "size": size}
+
+
+def load(path: str | Path, device: str = "cpu"):
+    """A ready :class:`~rosmeery_jax.detector.yolo.YOLOv5` (eval mode, float32) from our
+    state-dict format or an official checkpoint; one clear error for anything else."""
+    from rosmeery_jax.detector.yolo import YOLOv5
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(str(path), "file", "not found")
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001 - not our format: maybe an official pickled checkpoint
+        raw = None
+    if isinstance(raw, dict) and raw.get("format") == FORMAT:
+        info = {"state_dict": raw.get("state_dict"), "names": list(raw.get("names", [])),
+                "size": raw.get("size", "n"), "imgsz": raw.get("imgsz")}
+        info["nc"] = len(info["names"])
+        if not isinstance(info["state_dict"], dict):
+            raise InputError(str(path), "state_dict", "missing")
+    else:
+        info = read_official(path)
+    try:
+        model = YOLOv5(info["nc"], info["size"], info["names"])
+    except ValueError as err:
+        raise InputError(str(path), "size", str(err)) from None
+    sd = {k: v.float() if v.is_floating_point() else v for k, v in info["state_dict"].items()}
+    try:
+        model.load_state_dict(sd, strict=True)
+    except RuntimeError as err:
+        first = str(err).splitlines()[1].strip() if len(str(err).splitlines()) > 1 else str(err)
+        raise InputError(str(path), "state_dict", f"does not match YOLO-v5{info['size']} with "
+                         f"{info['nc']} classes: {first[:160]}") from None
+    model.imgsz = info.get("imgsz")
+    return model.eval().to(device)
+
+
+def save(model, path: str | Path, imgsz: tuple[int, int], meta: dict | None = None) -> None:
+    """Our format, fp16 parameters (BatchNorm counters stay integer), written atomically."""
+    sd = {k: v.detach().half() if v.is_floating_point() else v.detach() for k, v in model.state_dict().items()}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save({"format": FORMAT, "size": model.size, "names": list(model.names), "imgsz": list(imgsz),
+                "meta": meta or {}, "state_dict": sd}, tmp)
+    tmp.replace(path)

@@ -1,0 +1,214 @@
+"""Detector training data rendered by the simulator, labels free from the segmentation.
+
+``generate`` renders RGB frames (the session's detector resolution) from random reachable
+viewpoints of the worlds, most of them turned towards an object, and writes YOLO-format
+labels: one line ``class xc yc w h`` (normalised) per object whose visible area is at least
+``min_pixels``, class = the object's taxonomy category index.
+
+Variety: training frames get, with probability ``perturb``, a random colour per object
+(each channel scaled by 0.6-1.4), a random floor tint and a global brightness change.
+Validation frames are rendered as the session renders them.
+
+Split: viewpoints are grouped into ``block`` x ``block`` metre squares of each world; a
+square's frames all go to validation when a hash of (world, square) falls in the held-out
+fifth, so validation viewpoints are places the training set never stood in.
+
+No torch here: rendering is the JAX raycaster. Layout of ``OUT``::
+
+    images/{train,val}/<world>_<k>.png   labels/{train,val}/<world>_<k>.txt   data.json
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    worlds: tuple[str, ...] = ("kitchen", "laboratory", "small_office", "large_office")
+    per_world: int = 1500  # viewpoints drawn per world (train + val)
+    seed: int = 0
+    min_pixels: int = 40  # visible pixels for an object to be labelled
+    perturb: float = 0.7  # share of training frames with perturbed colours
+    block: float = 1.5  # metres: side of the squares the split holds out
+    val_share: float = 0.2
+    aim: float = 0.75  # share of viewpoints turned towards an object (the rest random yaw)
+
+
+def visible_boxes(labels: np.ndarray, min_pixels: int) -> np.ndarray:
+    """Per visible object in a label image (H, W): rows (object, x1, y1, x2, y2, pixels),
+    corners in pixels (x2, y2 exclusive), objects with at least ``min_pixels`` pixels."""
+    h, w = labels.shape
+    flat = labels.ravel()
+    objs = np.unique(flat[flat >= 0])
+    rows = []
+    for o in objs:
+        ys, xs = np.nonzero(labels == o)
+        if len(xs) >= min_pixels:
+            rows.append((o, xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, len(xs)))
+    return np.array(rows, np.int64).reshape(-1, 6)
+
+
+def _is_val(world: str, xy: np.ndarray, cfg: DatasetConfig) -> np.ndarray:
+    cells = np.floor(xy / cfg.block).astype(np.int64)
+    h = np.array([zlib.crc32(f"{world}:{i}:{j}".encode()) for i, j in cells], np.int64)
+    return (h % 1000) < cfg.val_share * 1000
+
+
+def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarray:
+    """(per_world, 3) camera poses at reachable cells, mostly looking at an object."""
+    fs = world.free_space
+    ii, jj = np.nonzero(fs.reachable)
+    k = rng.integers(len(ii), size=cfg.per_world)
+    xy = np.stack([fs.origin[0] + (jj[k] + rng.random(cfg.per_world)) * fs.resolution,
+                   fs.origin[1] + (ii[k] + rng.random(cfg.per_world)) * fs.resolution], -1)
+    centres = world.truth.bbox_center[:, :2]
+    pick = centres[rng.integers(len(centres), size=cfg.per_world)]
+    towards = np.arctan2(pick[:, 1] - xy[:, 1], pick[:, 0] - xy[:, 0]) + rng.normal(0, 0.35, cfg.per_world)
+    yaw = np.where(rng.random(cfg.per_world) < cfg.aim, towards, rng.uniform(-np.pi, np.pi, cfg.per_world))
+    return np.concatenate([xy, yaw[:, None]], -1).astype(np.float32)
+
+
+def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, batch: int = 64,
+                 camera=None):
+    """RGB (P, H, W, 3) uint8 and labels (P, H, W) at robot poses (P, 3); ``rgb_scale``
+    (P, G + 1, 3) multiplies each box's colour (last row: the floor) per frame."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax.raycast.kernel import ray_scene
+    from rosmeery_jax.raycast.sensors import CameraConfig, rgb
+
+    cam = camera or CameraConfig()
+    rs = ray_scene(world.scene)
+    g = rs.num_boxes
+    if rgb_scale is None:
+        rgb_scale = np.ones((len(poses), g + 1, 3), np.float32)
+
+    @jax.jit
+    def render(pose, scale):
+        def one(p, s):
+            scene = rs._replace(rgb=jnp.clip(rs.rgb * s[:g], 0, 1), floor_rgb=jnp.clip(rs.floor_rgb * s[g], 0, 1))
+            return rgb(scene, cam, p)
+        return jax.vmap(one)(pose, scale)
+
+    imgs, labs = [], []
+    n = len(poses)
+    for i in range(0, n, batch):
+        p, s = poses[i:i + batch], rgb_scale[i:i + batch]
+        pad = batch - len(p)  # one compiled shape
+        out = render(jnp.asarray(np.concatenate([p, np.repeat(p[-1:], pad, 0)])),
+                     jnp.asarray(np.concatenate([s, np.repeat(s[-1:], pad, 0)])))
+        imgs.append(np.asarray(out[0])[:len(p)])
+        labs.append(np.asarray(out[1])[:len(p)])
+    return np.concatenate(imgs), np.concatenate(labs)
+
+
+def _perturbations(world, n: int, share: float, rng: np.random.Generator, num_boxes: int) -> np.ndarray:
+    """(n, G + 1, 3) colour scales: per object (all its boxes alike), walls, floor; identity for
+    the frames left unperturbed."""
+    owner = np.asarray(world.scene.object_id)
+    nobj = world.truth.num_objects
+    out = np.ones((n, num_boxes + 1, 3), np.float32)
+    for f in np.nonzero(rng.random(n) < share)[0]:
+        per_obj = rng.uniform(0.6, 1.4, (nobj + 1, 3)).astype(np.float32)  # last row: walls
+        scale = per_obj[np.where(owner >= 0, owner, nobj)]
+        out[f, :len(owner)] = scale * rng.uniform(0.8, 1.2)
+        out[f, num_boxes] = rng.uniform(0.8, 1.2, 3)
+    return out
+
+
+def yolo_rows(labels: np.ndarray, categories: np.ndarray, min_pixels: int) -> np.ndarray:
+    """YOLO label rows (k, 5): class, xc, yc, w, h normalised, for one label image (H, W)."""
+    h, w = labels.shape
+    b = visible_boxes(labels, min_pixels)
+    if not len(b):
+        return np.zeros((0, 5), np.float32)
+    x1, y1, x2, y2 = b[:, 1], b[:, 2], b[:, 3], b[:, 4]
+    return np.stack([categories[b[:, 0]], (x1 + x2) / 2 / w, (y1 + y2) / 2 / h, (x2 - x1) / w, (y2 - y1) / h],
+                    -1).astype(np.float32)
+
+
+def generate(cfg: DatasetConfig, splits: tuple[str, ...] = ("train", "val"), progress: bool = True):
+    """Yield (split, world name, index, rgb (H, W, 3) uint8, rows (k, 5)) frame by frame."""
+    from tqdm.auto import tqdm
+
+    from rosmeery_jax.raycast.kernel import ray_scene
+    from rosmeery_jax.world import load_world
+
+    for w_i, name in enumerate(cfg.worlds):
+        world = load_world(name)
+        rng = np.random.default_rng([cfg.seed, w_i])
+        poses = viewpoints(world, cfg, rng)
+        val = _is_val(world.name, poses[:, :2], cfg)
+        scales = _perturbations(world, len(poses), cfg.perturb, rng, ray_scene(world.scene).num_boxes)
+        scales[val] = 1.0
+        keep = np.array([("val" if v else "train") in splits for v in val])
+        idx = np.nonzero(keep)[0]
+        if not len(idx):
+            continue
+        imgs, labs = render_world(world, poses[idx], scales[idx])
+        cats = np.asarray(world.truth.category_index)
+        for k, img, lab in tqdm(zip(idx, imgs, labs), total=len(idx), disable=not progress, desc=world.name):
+            yield ("val" if val[k] else "train"), world.name, int(k), img, yolo_rows(lab, cats, cfg.min_pixels)
+
+
+def write(cfg: DatasetConfig, out: str | Path, progress: bool = True) -> dict:
+    """Render the dataset into ``out`` (see the module docstring); returns its summary."""
+    import cv2
+
+    from rosmeery_jax.raycast.sensors import CameraConfig
+    from rosmeery_jax.taxonomy import load_taxonomy
+
+    out = Path(out)
+    counts = {"train": 0, "val": 0}
+    boxes = {"train": 0, "val": 0}
+    for split, world, k, img, rows in generate(cfg, progress=progress):
+        stem = f"{world}_{k:05d}"
+        (out / "images" / split).mkdir(parents=True, exist_ok=True)
+        (out / "labels" / split).mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(out / "images" / split / f"{stem}.png"), img[..., ::-1])
+        (out / "labels" / split / f"{stem}.txt").write_text(
+            "".join(f"{int(r[0])} {r[1]:.6f} {r[2]:.6f} {r[3]:.6f} {r[4]:.6f}\n" for r in rows))
+        counts[split] += 1
+        boxes[split] += len(rows)
+    cam = CameraConfig()
+    summary = {"config": asdict(cfg), "names": list(load_taxonomy().names), "imgsz": [cam.rgb_height, cam.rgb_width],
+               "images": counts, "boxes": boxes}
+    (out / "data.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def read(root: str | Path, split: str) -> tuple[np.ndarray, list[np.ndarray], dict]:
+    """Load a written split: images (I, H, W, 3) uint8 RGB, label rows per image, data.json."""
+    import cv2
+
+    from rosmeery_jax.errors import InputError
+
+    root = Path(root)
+    meta_path = root / "data.json"
+    if not meta_path.is_file():
+        raise InputError(str(meta_path), "file", "not found: make the dataset with `rosmeery detector dataset`")
+    meta = json.loads(meta_path.read_text())
+    files = sorted((root / "images" / split).glob("*.png"))
+    if not files:
+        raise InputError(str(root / "images" / split), "images", "no images in this split")
+    imgs, rows = [], []
+    for f in files:
+        img = cv2.imread(str(f))
+        if img is None:
+            raise InputError(str(f), "image", "unreadable")
+        imgs.append(img[..., ::-1])
+        lab = root / "labels" / split / f"{f.stem}.txt"
+        try:
+            r = np.array([line.split() for line in lab.read_text().splitlines() if line.strip()],
+                         np.float32).reshape(-1, 5)
+        except (OSError, ValueError) as err:
+            raise InputError(str(lab), "rows", f"not YOLO label rows ({err})") from None
+        rows.append(r)
+    return np.stack(imgs), rows, meta

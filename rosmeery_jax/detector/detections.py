@@ -1,0 +1,135 @@
+"""Detectors the session runs between chunks, and how detections attach to objects.
+
+A detector takes a batch of RGB frames (I, H, W, 3) uint8 with their segmentation images
+(I, H, W) (object index per pixel, negative for walls / floor / nothing) and returns, per
+frame, arrays ``obj`` (D,), ``label`` (D,) taxonomy category index, ``conf`` (D,).
+
+- ``yolo``: the torch YOLO-v5 (the project's shipped weights by default, or any YOLO-v5
+  weights path; class names are matched to taxonomy categories by name, others dropped).
+  A detection attaches to the object with the most pixels inside its box in the
+  segmentation image, if that object covers at least ``MIN_SHARE`` of the box.
+- ``oracle``: simulated from ground truth, no torch, for fast sweeps. Confidence model: for
+  an object with p visible pixels in a frame, size s = min(1, p / 600) (600 px is 3 % of a
+  160 x 128 frame); it is detected with probability 0.3 + 0.7 s, with confidence
+  0.35 + 0.6 sqrt(s) + N(0, 0.05) clipped to [0.05, 0.99]; with probability 0.15 (1 - s) the
+  label is a wrong one: a sibling category of the same macro-category when there is one,
+  otherwise any other category. Objects below 40 visible pixels are never detected.
+Both drop detections below the session's confidence threshold.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rosmeery_jax.detector.dataset import visible_boxes
+
+MIN_SHARE = 0.1  # share of a detection's box an object must cover to take the detection
+DEFAULT_WEIGHTS = Path(__file__).parent / "weights" / "yolov5n_rosmeery.pt"
+
+
+def associate(boxes: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """boxes (D, 4) pixel corners -> (D,) object index covering most of each box, or -1."""
+    h, w = seg.shape
+    out = np.full(len(boxes), -1, np.int32)
+    for i, (x1, y1, x2, y2) in enumerate(boxes):
+        xa, ya = int(np.clip(np.floor(x1), 0, w)), int(np.clip(np.floor(y1), 0, h))
+        xb, yb = int(np.clip(np.ceil(x2), 0, w)), int(np.clip(np.ceil(y2), 0, h))
+        patch = seg[ya:yb, xa:xb].ravel()
+        patch = patch[patch >= 0]
+        if not len(patch):
+            continue
+        ids, counts = np.unique(patch, return_counts=True)
+        k = int(np.argmax(counts))
+        if counts[k] >= MIN_SHARE * max(1, (xb - xa) * (yb - ya)):
+            out[i] = ids[k]
+    return out
+
+
+class YoloDetector:
+    name = "yolo"
+
+    def __init__(self, categories: tuple[str, ...], weights: str | Path | None = None, conf: float = 0.25,
+                 batch: int = 64, threads: int | None = None):
+        import torch
+
+        from rosmeery_jax.detector import checkpoint
+
+        if threads:
+            torch.set_num_threads(threads)
+        self.path = Path(weights) if weights else DEFAULT_WEIGHTS
+        self.model = checkpoint.load(self.path)
+        index = {c: i for i, c in enumerate(categories)}
+        self.class_map = np.array([index.get(n, -1) for n in self.model.names], np.int32)
+        self.conf, self.batch = conf, batch
+
+    def __call__(self, images: np.ndarray, seg: np.ndarray, frame_ids=None) -> list[tuple]:
+        import torch
+
+        out = []
+        h, w = images.shape[1:3]
+        ph, pw = (-h) % 32, (-w) % 32
+        for i in range(0, len(images), self.batch):
+            x = torch.from_numpy(np.ascontiguousarray(images[i:i + self.batch])).permute(0, 3, 1, 2).float() / 255
+            if ph or pw:  # pad to whole strides with the official grey
+                x = torch.nn.functional.pad(x, (0, pw, 0, ph), value=114 / 255)
+            for j, d in enumerate(self.model.detect(x, conf=self.conf)):
+                d = d.numpy()
+                label = self.class_map[d[:, 5].astype(int)]
+                keep = label >= 0
+                d, label = d[keep], label[keep]
+                obj = associate(d[:, :4], seg[i + j])
+                out.append((obj, label, d[:, 4].astype(np.float32)))
+        return out
+
+
+class OracleDetector:
+    name = "oracle"
+
+    def __init__(self, categories: np.ndarray, taxonomy, conf: float = 0.25, min_pixels: int = 40):
+        self.categories = np.asarray(categories)
+        self.conf, self.min_pixels = conf, min_pixels
+        names = list(taxonomy.names)
+        macro = [taxonomy.chain(n)[1] for n in names]
+        self.siblings = [[j for j in range(len(names)) if macro[j] == macro[i] and j != i]
+                         or [j for j in range(len(names)) if j != i] for i in range(len(names))]
+
+    def __call__(self, images: np.ndarray, seg: np.ndarray, frame_ids) -> list[tuple]:
+        """frame_ids (I, 2): (env seed, frame number) per frame: the random stream of a frame,
+        so results do not depend on how frames are batched."""
+        out = []
+        for s, fid in zip(seg, frame_ids):
+            rng = np.random.default_rng([int(fid[0]), int(fid[1]), 7])
+            b = visible_boxes(s, self.min_pixels)
+            size = np.minimum(1.0, b[:, 5] / 600.0)
+            hit = rng.random(len(b)) < 0.3 + 0.7 * size
+            conf = np.clip(0.35 + 0.6 * np.sqrt(size) + rng.normal(0, 0.05, len(b)), 0.05, 0.99)
+            label = self.categories[b[:, 0]].copy()
+            wrong = rng.random(len(b)) < 0.15 * (1 - size)
+            for k in np.nonzero(wrong)[0]:
+                sib = self.siblings[label[k]]
+                label[k] = sib[rng.integers(len(sib))]
+            keep = hit & (conf >= self.conf)
+            out.append((b[keep, 0].astype(np.int32), label[keep].astype(np.int32), conf[keep].astype(np.float32)))
+        return out
+
+
+def pad(per_frame: list[tuple], frames: int, max_det: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Detections of ``frames`` frames -> obj, label (frames, max_det) int32 (-1 = none) and
+    conf (frames, max_det), keeping each frame's most confident ``max_det``."""
+    obj = np.full((frames, max_det), -1, np.int32)
+    label = np.full((frames, max_det), -1, np.int32)
+    conf = np.zeros((frames, max_det), np.float32)
+    for f, (o, lab, c) in enumerate(per_frame):
+        k = np.argsort(-c, kind="stable")[:max_det]
+        obj[f, :len(k)], label[f, :len(k)], conf[f, :len(k)] = o[k], lab[k], c[k]
+    return obj, label, conf
+
+
+def make_detector(name: str, world, conf: float, weights: str | None = None):
+    if name == "yolo":
+        return YoloDetector(world.taxonomy.names, weights, conf)
+    if name == "oracle":
+        return OracleDetector(world.truth.category_index, world.taxonomy, conf)
+    raise ValueError(f"unknown detector {name!r}")
