@@ -194,6 +194,29 @@ def _cmd_detector_eval(args) -> int:
     return 0
 
 
+def _cmd_teleop(args) -> int:
+    import time as _time
+
+    from rosmeery_jax.teleop.server import Teleop, serve
+    from rosmeery_jax.world import load_world
+
+    load_world(args.world)  # a bad name fails here, in one line
+    record = args.record or f"recordings/{Path(args.world).stem}-{_time.strftime('%Y%m%d-%H%M%S')}.jsonl"
+    print(f"loading {args.world} and compiling (about a minute on first use)...", flush=True)
+    app = Teleop(args.world, record=record, detector=args.detector, seed=args.seed,
+                 conf_threshold=args.conf_threshold, weights=args.weights)
+
+    def ready(addr):
+        print(f"teleop: open http://{addr[0]}:{addr[1]}/ (arrow keys / WASD drive; Stop or Ctrl-C ends)", flush=True)
+        print(f"recording to {record}", flush=True)
+
+    serve(app, args.host, args.port, ready)
+    f = app.frame
+    print(f"stopped after {f.t:.1f} s; " + ", ".join(f"{k} {v:.3f}" for k, v in f.metrics.items()))
+    print(f"recording: {record} (replay: rosmeery run --worlds {app.env.world.name} --policies replay:{record})")
+    return 0
+
+
 def _cmd_plot(args) -> int:
     from rosmeery_jax import plots, results
 
@@ -277,6 +300,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--data", metavar="DIR", help="a dataset folder (default: render the default held-out split)")
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=_cmd_detector_eval)
+
+    p = sub.add_parser("teleop", help="drive the robot from a local web page; the session is recorded")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default: loopback only)")
+    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--record", metavar="FILE.jsonl", help="default: recordings/<world>-<time>.jsonl")
+    p.add_argument("--detector", default="yolo", choices=("yolo", "oracle", "off"))
+    p.add_argument("--conf-threshold", type=float, default=0.25, metavar="C")
+    p.add_argument("--weights", metavar="FILE.pt")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_teleop)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
     p.add_argument("dir", metavar="DIR")

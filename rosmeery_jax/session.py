@@ -8,7 +8,9 @@ when it ends writes its files atomically:
     OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
     OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end
-    OUT/metrics.csv, OUT/objects.csv          all finished runs, rewritten after each run
+    OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
+    OUT/runs/<world>__<policy>.timing.json    wall time of simulation and of the detector
+    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, rewritten after each
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
     OUT/config.json                           resolved configuration, versions, git revision
 
@@ -61,8 +63,18 @@ class SessionConfig:
             if w not in world_names() and not Path(w).is_file():
                 raise InputError(source, "worlds", f"{w!r} is neither a built-in world nor an MJCF file")
         for p in self.policies:
-            if p not in POLICIES:
-                raise InputError(source, "policies", f"unknown policy {p!r} (built in: {', '.join(POLICIES)})")
+            if p.startswith("replay:"):
+                try:
+                    worlds = _recordings_by_world(p)
+                except InputError as err:
+                    raise InputError(err.source if err.source != "config" else source, err.where, err.problem) from None
+                names = {Path(w).stem for w in self.worlds}
+                if not set(worlds) & names:
+                    raise InputError(source, "policies", f"no recording in {p!r} is of a session world "
+                                     f"(recorded in: {', '.join(sorted(worlds))})")
+            elif p not in POLICIES:
+                raise InputError(source, "policies", f"unknown policy {p!r} (built in: {', '.join(POLICIES)}, "
+                                 "replay:FILE[+FILE...])")
         if self.detector not in DETECTORS:
             raise InputError(source, "detector", f"{self.detector!r} is not available (available: {', '.join(DETECTORS)})")
         if not isinstance(self.conf_threshold, (int, float)) or not 0 <= self.conf_threshold <= 1:
@@ -112,13 +124,57 @@ def load_config(path: str | Path | None, **overrides) -> SessionConfig:
             values[key] = tuple(x.strip() for x in values[key].split(",") if x.strip())
         elif key in values:
             values[key] = tuple(values[key])
+    if "policies" in values:
+        values["policies"] = _group_replay(values["policies"])
     if isinstance(values.get("duration"), int):
         values["duration"] = float(values["duration"])
     return replace(SessionConfig(), **values).validate(source)
 
 
 def _run_name(world: str, policy: str) -> str:
-    return f"{Path(world).stem}__{policy}"
+    return f"{Path(world).stem}__{policy_label(policy)}"
+
+
+def policy_label(policy: str) -> str:
+    """The name a policy entry has in results: ``replay:FILES`` -> ``replay``."""
+    return "replay" if policy.startswith("replay:") else policy
+
+
+def replay_files(policy: str) -> list[Path]:
+    """The recordings of a ``replay:`` entry: files or glob patterns joined by ``+``."""
+    files: list[Path] = []
+    for part in policy.removeprefix("replay:").split("+"):
+        part = part.strip()
+        if not part:
+            continue
+        hits = sorted(Path().glob(part)) if any(c in part for c in "*?[") else [Path(part)]
+        if not hits:
+            raise InputError("config", "policies", f"replay: no file matches {part!r}")
+        files += hits
+    return files
+
+
+def _recordings_by_world(policy: str) -> dict:
+    from rosmeery_jax.teleop.recording import read
+
+    by_world: dict = {}
+    for f in replay_files(policy):
+        rec = read(f)
+        by_world.setdefault(rec.world, []).append(rec)
+    return by_world
+
+
+def _group_replay(tokens: tuple[str, ...]) -> tuple[str, ...]:
+    """``replay:a.jsonl,b.jsonl,random`` splits on commas: re-attach the files to their entry."""
+    from rosmeery_jax.policies import POLICIES
+
+    out: list[str] = []
+    for tok in tokens:
+        if out and out[-1].startswith("replay:") and tok not in POLICIES and not tok.startswith("replay:"):
+            out[-1] += "+" + tok
+        else:
+            out.append(tok)
+    return tuple(out)
 
 
 def _versions() -> dict:
@@ -159,7 +215,8 @@ class Session:
         _check_out(cfg, out, resume)
         results.write_atomic(out / "config.json", json.dumps({"session": asdict(cfg), "versions": _versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
-                if not (out / "runs" / f"{_run_name(w, p)}.metrics.csv").exists()]
+                if not (out / "runs" / f"{_run_name(w, p)}.metrics.csv").exists()
+                and (not p.startswith("replay:") or Path(w).stem in _recordings_by_world(p))]
         total = len(todo) * cfg.duration
         bar = _bar(total, self.progress)
         for world, policy in todo:
@@ -179,32 +236,55 @@ class Session:
 
         cfg = self.cfg
         detecting = cfg.detector != "off"
-        env = make(world_name, **{"start_yaw": "random", **({"labels": "detections"} if detecting else {}), **cfg.env})
-        policy = make_policy(policy_name, env)
+        overrides = {"start_yaw": "random", **({"labels": "detections"} if detecting else {}), **cfg.env}
+        replaying = policy_name.startswith("replay:")
+        if replaying:  # the recordings' own start pose and settings, velocity commands
+            from rosmeery_jax.policies.replay import ReplayPolicy
+
+            recs = _recordings_by_world(policy_name)[Path(world_name).stem]
+            overrides.update({**recs[0].header.get("env", {}), "start_yaw": "spawn", "action_mode": "velocity"})
+        env = make(world_name, **overrides)
+        if replaying:
+            from rosmeery_jax.teleop.recording import check_world
+
+            for rec in recs:
+                check_world(rec, env.world)
+            policy = ReplayPolicy(env, recs, cfg.decide_every, _decisions(cfg, env.dt) * cfg.decide_every)
+        else:
+            policy = make_policy(policy_name, env)
         detector = None
         if detecting:
             from rosmeery_jax.detector.detections import make_detector
 
             detector = make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
             label_fn = _label_fn(env)
-        b = cfg.seeds
+        b = len(recs) if replaying else cfg.seeds
         keys = jax.vmap(jax.random.key)(jnp.arange(b))
         k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
         state = jax.jit(jax.vmap(env.reset))(k_env)
-        pstate = jax.vmap(policy.init)(k_pol)
+        if replaying:
+            for rec, pose in zip(recs, np.asarray(state.pose)):
+                if not np.allclose(pose, rec.header["start_pose"], atol=1e-4):
+                    raise InputError(str(rec.path), "start_pose", f"{rec.header['start_pose']} is not the world's "
+                                     f"start pose {pose.tolist()}")
+            pstate = policy.init_batch()
+        else:
+            pstate = jax.vmap(policy.init)(k_pol)
         steps_per_decision = cfg.decide_every
         total_decisions = _decisions(cfg, env.dt)
         # The largest chunk that divides the run evenly, so one compiled function serves.
         want = max(1, int(round(cfg.chunk_s / (env.dt * steps_per_decision))))
         decisions = max(d for d in range(1, min(want, total_decisions) + 1) if total_decisions % d == 0)
         chunk_fn = _chunk_fn(env, policy, steps_per_decision, decisions, capture=detecting)
-        logs, first_log = [], jax.tree.map(np.asarray, jax.jit(jax.vmap(env.log))(state))
+        logs, poses, first_log = [], [np.asarray(state.pose)[:, None]], jax.tree.map(np.asarray,
+                                                                                  jax.jit(jax.vmap(env.log))(state))
         label = f"{env.world.name}/{policy.name}"
         timing = {"env_s": 0.0, "detector_s": 0.0, "frames": 0}
         for c in range(total_decisions // decisions):
             t0 = time.perf_counter()
-            state, pstate, k_run, chunk_logs, frames = chunk_fn(state, pstate, k_run)
+            state, pstate, k_run, chunk_logs, chunk_poses, frames = chunk_fn(state, pstate, k_run)
             chunk_logs = jax.tree.map(np.asarray, chunk_logs)  # (B, n, N)
+            poses.append(np.asarray(chunk_poses))
             wall = time.perf_counter() - t0
             timing["env_s"] += wall
             if detecting:
@@ -226,19 +306,24 @@ class Session:
         every = max(1, int(round(cfg.sample_s / env.dt)))
         keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
         curves = metrics.compute(logs, env.sk.truth, cfg.metrics)  # {name: (B, T)}
-        frames, objects = [], []
+        poses = np.concatenate(poses, axis=1)  # (B, T, 3)
+        frames, objects, paths = [], [], []
         tags = dict(world=env.world.name, policy=policy.name, detector=cfg.detector)
         knowledge = jax.tree.map(np.asarray, jax.jit(jax.vmap(env.knowledge))(state))
         name = _run_name(world_name, policy_name)
         for seed in range(b):
             frames.append(results.metric_frame({m: c[seed, keep] for m, c in curves.items()}, times[keep],
                                                seed=seed, **tags))
+            paths.append(pd.DataFrame({"world": env.world.name, "policy": policy.name, "seed": seed,
+                                       "time_s": np.round(times[keep], 6), "x": poses[seed, keep, 0],
+                                       "y": poses[seed, keep, 1], "yaw": poses[seed, keep, 2]}))
             final = jax.tree.map(lambda a: a[seed, -1], logs)
             objects.append(results.object_frame(env.world, final, seed=seed, policy=policy.name, detector=cfg.detector))
             write_semantic_map(out / "maps", f"{name}__seed{seed}", env.world,
                                jax.tree.map(lambda a: a[seed], knowledge), float(times[-1]))
         results.write_csv(pd.concat(objects, ignore_index=True), out / "runs" / f"{name}.objects.csv")
         results.write_atomic(out / "runs" / f"{name}.timing.json", json.dumps(timing, indent=2))
+        results.write_csv(pd.concat(paths, ignore_index=True), out / "runs" / f"{name}.trajectory.csv")
         # The metrics file last: its presence marks the run finished (resume).
         results.write_csv(pd.concat(frames, ignore_index=True), out / "runs" / f"{name}.metrics.csv")
 
@@ -253,6 +338,10 @@ class Session:
         objs = [p.with_name(p.name.replace(".metrics.csv", ".objects.csv")) for p in runs]
         results.write_csv(pd.concat([pd.read_csv(p) for p in objs if p.exists()], ignore_index=True),
                           out / "objects.csv")
+        paths = [p.with_name(p.name.replace(".metrics.csv", ".trajectory.csv")) for p in runs]
+        paths = [pd.read_csv(p) for p in paths if p.exists()]
+        if paths:
+            results.write_csv(pd.concat(paths, ignore_index=True), out / "trajectories.csv")
         plots.plot_results(df, out / "plots")
 
 
@@ -268,7 +357,8 @@ def _decisions(cfg: SessionConfig, dt: float) -> int:
 
 def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: bool = False):
     """jit(vmap'd) function: ``decisions`` policy decisions, each followed by
-    ``steps_per_decision`` env steps; returns logs (B, decisions * steps, N) and, with
+    ``steps_per_decision`` env steps; returns logs (B, decisions * steps, N), poses
+    (B, decisions * steps, 3) and, with
     ``capture``, the detector's frames after each decision: RGB (B, F, Hr, Wr, 3) and labels
     (B, F, Hr, Wr) int16 (F = decisions); else None."""
     import jax
@@ -278,13 +368,14 @@ def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: boo
         def decide(carry, _):
             s, ps, k = carry
             k, sub = jax.random.split(k)
-            target, ps = policy.decide(s, ps, sub)
+            action, ps = policy.decide(s, ps, sub)
+            per_step = getattr(policy, "per_step", False)  # replay: one action per step
 
-            def step(s, _):
-                s = env.step(s, target)
-                return s, env.log(s)
+            def step(s, a):
+                s = env.step(s, a if per_step else action)
+                return s, (env.log(s), s.pose)
 
-            s, logs = jax.lax.scan(step, s, None, length=steps_per_decision)
+            s, logs = jax.lax.scan(step, s, action if per_step else None, length=steps_per_decision)
             frame = None
             if capture:
                 img, lab = env.camera_rgb(s)
@@ -292,8 +383,8 @@ def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: boo
             return (s, ps, k), (logs, frame)
 
         (state, pstate, key), (logs, frames) = jax.lax.scan(decide, (state, pstate, key), None, length=decisions)
-        logs = jax.tree.map(lambda a: a.reshape(decisions * steps_per_decision, *a.shape[2:]), logs)
-        return state, pstate, key, logs, frames
+        logs, poses = jax.tree.map(lambda a: a.reshape(decisions * steps_per_decision, *a.shape[2:]), logs)
+        return state, pstate, key, logs, poses, frames
 
     return jax.jit(jax.vmap(one_env))
 

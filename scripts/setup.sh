@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Create (or update) the project's virtual environment in .venv and install the package
 # with its test and detector extras. Safe to run again: pip skips what is satisfied.
+# --test: also install Debian's Chromium for the teleop page's browser test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -24,4 +25,16 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     # torch pinned here too, so no resolver path can reach a newer, CUDA-laden build.
     .venv/bin/python -m pip install --quiet -e ".[test,detector]" "torch==2.13.0"
     touch "$stamp"
+fi
+
+if [ "${1:-}" = "--test" ] && ! command -v chromium >/dev/null 2>&1; then
+    # Playwright drives the system Chromium (its own browser download is not reachable).
+    if [ "$(id -u)" = "0" ]; then sudo=""; elif command -v sudo >/dev/null 2>&1; then sudo="sudo -n"; else sudo="none"; fi
+    if [ "$sudo" != "none" ] && command -v apt-get >/dev/null 2>&1 &&
+       { $sudo apt-get install -y -qq chromium >/dev/null 2>&1 ||
+         { $sudo apt-get update -qq >/dev/null 2>&1 && $sudo apt-get install -y -qq chromium >/dev/null 2>&1; }; }; then
+        echo "rosmeery setup: installed Chromium for the browser test"
+    else
+        echo "rosmeery setup: WARNING: could not install Chromium (apt-get as root); the teleop browser test will be skipped" >&2
+    fi
 fi

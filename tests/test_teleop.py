@@ -1,0 +1,142 @@
+"""Human-driven exploration: recordings, their replay in batch, and the teleop page end to end
+in headless Chromium (installed by ``scripts/setup.sh --test``)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rosmeery_jax.cli import main
+from rosmeery_jax.teleop.recording import read
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+WORLD = "small_office"
+
+
+def _header(**over) -> str:
+    from rosmeery_jax.teleop.recording import world_hash
+    from rosmeery_jax.world import load_world
+
+    w = load_world(WORLD)
+    h = {"format": "rosmeery-teleop", "version": 1, "world": WORLD, "world_sha256": world_hash(w), "seed": 0,
+         "dt": 0.1, "start_pose": [float(v) for v in w.spawn], "env": {}, "detector": "off"}
+    h.update(over)
+    return json.dumps(h)
+
+
+def _steps(n: int, v: float = 0.5, w: float = 0.2) -> str:
+    return "".join(json.dumps({"k": k, "t": k / 10, "cmd": [v, w], "pose": [0, 0, 0]}) + "\n" for k in range(1, n + 1))
+
+
+@pytest.mark.parametrize("content, field", [
+    (lambda: _header(world="kitchen") + "\n" + _steps(3), "world"),
+    (lambda: _header() + "\n" + _steps(3) + '{"k": 4, "t": 0.4, "cmd": [0.5', "line 5"),
+    (lambda: _header() + "\n" + "garbage\n" + _steps(2), "line 2"),
+    (lambda: '{"format": "something else"}\n', "format"),
+    (lambda: _header() + "\n" + _steps(3).replace('"k": 2', '"k": 7'), "line 3: k"),
+])
+def test_bad_recordings_are_one_line_errors(tmp_path, capsys, content, field):
+    path = tmp_path / "rec.jsonl"
+    path.write_text(content())
+    code = main(["run", "--worlds", WORLD, "--policies", f"replay:{path}", "--duration", "2", "--detector", "off",
+                 "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and field in err and "rec.jsonl" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_replay_of_several_recordings_is_batched_with_mean_and_spread(tmp_path):
+    a, b = tmp_path / "a.jsonl", tmp_path / "b.jsonl"
+    a.write_text(_header() + "\n" + _steps(25, 0.6, 0.0))
+    b.write_text(_header() + "\n" + _steps(12, 0.3, 0.5) + '{"end": true, "steps": 12}\n')
+    assert read(b).ended and len(read(a).commands) == 25
+    out = tmp_path / "o"
+    # comma-separated files after replay: stay one entry; the other policy runs beside it
+    assert main(["run", "--worlds", WORLD, "--policies", f"replay:{a},{b},random", "--duration", "3",
+                 "--seeds", "1", "--detector", "off", "--out", str(out), "--quiet"]) == 0
+    df = pd.read_csv(out / "metrics.csv")
+    assert set(df.policy) == {"replay", "random"}
+    assert sorted(df[df.policy == "replay"].seed.unique()) == [0, 1]
+    traj = pd.read_csv(out / "trajectories.csv")
+    end = traj[(traj.policy == "replay") & (traj.time_s == 3.0)].set_index("seed")
+    assert end.loc[0, "x"] > 1.0  # drove 2.5 s at 0.6 m/s straight ahead (yaw 0 at the spawn)
+    assert abs(end.loc[1, "yaw"]) > 0.3  # turned while its commands lasted, then stood still
+    assert (out / "plots" / f"{WORLD}_ori.png").exists()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Chromium not installed (scripts/setup.sh --test installs it)")
+def test_drive_the_page_in_chromium_then_replay_the_recording(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    port, record = _free_port(), tmp_path / "drive.jsonl"
+    server = subprocess.Popen([sys.executable, "-m", "rosmeery_jax", "teleop", "--world", WORLD, "--port", str(port),
+                               "--record", str(record), "--detector", "off"],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
+    try:
+        deadline = time.time() + 300
+        for line in server.stdout:  # compiles first; prints the address when serving
+            if "teleop: open" in line or time.time() > deadline:
+                break
+        assert server.poll() is None, "teleop server exited"
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=[
+                "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync"])
+            page = browser.new_page(viewport={"width": 1400, "height": 800})
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function("window.lastState && document.getElementById('map').naturalWidth > 0")
+            start = page.evaluate("window.lastState")
+            map0, rgb0 = page.locator("#map").screenshot(), page.locator("#rgb").screenshot()
+            for key, seconds in (("ArrowUp", 2.0), ("ArrowLeft", 1.2), ("ArrowUp", 1.5)):
+                page.keyboard.down(key)
+                page.wait_for_timeout(seconds * 1000)
+                page.keyboard.up(key)
+            page.wait_for_timeout(600)
+            moved = page.evaluate("window.lastState")
+            map1, rgb1 = page.locator("#map").screenshot(), page.locator("#rgb").screenshot()
+            page.click("#stop")
+            page.wait_for_function("window.lastState && !window.lastState.running")
+            final = page.evaluate("window.lastState")
+            browser.close()
+        server.wait(timeout=30)
+    finally:
+        if server.poll() is None:
+            server.kill()
+    assert moved["step"] > start["step"]
+    assert math.dist(moved["pose"][:2], start["pose"][:2]) > 0.5
+    assert abs(moved["pose"][2] - start["pose"][2]) > 0.3
+    assert map1 != map0 and rgb1 != rgb0  # the map and the camera image updated
+
+    rec = read(record)
+    assert rec.ended and len(rec.commands) == final["step"]
+    assert np.abs(rec.commands).max() > 0
+    seconds = int(final["t"])
+    out = tmp_path / "replayed"
+    assert main(["run", "--worlds", WORLD, "--policies", f"replay:{record}", "--duration", str(seconds + 1),
+                 "--detector", "off", "--out", str(out), "--quiet"]) == 0
+    traj = pd.read_csv(out / "trajectories.csv").set_index("time_s")
+    for t in range(1, seconds + 1):  # the batched replay retraces the driven path
+        assert np.allclose(traj.loc[float(t), ["x", "y"]], rec.poses[10 * t - 1, :2], atol=2e-3), t
+    df = pd.read_csv(out / "metrics.csv")
+    live = {round(row[0], 3): row[1:] for row in final["history"]}
+    for k, name in enumerate(final["metric_names"]):
+        replayed = df[(df.metric == name) & (df.time_s == float(seconds))].value.iloc[0]
+        assert replayed == pytest.approx(live[float(seconds)][k], abs=1e-3), name
