@@ -222,6 +222,39 @@ def memory_probe(world: str, batch: int, steps: int) -> float:
     return int(out.stdout.strip().splitlines()[-1]) / 1e6  # ru_maxrss is KiB on Linux
 
 
+def detector_bench(env, state, decide_every: int = 10, env_rate: float | None = None, repeats: int = 3) -> dict:
+    """The YOLO detector on the session's frames: images/s at the detector's resolution (batch
+    of B frames rendered from the batch's poses), the cost of rendering those frames, and the
+    detector's estimated share of a default session's wall time (one frame per env per
+    decision, ``decide_every`` steps at ``env_rate`` env-steps/s)."""
+    import jax
+
+    try:
+        from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
+    except ImportError:
+        return {"skipped": "torch is not installed"}
+    if not DEFAULT_WEIGHTS.is_file():
+        return {"skipped": f"no weights at {DEFAULT_WEIGHTS}"}
+    render = jax.jit(jax.vmap(env.camera_rgb))
+    first, times, (img, lab) = _timed(render, state, repeats=repeats)
+    img, lab = np.asarray(img), np.asarray(lab)
+    det = YoloDetector(env.world.taxonomy.names)
+    ids = np.zeros((len(img), 2), np.int64)
+    det(img, lab, ids)  # warm-up
+    t = time.perf_counter()
+    for _ in range(repeats):
+        det(img, lab, ids)
+    ips = repeats * len(img) / (time.perf_counter() - t)
+    cam = env.config.camera
+    out = {"images_per_s": round(ips, 1), "resolution": f"{cam.rgb_width}x{cam.rgb_height}", "batch": len(img),
+           "render_ms_per_frame": round(1e3 * float(np.median(times)) / len(img), 3)}
+    if env_rate:
+        env_s = decide_every / env_rate  # wall seconds per env per decision
+        det_s = 1.0 / ips
+        out["session_share"] = round(det_s / (det_s + env_s), 3)
+    return out
+
+
 def run_bench(cfg: BenchConfig, progress=print) -> dict:
     import jax
 
@@ -259,6 +292,8 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
     result["speedup_vs_mujoco_c"] = round(ours / peer["env_steps_per_s"], 2)
     result["speedup_full_step_vs_mujoco_c"] = round(ref_rate / peer["env_steps_per_s"], 2)
     result["reference_batch"] = cfg.reference_batch
+    progress(f"detector at batch {cfg.reference_batch} ...")
+    result["detector"] = detector_bench(env, ref_state, env_rate=ref_rate)
     result["peak_memory_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 2)
     if cfg.memory_batch:
         progress(f"memory at batch {cfg.memory_batch} ...")
@@ -286,6 +321,14 @@ def format_table(r: dict) -> str:
               f"speedup vs MuJoCo C: {r['speedup_vs_mujoco_c']:.2f}x (full step with coverage: "
               f"{r['speedup_full_step_vs_mujoco_c']:.2f}x)",
               f"peak memory (this process): {r['peak_memory_gb']:.2f} GB"]
+    d = r.get("detector", {})
+    if "skipped" in d:
+        lines.append(f"detector: skipped ({d['skipped']})")
+    elif d:
+        lines.append(f"detector (YOLO-v5n, torch CPU): {d['images_per_s']:,.0f} images/s at {d['resolution']} "
+                     f"(batch {d['batch']}); rendering its frames {d['render_ms_per_frame']:.2f} ms each; "
+                     f"share of a session's wall time (1 frame per env per second): "
+                     f"{100 * d.get('session_share', 0):.0f}%")
     if "memory_batch" in r:
         lines.append(f"peak memory at batch {r['memory_batch']}: {r['memory_batch_peak_gb']:.2f} GB")
     return "\n".join(lines)

@@ -116,3 +116,30 @@ def test_example_notebook_runs_on_a_results_folder(session_dir, tmp_path):
     outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
     assert not any(o.get("output_type") == "error" for o in outputs)
     assert (tmp_path / "curves.png").exists()
+
+
+def test_frontier_mapped_area_grows_and_exploration_ends():
+    from rosmeery_jax import mapping
+    from rosmeery_jax.session import _chunk_fn
+
+    env = make("small_office")
+    policy = make_policy("frontier", env)
+    keys = jax.random.split(jax.random.key(0), 1)
+    state, pstate = jax.vmap(env.reset)(keys), jax.vmap(policy.init)(keys)
+    chunk = _chunk_fn(env, policy, 10, 10)  # 10 s per call
+
+    def free_cells(s):
+        return int((np.asarray(jax.vmap(env.occupancy)(s)) == mapping.FREE).sum())
+
+    free, done, poses = [free_cells(state)], [], []
+    for _ in range(5):
+        state, pstate, keys, _, _, _ = chunk(state, pstate, keys)
+        free.append(free_cells(state))
+        done.append(bool(pstate.done[0]))
+        poses.append(np.asarray(state.pose[0]))
+    assert free[1] > 2 * free[0] and all(b >= a for a, b in zip(free, free[1:]))
+    assert done[-1] and not done[0]  # explored, then no frontier left
+    # It has mapped most of what is reachable, and once done it stays put.
+    assert free[-1] >= 0.8 * env.world.free_space.reachable.sum()
+    first = done.index(True)
+    assert all(np.allclose(p, poses[first], atol=0.05) for p in poses[first + 1:])
