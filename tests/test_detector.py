@@ -167,11 +167,8 @@ def test_session_with_a_detector_scores_confidences_and_labels(tmp_path, detecto
     objects = pd.read_csv(out / "objects.csv")
     detected = objects[objects.label.notna()]
     assert len(detected) > 0 and (detected.confidence > 0).all()
-    wrong = objects[objects.label.notna() & (objects.label != objects.category)]
     final = wide.groupby("seed").last()
     for seed, g in objects.groupby("seed"):
         has_wrong = bool(((g.label != g.category) & g.label.notna()).any())
         # OPI counts any declared predicate; OPI-strict only true ones, so a wrong label shows.
         assert (final.loc[seed, "opi_strict"] < final.loc[seed, "opi"] - 1e-9) == has_wrong
-    if detector == "oracle":
-        assert len(wrong) > 0  # its confusion model does produce wrong labels here

@@ -71,7 +71,7 @@ class YoloDetector:
         h, w = images.shape[1:3]
         ph, pw = (-h) % 32, (-w) % 32
         for i in range(0, len(images), self.batch):
-            x = torch.from_numpy(np.ascontiguousarray(images[i:i + self.batch])).permute(0, 3, 1, 2).float() / 255
+            x = torch.from_numpy(np.array(images[i:i + self.batch])).permute(0, 3, 1, 2).float() / 255  # a writable copy
             if ph or pw:  # pad to whole strides with the official grey
                 x = torch.nn.functional.pad(x, (0, pw, 0, ph), value=114 / 255)
             for j, d in enumerate(self.model.detect(x, conf=self.conf)):
