@@ -179,7 +179,7 @@ def _group_replay(tokens: tuple[str, ...]) -> tuple[str, ...]:
 
 def _versions() -> dict:
     out = {"python": _platform.python_version()}
-    for pkg in ("rosmeery-jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "pandas"):
+    for pkg in ("rosmeery-jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "pandas", "torch"):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

@@ -121,18 +121,18 @@ class Teleop:
         cmd = self.cmd if fresh else np.zeros(2, np.float32)
         self.state = self._step(self.state, jnp.asarray(cmd))
         step = int(self.state.t)
+        frame = tuple(np.asarray(a) for a in self._rgb(self.state))  # one render: detector and page
         if self.detector is not None and step % self.detect_every == 0:
-            self._detect()
+            self._detect(*frame)
         if self.recorder is not None:
             self.recorder.step(step * self.env.dt, cmd, np.asarray(self.state.pose))
-        self.frame = self._snapshot(cmd)
+        self.frame = self._snapshot(cmd, frame[0])
 
-    def _detect(self) -> None:
+    def _detect(self, img: np.ndarray, lab: np.ndarray) -> None:
         import jax.numpy as jnp
 
         from rosmeery_jax.detector.detections import pad
 
-        img, lab = (np.asarray(a) for a in self._rgb(self.state))
         found = self.detector(img[None], lab[None].astype(np.int32), np.array([[0, self.frames]]))
         self.frames += 1
         obj, label, conf = pad(found, 1, 32)
@@ -145,7 +145,7 @@ class Teleop:
                 self.recorder.close()
 
     # --- what the page shows ---
-    def _snapshot(self, cmd) -> "Frame":
+    def _snapshot(self, cmd, img: np.ndarray | None = None) -> "Frame":
         from rosmeery_jax import metrics
         from rosmeery_jax.teleop import views
 
@@ -164,7 +164,8 @@ class Teleop:
         labels = [{"object": env.world.truth.names[n], "label": names[int(k)], "confidence": round(float(c), 3)}
                   for n, (k, c) in enumerate(zip(np.asarray(know.label), np.asarray(know.confidence))) if k >= 0]
         labels.sort(key=lambda d: -d["confidence"])
-        img, _ = self._rgb(s)
+        if img is None:
+            img = np.asarray(self._rgb(s)[0])
         return Frame(int(s.t), t, [float(v) for v in np.asarray(s.pose)], [float(c) for c in cmd],
                      views.map_png(env, np.asarray(self._occ(s)), np.asarray(s.pose), self.trail),
                      views.rgb_png(np.asarray(img)), views.depth_png(np.asarray(s.depth), env.config.camera.max_range),
