@@ -282,10 +282,7 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
     peer = mujoco_peer(env, cfg.reference_batch, cfg, threads)
     result["mujoco_c"] = {k: (round(v, 1) if isinstance(v, float) else v) for k, v in peer.items()}
     # The peer's work (physics + the same rays) plus our mapping and navigation, without coverage.
-    from dataclasses import replace
-
-    from rosmeery_jax.knowledge import KnowledgeConfig
-    platform_env = make(cfg.world, knowledge=KnowledgeConfig(coverage=replace(KnowledgeConfig().coverage, enabled=False)))
+    platform_env = make(cfg.world, knowledge__coverage__enabled=False)
     progress(f"platform step without coverage at batch {cfg.reference_batch} ...")
     ours = env_throughput(platform_env, cfg.reference_batch, cfg)["env_steps_per_s"]
     result["platform_env_steps_per_s"] = round(ours, 1)

@@ -14,7 +14,7 @@ Action modes (``EnvConfig.action_mode``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import jax
@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from rosmeery_jax.mjx import mjx
 
 from rosmeery_jax import mapping
+from rosmeery_jax import overrides as overrides_
 from rosmeery_jax.knowledge import Knowledge, KnowledgeConfig, ObjectLog, SpatialKnowledge
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.mapping import GridGeometry, MapConfig
@@ -41,32 +42,20 @@ class EnvConfig:
     mapping: MapConfig = field(default_factory=MapConfig)
     nav: NavConfig = field(default_factory=NavConfig)
     knowledge: KnowledgeConfig = field(default_factory=KnowledgeConfig)
-    start_yaw: str = "spawn"  # "spawn": the world's spawn yaw; "random": uniform from the key
-    # (the session runner's default, so seeds of a deterministic policy differ)
+    start_yaw: str = "random"  # "random": heading uniform in [-pi, pi) drawn from the reset key,
+    # so different keys start differently; "spawn": the world's spawn yaw (teleop, replays)
     labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
     # (detector off); "detections": only what `Env.attach` folds in (a detector)
 
-    def with_overrides(self, **overrides: Any) -> "EnvConfig":
-        """Override top-level fields, or nested ones as ``section__field=value``."""
-        cfg = self
-        for key, value in overrides.items():
-            section, _, name = key.partition("__")
-            names = {f.name for f in fields(cfg)}
-            if section not in names:
-                raise InputError("config", key, f"unknown option (options: {', '.join(sorted(names))})")
-            if name:
-                sub = getattr(cfg, section)
-                if name not in {f.name for f in fields(sub)}:
-                    raise InputError("config", key, f"unknown option for {section}")
-                cfg = replace(cfg, **{section: replace(sub, **{name: value})})
-            else:
-                cfg = replace(cfg, **{section: value})
-        if cfg.start_yaw not in ("spawn", "random"):
-            raise InputError("config", "start_yaw", f"{cfg.start_yaw!r} is not 'spawn' or 'random'")
-        if cfg.labels not in ("observed", "detections"):
-            raise InputError("config", "labels", f"{cfg.labels!r} is not 'observed' or 'detections'")
-        if cfg.action_mode not in ("velocity", "target"):
-            raise InputError("config", "action_mode", f"{cfg.action_mode!r} is not 'velocity' or 'target'")
+    def with_overrides(self, source: str = "config", **overrides: Any) -> "EnvConfig":
+        """Override fields at any depth as ``section__sub__field=value`` (type-checked; an
+        unknown or badly typed key is one error naming ``source`` and the key)."""
+        cfg = overrides_.apply(self, overrides, source)
+        for name, value, allowed in (("start_yaw", cfg.start_yaw, ("spawn", "random")),
+                                     ("labels", cfg.labels, ("observed", "detections")),
+                                     ("action_mode", cfg.action_mode, ("velocity", "target"))):
+            if value not in allowed:
+                raise InputError(source, name, f"{value!r} is not one of {', '.join(map(repr, allowed))}")
         return cfg
 
 
@@ -172,11 +161,27 @@ class Env:
         return mapping.classify(state.logodds, self.config.mapping)
 
 
-def make(world: str | World, world_config: WorldConfig | None = None, **overrides: Any) -> Env:
+def make(world: str | World, world_config: WorldConfig | None = None, source: str = "config",
+         **overrides: Any) -> Env:
     """An env for a built-in world name, an MJCF path or a loaded :class:`World`.
 
-    Keyword overrides set :class:`EnvConfig` fields, nested as ``section__field``
-    (e.g. ``make("kitchen", action_mode="velocity", camera__width=32)``).
+    Keyword overrides set :class:`EnvConfig` fields at any depth as ``section__field``
+    (e.g. ``make("kitchen", action_mode="velocity", knowledge__coverage__soft=True)``).
+    The robot's radius and height and the camera's mounting height are set here only
+    (``robot__radius``, ``robot__height``, ``camera__mount_height``): the world's free-space
+    map and observable samples are built with the same values.
     """
-    w = world if isinstance(world, World) else load_world(world, world_config)
-    return Env(w, EnvConfig().with_overrides(**overrides))
+    cfg = EnvConfig().with_overrides(source, **overrides)
+    body = body_dimensions(cfg, world_config or (world.config if isinstance(world, World) else WorldConfig()))
+    if isinstance(world, World):
+        if world.config != body:
+            raise InputError(world.name, "world config", "was loaded with other robot or camera dimensions "
+                             "than the env's; load it with env.body_dimensions(...) or pass its name")
+        return Env(world, cfg)
+    return Env(load_world(world, body), cfg)
+
+
+def body_dimensions(cfg: EnvConfig, world_config: WorldConfig) -> WorldConfig:
+    """``world_config`` with the robot's and camera's dimensions taken from ``cfg`` (one source)."""
+    cam = None if world_config.camera_height is None else cfg.camera.mount_height
+    return replace(world_config, robot_radius=cfg.robot.radius, robot_height=cfg.robot.height, camera_height=cam)

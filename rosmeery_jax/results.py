@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)  # read once: the process's umask, for the mode of files written atomically
 METRIC_COLUMNS = ["world", "policy", "detector", "seed", "time_s", "metric", "value"]
 OBJECT_COLUMNS = ["world", "policy", "detector", "seed", "object", "category", "ps_G", "ps", "coverage",
                   "label", "confidence", "P_G", "p"]
@@ -55,6 +57,7 @@ def write_atomic(path: str | Path, data: bytes | str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; results get the usual umask mode
         with os.fdopen(fd, "wb") as f:
             f.write(data.encode() if isinstance(data, str) else data)
         os.replace(tmp, path)

@@ -1,26 +1,37 @@
 """The benchmark session: worlds x policies x seeds x duration, written as it goes.
 
-One *run* is one (world, policy) pair with all its seeds batched by ``vmap``. A run steps
-in chunks (``chunk_s`` of simulated time per jitted call, a ``lax.scan`` over decisions,
-each a ``lax.scan`` over ``decide_every`` control steps), logs every object every step, and
-when it ends writes its files atomically:
+One *run* is one (world, policy) pair with all its seeds batched. A run is built
+(:func:`build_run`), simulated in chunks (``chunk_s`` of simulated time per jitted call, a
+``lax.scan`` over decisions, each a ``lax.scan`` over ``decide_every`` control steps, every
+object logged every step), and written atomically when it ends (:func:`write_run`):
 
     OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
     OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
     OUT/runs/<world>__<policy>.timing.json    wall time of simulation and of the detector
-    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, rewritten after each
+    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged at the end
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
-    OUT/config.json                           resolved configuration, versions, git revision
+    OUT/config.json                           resolved configuration, input hashes, versions
 
-``--resume`` skips runs whose files exist (the configuration must match); without it an
-existing results folder is refused rather than overwritten.
+Everything is validated before anything is written. ``--resume`` skips finished runs and
+refuses a changed configuration or changed input files; without it an existing results
+folder is refused rather than overwritten.
+
+**Seeds do not depend on their batch-mates.** XLA compiles a different program for every
+batch shape, and programs of different shapes round differently, so seed 0 run beside one
+other seed would drift (by 1e-5 m within seconds, then onto another path) from seed 0 run
+beside two. The batch is therefore always padded to whole blocks of ``BLOCK`` envs, one
+compiled block width for every session, and ``lax.map`` runs the blocks: seed k's curves
+are bitwise the same in any session with the same settings.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
+import os
 import platform as _platform
 import subprocess
 import time
@@ -28,15 +39,22 @@ import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import metadata
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax import metrics, results
+from rosmeery_jax import metrics, overrides, results
 from rosmeery_jax.errors import InputError
 
 DETECTORS = ("yolo", "oracle", "off")
 MAX_DET = 32  # detections kept per frame (the most confident)
+BLOCK = 8  # envs per compiled block (see the module docstring)
+LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
+DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
+# Settings that change results: resume refuses a change to any of them.
+RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "chunk_s", "sample_s",
+                 "metrics", "env")
 
 
 @dataclass(frozen=True)
@@ -56,29 +74,21 @@ class SessionConfig:
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
 
     def validate(self, source: str = "config") -> "SessionConfig":
-        from rosmeery_jax.policies import POLICIES
-        from rosmeery_jax.world import world_names
+        """Every check that can be made before a run starts; one InputError naming ``source``."""
+        from rosmeery_jax.env import EnvConfig
 
-        for w in self.worlds:
-            if w not in world_names() and not Path(w).is_file():
-                raise InputError(source, "worlds", f"{w!r} is neither a built-in world nor an MJCF file")
-        for p in self.policies:
-            if p.startswith("replay:"):
-                try:
-                    worlds = _recordings_by_world(p)
-                except InputError as err:
-                    raise InputError(err.source if err.source != "config" else source, err.where, err.problem) from None
-                names = {Path(w).stem for w in self.worlds}
-                if not set(worlds) & names:
-                    raise InputError(source, "policies", f"no recording in {p!r} is of a session world "
-                                     f"(recorded in: {', '.join(sorted(worlds))})")
-            elif p not in POLICIES:
-                raise InputError(source, "policies", f"unknown policy {p!r} (built in: {', '.join(POLICIES)}, "
-                                 "replay:FILE[+FILE...])")
-        if self.detector not in DETECTORS:
-            raise InputError(source, "detector", f"{self.detector!r} is not available (available: {', '.join(DETECTORS)})")
-        if not isinstance(self.conf_threshold, (int, float)) or not 0 <= self.conf_threshold <= 1:
-            raise InputError(source, "conf_threshold", f"{self.conf_threshold!r} must be a number in [0, 1]")
+        _check_values(self, source)
+        for name, values in (("worlds", self.worlds), ("policies", self.policies), ("metrics", self.metrics)):
+            if not values:
+                raise InputError(source, name, "is empty: name at least one")
+        with _as_source(source):
+            metrics.resolve(self.metrics)
+            EnvConfig().with_overrides(source, **overrides.flatten(self.env))
+            worlds = [_load_world(w) for w in self.worlds]
+            for p in self.policies:
+                _check_policy(p, worlds)
+            _decisions(self, 0.1)  # the control period is fixed at 0.1 s
+        _check_unique(self, worlds, source)
         if self.weights and not Path(self.weights).is_file():
             raise InputError(source, "weights", f"{self.weights!r}: no such file")
         if self.detector == "yolo":
@@ -87,90 +97,156 @@ class SessionConfig:
             except ImportError:
                 raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
                                  "(or use --detector oracle / off)") from None
-        for name, v in (("seeds", self.seeds), ("decide_every", self.decide_every)):
-            if not isinstance(v, int) or v < 1:
-                raise InputError(source, name, f"{v!r} must be a whole number >= 1")
-        for name, v in (("duration", self.duration), ("chunk_s", self.chunk_s), ("sample_s", self.sample_s)):
-            if not isinstance(v, (int, float)) or not v > 0:
-                raise InputError(source, name, f"{v!r} must be a number > 0")
-        try:
-            metrics.resolve(self.metrics)
-            _decisions(self, 0.1)  # the control period is fixed at 0.1 s
-        except InputError as err:
-            raise InputError(source, err.where, err.problem) from None
+        _check_size(self, worlds, source)
         return self
 
 
-def load_config(path: str | Path | None, **overrides) -> SessionConfig:
+class _as_source:
+    """Re-label InputErrors raised with the placeholder source "config" by ``source``."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, err, tb):
+        if isinstance(err, InputError) and err.source == "config":
+            raise InputError(self.source, err.where, err.problem) from None
+        return False
+
+
+def _check_values(cfg: SessionConfig, source: str) -> None:
+    if cfg.detector not in DETECTORS:
+        raise InputError(source, "detector", f"{cfg.detector!r} is not available (available: {', '.join(DETECTORS)})")
+    if not 0 <= cfg.conf_threshold <= 1:
+        raise InputError(source, "conf_threshold", f"{cfg.conf_threshold!r} must be a number in [0, 1]")
+    for name in ("seeds", "decide_every"):
+        if getattr(cfg, name) < 1:
+            raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
+    for name in ("duration", "chunk_s", "sample_s"):
+        if not getattr(cfg, name) > 0:
+            raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
+
+
+def _load_world(name: str):
+    from rosmeery_jax.world import load_world
+
+    return load_world(name)
+
+
+def _check_policy(spec: str, worlds) -> None:
+    from rosmeery_jax.policies import REPLAY_PREFIX, policy_class
+    from rosmeery_jax.policies.replay import recordings_by_world
+
+    policy_class(spec)
+    if spec.startswith(REPLAY_PREFIX):
+        recorded = recordings_by_world(spec)
+        if not set(recorded) & {w.name for w in worlds}:
+            raise InputError("config", "policies", f"no recording in {spec!r} is of a session world "
+                             f"(recorded in: {', '.join(sorted(recorded))})")
+
+
+def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
+    """Two entries that would write the same run files are refused, not merged or overwritten."""
+    from rosmeery_jax.policies import policy_label
+
+    seen: dict[str, str] = {}
+    for spec, w in zip(cfg.worlds, worlds):
+        if w.name in seen:
+            raise InputError(source, "worlds", f"{seen[w.name]!r} and {spec!r} are both named {w.name!r}: their "
+                             "results would share files (rename one file)")
+        seen[w.name] = spec
+    labels = [policy_label(p) for p in cfg.policies]
+    for label in labels:
+        if labels.count(label) > 1:
+            raise InputError(source, "policies", f"{label!r} appears twice (join replay files with '+' in one entry)")
+
+
+def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
+    """Refuse a session whose logs or batch cannot fit in this machine's memory."""
+    steps = _decisions(cfg, 0.1) * cfg.decide_every
+    batch = _padded(cfg.seeds)
+    need_host = max(batch * steps * w.truth.num_objects * LOG_BYTES_PER_OBJECT_STEP for w in worlds)
+    need_device = batch * DEVICE_BYTES_PER_ENV
+    have = _memory_bytes()
+    for what, need in (("the per-step logs of one run", need_host), ("the batch's device state", need_device)):
+        if need > 0.8 * have:
+            raise InputError(source, "seeds" if what.startswith("the batch") else "duration",
+                             f"{cfg.seeds} seeds x {cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, "
+                             f"more than this machine's {have / 1e9:.1f} GB allows (fewer seeds or a shorter "
+                             "duration)")
+
+
+def _memory_bytes() -> float:
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 8e9
+
+
+def _padded(b: int) -> int:
+    return -(-b // BLOCK) * BLOCK
+
+
+def load_config(path: str | Path | None, **cli) -> SessionConfig:
     """Built-in defaults, then the TOML file, then command-line overrides (None = unset)."""
     values: dict = {}
     source = "command line"
     if path is not None:
         source = str(path)
-        try:
-            values = tomllib.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise InputError(source, "file", "not found") from None
-        except tomllib.TOMLDecodeError as err:
-            raise InputError(source, "file", f"not valid TOML ({err})") from None
-        values = values.get("session", values)
-        known = {f.name for f in fields(SessionConfig)}
-        for key in values:
-            if key not in known:
-                raise InputError(source, key, f"unknown option (options: {', '.join(sorted(known))})")
-    values.update({k: v for k, v in overrides.items() if v is not None})
+        values = _read_toml(Path(path))
+    values.update({k: v for k, v in cli.items() if v is not None})
     for key in ("worlds", "policies", "metrics"):
         if isinstance(values.get(key), str):
             values[key] = tuple(x.strip() for x in values[key].split(",") if x.strip())
         elif key in values:
+            if not isinstance(values[key], (list, tuple)) or not all(isinstance(x, str) for x in values[key]):
+                raise InputError(source, key, f"{values[key]!r} must be a list of names or a comma-separated string")
             values[key] = tuple(values[key])
     if "policies" in values:
         values["policies"] = _group_replay(values["policies"])
-    if isinstance(values.get("duration"), int):
-        values["duration"] = float(values["duration"])
-    return replace(SessionConfig(), **values).validate(source)
+    if "env" in values and not isinstance(values["env"], dict):
+        raise InputError(source, "env", f"{values['env']!r} must be a table of EnvConfig overrides")
+    lists = {k: values.pop(k) for k in ("worlds", "policies", "metrics", "env") if k in values}
+    cfg = overrides.apply(SessionConfig(), values, source)  # type-checks every scalar option
+    return replace(cfg, **lists).validate(source)
 
 
-def _run_name(world: str, policy: str) -> str:
-    return f"{Path(world).stem}__{policy_label(policy)}"
-
-
-def policy_label(policy: str) -> str:
-    """The name a policy entry has in results: ``replay:FILES`` -> ``replay``."""
-    return "replay" if policy.startswith("replay:") else policy
-
-
-def replay_files(policy: str) -> list[Path]:
-    """The recordings of a ``replay:`` entry: files or glob patterns joined by ``+``."""
-    files: list[Path] = []
-    for part in policy.removeprefix("replay:").split("+"):
-        part = part.strip()
-        if not part:
-            continue
-        hits = sorted(Path().glob(part)) if any(c in part for c in "*?[") else [Path(part)]
-        if not hits:
-            raise InputError("config", "policies", f"replay: no file matches {part!r}")
-        files += hits
-    return files
-
-
-def _recordings_by_world(policy: str) -> dict:
-    from rosmeery_jax.teleop.recording import read
-
-    by_world: dict = {}
-    for f in replay_files(policy):
-        rec = read(f)
-        by_world.setdefault(rec.world, []).append(rec)
-    return by_world
+def _read_toml(path: Path) -> dict:
+    source = str(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+        values = tomllib.loads(text)
+    except FileNotFoundError:
+        raise InputError(source, "file", "not found") from None
+    except IsADirectoryError:
+        raise InputError(source, "file", "is a folder, not a TOML file") from None
+    except UnicodeDecodeError as err:
+        raise InputError(source, "file", f"not UTF-8 text (byte {err.start})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(source, "file", f"not valid TOML ({err})") from None
+    if "session" in values:
+        extra = sorted(set(values) - {"session"})
+        if extra:
+            raise InputError(source, extra[0], "is outside the [session] table: move it inside, or drop the table")
+        values = values["session"]
+        if not isinstance(values, dict):
+            raise InputError(source, "session", "must be a table")
+    known = {f.name for f in fields(SessionConfig)}
+    for key in values:
+        if key not in known:
+            raise InputError(source, key, f"unknown option (options: {', '.join(sorted(known))})")
+    return dict(values)
 
 
 def _group_replay(tokens: tuple[str, ...]) -> tuple[str, ...]:
     """``replay:a.jsonl,b.jsonl,random`` splits on commas: re-attach the files to their entry."""
-    from rosmeery_jax.policies import POLICIES
+    from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX
 
     out: list[str] = []
     for tok in tokens:
-        if out and out[-1].startswith("replay:") and tok not in POLICIES and not tok.startswith("replay:"):
+        if out and out[-1].startswith(REPLAY_PREFIX) and tok not in POLICIES and not tok.startswith(REPLAY_PREFIX):
             out[-1] += "+" + tok
         else:
             out.append(tok)
@@ -183,7 +259,7 @@ def _versions() -> dict:
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
-            pass
+            pass  # not installed (torch without the detector extra)
     try:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent,
                              timeout=5)
@@ -193,16 +269,74 @@ def _versions() -> dict:
     return out
 
 
-def _check_out(cfg: SessionConfig, out: Path, resume: bool) -> None:
+def _sha256(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def input_hashes(cfg: SessionConfig) -> dict:
+    """sha256 of every input file whose contents change results: worlds, recordings, weights."""
+    from rosmeery_jax.policies import REPLAY_PREFIX
+    from rosmeery_jax.policies.replay import replay_files
+
+    out = {"worlds": {w.name: _sha256(w.path) for w in map(_load_world, cfg.worlds)},
+           "recordings": {str(f): _sha256(f) for p in cfg.policies if p.startswith(REPLAY_PREFIX)
+                          for f in replay_files(p)}}
+    if cfg.detector == "yolo":
+        from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+
+        out["weights"] = _sha256(cfg.weights or DEFAULT_WEIGHTS)
+    return out
+
+
+def check_out(cfg: SessionConfig, resume: bool) -> dict:
+    """Check the results folder before anything is written; returns the record for config.json."""
+    out = Path(cfg.out)
+    record = {"session": json.loads(json.dumps(asdict(cfg))), "inputs": input_hashes(cfg)}
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "out", "is a file, not a results folder")
     saved = out / "config.json"
-    if saved.exists():
-        if not resume:
-            raise InputError(str(out), "out", "already holds results: pass --resume to continue, or choose another --out")
-        old = json.loads(saved.read_text())["session"]
-        new = json.loads(json.dumps(asdict(cfg)))
-        for key in ("seeds", "duration", "detector", "conf_threshold", "weights", "decide_every", "sample_s", "env"):
-            if old.get(key) != new.get(key):
-                raise InputError(str(saved), key, f"was {old.get(key)!r}, now {new.get(key)!r}: resume needs the same setting")
+    if not saved.exists():
+        if out.exists() and any(out.iterdir()):
+            raise InputError(str(out), "out", "is not empty and has no config.json: choose another --out")
+        return record
+    if not resume:
+        raise InputError(str(out), "out", "already holds results: pass --resume to continue, or choose another --out")
+    try:
+        old = json.loads(saved.read_text(encoding="utf-8"))
+        old_session, old_inputs = old["session"], old["inputs"]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError):
+        raise InputError(str(saved), "file", "unreadable or not a session config: cannot resume from it") from None
+    for key in RESULT_FIELDS:
+        if old_session.get(key) != record["session"][key]:
+            raise InputError(str(saved), key, f"was {old_session.get(key)!r}, now {record['session'][key]!r}: "
+                             "resume needs the same setting")
+    for kind, hashes in record["inputs"].items():
+        before = old_inputs.get(kind, {})
+        for name, digest in (hashes.items() if isinstance(hashes, dict) else [(kind, hashes)]):
+            was = before.get(name) if isinstance(before, dict) else before
+            if was is not None and was != digest:
+                raise InputError(str(saved), f"inputs.{kind}", f"{name} has changed since the session started: "
+                                 "resume would mix results of two versions")
+    record["inputs"] = _merged(old_inputs, record["inputs"])
+    return record
+
+
+def _merged(old: dict, new: dict) -> dict:
+    out = dict(old)
+    for k, v in new.items():
+        out[k] = {**old.get(k, {}), **v} if isinstance(v, dict) else v
+    return out
+
+
+class Run(NamedTuple):
+    """One (world, policy) pair ready to simulate. b: the entries kept (seeds or recordings);
+    the batch is padded to ``_padded(b)`` envs."""
+
+    name: str
+    env: Any
+    policy: Any
+    detector: Any
+    b: int
 
 
 class Session:
@@ -212,142 +346,159 @@ class Session:
     def run(self, resume: bool = False) -> Path:
         cfg = self.cfg
         out = Path(cfg.out)
-        _check_out(cfg, out, resume)
-        results.write_atomic(out / "config.json", json.dumps({"session": asdict(cfg), "versions": _versions()}, indent=2))
+        record = check_out(cfg, resume)
+        results.write_atomic(out / "config.json", json.dumps({**record, "versions": _versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
-                if not (out / "runs" / f"{_run_name(w, p)}.metrics.csv").exists()
-                and (not p.startswith("replay:") or Path(w).stem in _recordings_by_world(p))]
-        total = len(todo) * cfg.duration
-        bar = _bar(total, self.progress)
+                if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
+        bar = _bar(len(todo) * cfg.duration, self.progress)
         for world, policy in todo:
-            self._one(world, policy, out, bar)
-            self._merge(out)
+            run = build_run(cfg, world, policy)
+            if run.b:  # a replay entry has no recording in this world
+                write_run(cfg, run, out, *simulate(cfg, run, bar))
+            bar.update(0 if run.b else cfg.duration)
         bar.close()
-        self._merge(out)
+        merge(out)
         return out
 
-    def _one(self, world_name: str, policy_name: str, out: Path, bar) -> None:
-        import jax
-        import jax.numpy as jnp
 
-        from rosmeery_jax.env import make
-        from rosmeery_jax.export import write_semantic_map
-        from rosmeery_jax.policies import make_policy
+def run_name(world: str, policy: str) -> str:
+    from rosmeery_jax.policies import policy_label
 
-        cfg = self.cfg
-        detecting = cfg.detector != "off"
-        overrides = {"start_yaw": "random", **({"labels": "detections"} if detecting else {}), **cfg.env}
-        replaying = policy_name.startswith("replay:")
-        if replaying:  # the recordings' own start pose and settings, velocity commands
-            from rosmeery_jax.policies.replay import ReplayPolicy
+    return f"{_load_world(world).name}__{policy_label(policy)}"
 
-            recs = _recordings_by_world(policy_name)[Path(world_name).stem]
-            overrides.update({**recs[0].header.get("env", {}), "start_yaw": "spawn", "action_mode": "velocity"})
-        env = make(world_name, **overrides)
-        if replaying:
-            from rosmeery_jax.teleop.recording import check_world
 
-            for rec in recs:
-                check_world(rec, env.world)
-            policy = ReplayPolicy(env, recs, cfg.decide_every, _decisions(cfg, env.dt) * cfg.decide_every)
-        else:
-            policy = make_policy(policy_name, env)
-        detector = None
-        if detecting:
-            from rosmeery_jax.detector.detections import make_detector
+def build_run(cfg: SessionConfig, world: str, spec: str) -> Run:
+    """The env, policy and detector of one (world, policy) pair."""
+    from rosmeery_jax.env import make
+    from rosmeery_jax.policies import make_policy, policy_class
 
-            detector = make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
-            label_fn = _label_fn(env)
-        b = len(recs) if replaying else cfg.seeds
-        keys = jax.vmap(jax.random.key)(jnp.arange(b))
-        k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
-        state = jax.jit(jax.vmap(env.reset))(k_env)
-        if replaying:
-            for rec, pose in zip(recs, np.asarray(state.pose)):
-                if not np.allclose(pose, rec.header["start_pose"], atol=1e-4):
-                    raise InputError(str(rec.path), "start_pose", f"{rec.header['start_pose']} is not the world's "
-                                     f"start pose {pose.tolist()}")
-            pstate = policy.init_batch()
-        else:
-            pstate = jax.vmap(policy.init)(k_pol)
-        steps_per_decision = cfg.decide_every
-        total_decisions = _decisions(cfg, env.dt)
-        # The largest chunk that divides the run evenly, so one compiled function serves.
-        want = max(1, int(round(cfg.chunk_s / (env.dt * steps_per_decision))))
-        decisions = max(d for d in range(1, min(want, total_decisions) + 1) if total_decisions % d == 0)
-        chunk_fn = _chunk_fn(env, policy, steps_per_decision, decisions, capture=detecting)
-        logs, poses, first_log = [], [np.asarray(state.pose)[:, None]], jax.tree.map(np.asarray,
-                                                                                  jax.jit(jax.vmap(env.log))(state))
-        label = f"{env.world.name}/{policy.name}"
-        timing = {"env_s": 0.0, "detector_s": 0.0, "frames": 0}
-        for c in range(total_decisions // decisions):
-            t0 = time.perf_counter()
-            state, pstate, k_run, chunk_logs, chunk_poses, frames = chunk_fn(state, pstate, k_run)
-            chunk_logs = jax.tree.map(np.asarray, chunk_logs)  # (B, n, N)
-            poses.append(np.asarray(chunk_poses))
-            wall = time.perf_counter() - t0
-            timing["env_s"] += wall
-            if detecting:
-                t1 = time.perf_counter()
-                state, chunk_logs = _detect(env, detector, label_fn, state, chunk_logs, frames, c * decisions,
-                                            steps_per_decision)
-                timing["detector_s"] += time.perf_counter() - t1
-                timing["frames"] += b * decisions
-            n = decisions * steps_per_decision
-            logs.append(chunk_logs)
-            bar.update(n * env.dt)
-            rate = f"{label} {b * n / wall:,.0f} env-steps/s"
-            if detecting:
-                rate += f", detector {timing['frames'] / max(timing['detector_s'], 1e-9):,.0f} frames/s"
-            bar.set_postfix_str(rate)
-        logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), *logs)  # (B, T, N)
-        logs = jax.tree.map(lambda a, f: np.concatenate([f[:, None], a], axis=1), logs, first_log)
-        times = np.arange(logs.ps.shape[1]) * env.dt
-        every = max(1, int(round(cfg.sample_s / env.dt)))
-        keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
-        curves = metrics.compute(logs, env.sk.truth, cfg.metrics)  # {name: (B, T)}
-        poses = np.concatenate(poses, axis=1)  # (B, T, 3)
-        frames, objects, paths = [], [], []
-        tags = dict(world=env.world.name, policy=policy.name, detector=cfg.detector)
-        knowledge = jax.tree.map(np.asarray, jax.jit(jax.vmap(env.knowledge))(state))
-        name = _run_name(world_name, policy_name)
-        for seed in range(b):
-            frames.append(results.metric_frame({m: c[seed, keep] for m, c in curves.items()}, times[keep],
-                                               seed=seed, **tags))
-            paths.append(pd.DataFrame({"world": env.world.name, "policy": policy.name, "seed": seed,
-                                       "time_s": np.round(times[keep], 6), "x": poses[seed, keep, 0],
-                                       "y": poses[seed, keep, 1], "yaw": poses[seed, keep, 2]}))
-            final = jax.tree.map(lambda a: a[seed, -1], logs)
-            objects.append(results.object_frame(env.world, final, seed=seed, policy=policy.name, detector=cfg.detector))
-            write_semantic_map(out / "maps", f"{name}__seed{seed}", env.world,
-                               jax.tree.map(lambda a: a[seed], knowledge), float(times[-1]))
-        results.write_csv(pd.concat(objects, ignore_index=True), out / "runs" / f"{name}.objects.csv")
-        results.write_atomic(out / "runs" / f"{name}.timing.json", json.dumps(timing, indent=2))
-        results.write_csv(pd.concat(paths, ignore_index=True), out / "runs" / f"{name}.trajectory.csv")
-        # The metrics file last: its presence marks the run finished (resume).
-        results.write_csv(pd.concat(frames, ignore_index=True), out / "runs" / f"{name}.metrics.csv")
+    detecting = cfg.detector != "off"
+    env = make(world, **{"labels": "detections" if detecting else "observed", **overrides.flatten(cfg.env),
+                         **policy_class(spec).env_overrides(spec)})
+    policy = make_policy(spec, env, decide_every=cfg.decide_every,
+                         total_steps=_decisions(cfg, env.dt) * cfg.decide_every)
+    detector = None
+    if detecting:
+        from rosmeery_jax.detector.detections import make_detector
 
-    def _merge(self, out: Path) -> None:
-        from rosmeery_jax import plots
+        detector = make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
+    return Run(run_name(world, spec), env, policy, detector, policy.batch_size(cfg.seeds))
 
-        runs = sorted((out / "runs").glob("*.metrics.csv")) if (out / "runs").exists() else []
-        if not runs:
-            return
-        df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
-        results.write_csv(df, out / "metrics.csv")
-        objs = [p.with_name(p.name.replace(".metrics.csv", ".objects.csv")) for p in runs]
-        results.write_csv(pd.concat([pd.read_csv(p) for p in objs if p.exists()], ignore_index=True),
-                          out / "objects.csv")
-        paths = [p.with_name(p.name.replace(".metrics.csv", ".trajectory.csv")) for p in runs]
-        paths = [pd.read_csv(p) for p in paths if p.exists()]
-        if paths:
-            results.write_csv(pd.concat(paths, ignore_index=True), out / "trajectories.csv")
-        plots.plot_results(df, out / "plots")
+
+def blocked(fn):
+    """jit of ``fn`` (one env) over a batch of B = k * BLOCK envs: vmap over a block, lax.map
+    over blocks, so every session compiles the same block width (module docstring)."""
+    import jax
+
+    def run(*args):
+        blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), args)
+        out = jax.lax.map(lambda a: jax.vmap(fn)(*a), blocks)
+        return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
+
+    return jax.jit(run)
+
+
+def simulate(cfg: SessionConfig, run: Run, bar):
+    """Step the run to its end. Returns logs (ObjectLog, (B, T + 1, N) numpy), poses
+    (B, T + 1, 3), the final knowledge (batched) and the timing record; B = run.b."""
+    import jax
+    import jax.numpy as jnp
+
+    env, policy = run.env, run.policy
+    keys = jax.vmap(jax.random.key)(jnp.arange(_padded(run.b)))
+    k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
+    state = blocked(env.reset)(k_env)
+    policy.check_start(np.asarray(state.pose)[:run.b])
+    pstate = policy.init_batch(k_pol)
+    total = _decisions(cfg, env.dt)
+    want = max(1, int(round(cfg.chunk_s / (env.dt * cfg.decide_every))))
+    # The largest chunk that divides the run evenly, so one compiled function serves.
+    per_chunk = max(d for d in range(1, min(want, total) + 1) if total % d == 0)
+    capture = run.detector is not None
+    chunk_fn = blocked(_chunk_fn(env, policy, cfg.decide_every, per_chunk, capture))
+    label_fn = blocked(_label_fn(env)) if capture else None
+    logs = [jax.tree.map(lambda a: np.asarray(a)[:, None], blocked(env.log)(state))]
+    poses = [np.asarray(state.pose)[:, None]]
+    timing = {"env_s": 0.0, "detector_s": 0.0, "frames": 0}
+    label = f"{env.world.name}/{policy.name}"
+    for c in range(total // per_chunk):
+        t0 = time.perf_counter()
+        state, pstate, k_run, chunk_logs, chunk_poses, frames = chunk_fn(state, pstate, k_run)
+        chunk_logs = jax.tree.map(np.asarray, chunk_logs)  # (B, n, N)
+        poses.append(np.asarray(chunk_poses))
+        wall = time.perf_counter() - t0
+        timing["env_s"] += wall
+        if capture:
+            t1 = time.perf_counter()
+            state, chunk_logs = _detect(run, label_fn, state, chunk_logs, frames, c * per_chunk, cfg.decide_every)
+            timing["detector_s"] += time.perf_counter() - t1
+            timing["frames"] += run.b * per_chunk
+        logs.append(chunk_logs)
+        n = per_chunk * cfg.decide_every
+        bar.update(n * env.dt)
+        rate = f"{label} {run.b * n / wall:,.0f} env-steps/s"
+        if capture:
+            rate += f", detector {timing['frames'] / max(timing['detector_s'], 1e-9):,.0f} frames/s"
+        bar.set_postfix_str(rate)
+    keep = lambda a: a[:run.b]  # noqa: E731 - drop the padding entries
+    logs = jax.tree.map(lambda *a: keep(np.concatenate(a, axis=1)), *logs)
+    knowledge = jax.tree.map(lambda a: keep(np.asarray(a)), blocked(env.knowledge)(state))
+    return logs, keep(np.concatenate(poses, axis=1)), knowledge, timing
+
+
+def write_run(cfg: SessionConfig, run: Run, out: Path, logs, poses, knowledge, timing) -> None:
+    """The run's files, each atomically; the metrics file last (its presence marks the run done)."""
+    import jax
+
+    from rosmeery_jax.export import write_semantic_map
+
+    env = run.env
+    times = np.arange(logs.ps.shape[1]) * env.dt
+    every = max(1, int(round(cfg.sample_s / env.dt)))
+    keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
+    tags = dict(world=env.world.name, policy=run.policy.name, detector=cfg.detector)
+    curves, objects, paths = [], [], []
+    for seed in range(run.b):  # per seed, so a seed's numbers never depend on the batch shape
+        log = jax.tree.map(lambda a: a[seed], logs)
+        c = metrics.compute(log, env.sk.truth, cfg.metrics)  # {name: (T,)}
+        curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed, **tags))
+        paths.append(pd.DataFrame({"world": env.world.name, "policy": run.policy.name, "seed": seed,
+                                   "time_s": np.round(times[keep], 6), "x": poses[seed, keep, 0],
+                                   "y": poses[seed, keep, 1], "yaw": poses[seed, keep, 2]}))
+        final = jax.tree.map(lambda a: a[-1], log)
+        objects.append(results.object_frame(env.world, final, seed=seed, policy=run.policy.name,
+                                            detector=cfg.detector))
+        write_semantic_map(out / "maps", f"{run.name}__seed{seed}", env.world,
+                           jax.tree.map(lambda a: a[seed], knowledge), float(times[-1]))
+    runs = out / "runs"
+    results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{run.name}.objects.csv")
+    results.write_atomic(runs / f"{run.name}.timing.json", json.dumps(timing, indent=2))
+    results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{run.name}.trajectory.csv")
+    results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
+
+
+def merge(out: Path) -> None:
+    """The merged tables and plots of every finished run in ``out``."""
+    from rosmeery_jax import plots
+
+    runs = sorted((out / "runs").glob("*.metrics.csv")) if (out / "runs").exists() else []
+    if not runs:
+        return
+    df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
+    results.write_csv(df, out / "metrics.csv")
+    for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv")):
+        parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
+        parts = [pd.read_csv(p) for p in parts if p.exists()]
+        if parts:
+            results.write_csv(pd.concat(parts, ignore_index=True), out / merged)
+    plots.plot_results(df, out / "plots")
 
 
 def _decisions(cfg: SessionConfig, dt: float) -> int:
     """Policy decisions in one run; the duration must be a whole number of them."""
     period = dt * cfg.decide_every
+    if not math.isfinite(cfg.duration):
+        raise InputError("config", "duration", f"{cfg.duration} must be a finite number of seconds")
     n = int(round(cfg.duration / period))
     if n < 1 or abs(n * period - cfg.duration) > 1e-6:
         raise InputError("config", "duration", f"{cfg.duration} s is not a whole number of decision periods "
@@ -356,11 +507,10 @@ def _decisions(cfg: SessionConfig, dt: float) -> int:
 
 
 def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: bool = False):
-    """jit(vmap'd) function: ``decisions`` policy decisions, each followed by
-    ``steps_per_decision`` env steps; returns logs (B, decisions * steps, N), poses
-    (B, decisions * steps, 3) and, with
-    ``capture``, the detector's frames after each decision: RGB (B, F, Hr, Wr, 3) and labels
-    (B, F, Hr, Wr) int16 (F = decisions); else None."""
+    """One env: ``decisions`` policy decisions, each followed by ``steps_per_decision`` env
+    steps; returns logs (decisions * steps, N), poses (decisions * steps, 3) and, with
+    ``capture``, the detector's frames after each decision: RGB (F, Hr, Wr, 3) and labels
+    (F, Hr, Wr) int16 (F = decisions); else None."""
     import jax
     import jax.numpy as jnp
 
@@ -369,13 +519,12 @@ def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: boo
             s, ps, k = carry
             k, sub = jax.random.split(k)
             action, ps = policy.decide(s, ps, sub)
-            per_step = getattr(policy, "per_step", False)  # replay: one action per step
 
             def step(s, a):
-                s = env.step(s, a if per_step else action)
+                s = env.step(s, a if policy.per_step else action)
                 return s, (env.log(s), s.pose)
 
-            s, logs = jax.lax.scan(step, s, action if per_step else None, length=steps_per_decision)
+            s, logs = jax.lax.scan(step, s, action if policy.per_step else None, length=steps_per_decision)
             frame = None
             if capture:
                 img, lab = env.camera_rgb(s)
@@ -386,12 +535,12 @@ def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: boo
         logs, poses = jax.tree.map(lambda a: a.reshape(decisions * steps_per_decision, *a.shape[2:]), logs)
         return state, pstate, key, logs, poses, frames
 
-    return jax.jit(jax.vmap(one_env))
+    return one_env
 
 
 def _label_fn(env):
-    """jit(vmap'd): knowledge + detections (B, F, D) -> final knowledge and the label fields
-    of the per-object log after each frame's detections (B, F, N)."""
+    """One env: knowledge + detections (F, D) -> final knowledge and the label fields of the
+    per-object log after each frame's detections (F, N)."""
     import jax
 
     def one_env(k, obj, label, conf):
@@ -402,17 +551,16 @@ def _label_fn(env):
 
         return jax.lax.scan(body, k, (obj, label, conf))
 
-    return jax.jit(jax.vmap(one_env))
+    return one_env
 
 
 _LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
 
 
-def _detect(env, detector, label_fn, state, logs, frames, first_frame: int, steps_per_decision: int):
+def _detect(run: Run, label_fn, state, logs, frames, first_frame: int, steps_per_decision: int):
     """Run the detector on a chunk's frames, fold the detections into the knowledge, and
     rewrite the chunk's label fields from the step after each frame on, so the curves carry
     no chunk-long lag (a frame taken at the end of decision f counts from decision f + 1)."""
-    import jax
     import jax.numpy as jnp
 
     from rosmeery_jax.detector.detections import pad
@@ -420,19 +568,18 @@ def _detect(env, detector, label_fn, state, logs, frames, first_frame: int, step
     rgb, seg = (np.asarray(a) for a in frames)  # (B, F, H, W, 3), (B, F, H, W)
     b, f = rgb.shape[:2]
     ids = np.stack(np.meshgrid(np.arange(b), first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
-    found = detector(rgb.reshape(b * f, *rgb.shape[2:]), seg.reshape(b * f, *seg.shape[2:]).astype(np.int32), ids)
+    found = run.detector(rgb.reshape(b * f, *rgb.shape[2:]), seg.reshape(b * f, *seg.shape[2:]).astype(np.int32),
+                         ids)
     dets = [pad(found[i * f:(i + 1) * f], f, MAX_DET) for i in range(b)]
     obj, label, conf = (jnp.asarray(np.stack([d[j] for d in dets])) for j in range(3))
-    knowledge, fields = label_fn(state.knowledge, obj, label, conf)
+    knowledge, per_frame = label_fn(state.knowledge, obj, label, conf)
     state = state._replace(knowledge=knowledge)
-    fields = [np.asarray(x) for x in fields]  # each (B, F, N)
     frame_of_step = np.arange(logs.ps.shape[1]) // steps_per_decision - 1  # -1: before the chunk's first frame
     take = frame_of_step >= 0
     updates = {}
-    for name, per_frame in zip(_LABEL_FIELDS, fields):
-        old = getattr(logs, name)
-        new = old.copy()
-        new[:, take] = per_frame[:, frame_of_step[take]].astype(old.dtype)
+    for name, values in zip(_LABEL_FIELDS, per_frame):
+        new = getattr(logs, name).copy()
+        new[:, take] = np.asarray(values)[:, frame_of_step[take]].astype(new.dtype)
         updates[name] = new
     return state, logs._replace(**updates)
 

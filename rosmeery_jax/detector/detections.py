@@ -71,10 +71,15 @@ class YoloDetector:
         h, w = images.shape[1:3]
         ph, pw = (-h) % 32, (-w) % 32
         for i in range(0, len(images), self.batch):
-            x = torch.from_numpy(np.array(images[i:i + self.batch])).permute(0, 3, 1, 2).float() / 255  # a writable copy
+            part = images[i:i + self.batch]
+            # Always a full batch (zero frames pad the last one): torch's numerics depend on
+            # the batch size, and a frame's detections must not depend on its batch-mates.
+            full = np.zeros((self.batch, *part.shape[1:]), np.uint8)
+            full[:len(part)] = part
+            x = torch.from_numpy(full).permute(0, 3, 1, 2).float() / 255
             if ph or pw:  # pad to whole strides with the official grey
                 x = torch.nn.functional.pad(x, (0, pw, 0, ph), value=114 / 255)
-            for j, d in enumerate(self.model.detect(x, conf=self.conf)):
+            for j, d in enumerate(self.model.detect(x, conf=self.conf)[:len(part)]):
                 d = d.numpy()
                 label = self.class_map[d[:, 5].astype(int)]
                 keep = label >= 0

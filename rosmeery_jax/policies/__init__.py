@@ -1,6 +1,6 @@
 """Exploration policies: pure, vmappable functions from the env state to a target pose.
 
-A policy is built for one env (``make_policy(name, env, **options)``) and has
+A policy is built for one env (``make_policy(spec, env, ...)``) and has
 ``init(key) -> pstate`` and ``decide(state, pstate, key) -> (target (3,), pstate)`` for one
 env; the session runner vmaps them over seeds and calls ``decide`` once every
 ``decide_every`` control steps (default 10 = 1 s), so the batch does not pay for a decision
@@ -8,7 +8,8 @@ every step. Between decisions the navigator keeps driving to the last target.
 
 Built in: ``random`` (the paper's random walker), ``frontier`` (biggest frontier, the
 paper's; ``frontier_nearest`` for the nearest), ``semantic_nbv`` (views around the objects
-the robot has labelled, scored by expected new surface per metre).
+the robot has labelled, scored by expected new surface per metre), and ``replay:FILES``
+(recorded human-driven sessions).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from rosmeery_jax.errors import InputError
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
 from rosmeery_jax.policies.random_walk import RandomPolicy
+from rosmeery_jax.policies.replay import PREFIX as REPLAY_PREFIX
+from rosmeery_jax.policies.replay import ReplayPolicy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
 
 POLICIES = {
@@ -27,10 +30,26 @@ POLICIES = {
 }
 
 
-def make_policy(name: str, env, **options) -> Policy:
-    if name not in POLICIES:
-        raise InputError("config", "policies", f"unknown policy {name!r} (built in: {', '.join(POLICIES)})")
-    return POLICIES[name](env, **options)
+def policy_class(spec: str) -> type[Policy]:
+    """The class a policy entry builds (for its ``env_overrides`` before an env exists)."""
+    if spec.startswith(REPLAY_PREFIX):
+        return ReplayPolicy
+    if spec not in POLICIES:
+        raise InputError("config", "policies", f"unknown policy {spec!r} (built in: {', '.join(POLICIES)}, "
+                         f"{REPLAY_PREFIX}FILE[+FILE...])")
+    return Policy
 
 
-__all__ = ["POLICIES", "Policy", "make_policy"]
+def policy_label(spec: str) -> str:
+    """The name a policy entry has in results: ``replay:FILES`` -> ``replay``."""
+    return "replay" if spec.startswith(REPLAY_PREFIX) else spec
+
+
+def make_policy(spec: str, env, decide_every: int = 10, total_steps: int = 0, **options) -> Policy:
+    """A policy entry for ``env``; ``decide_every`` and ``total_steps`` serve ``replay:``."""
+    if policy_class(spec) is ReplayPolicy:
+        return ReplayPolicy(env, spec, decide_every, total_steps)
+    return POLICIES[spec](env, **options)
+
+
+__all__ = ["POLICIES", "Policy", "make_policy", "policy_class", "policy_label"]

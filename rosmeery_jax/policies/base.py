@@ -1,4 +1,4 @@
-"""The policy interface (one env; vmap over seeds)."""
+"""The policy interface (one env; the session vmaps it over the batch)."""
 
 from __future__ import annotations
 
@@ -12,15 +12,37 @@ from rosmeery_jax.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE, IDLE
 
 
 class Policy(ABC):
-    """Subclasses set ``name`` and implement ``decide`` (and ``init`` when they keep state)."""
+    """Subclasses set ``name`` and implement ``decide`` (and ``init`` when they keep state).
+
+    Class attributes a policy may change:
+    - ``per_step``: ``decide`` returns one action per control step (steps, A) instead of
+      one target held until the next decision;
+    - ``env_overrides(spec)``: env settings the policy needs (e.g. velocity commands).
+    """
 
     name = "policy"
+    per_step = False
 
     def __init__(self, env):
         self.env = env
 
+    @classmethod
+    def env_overrides(cls, spec: str) -> dict:
+        return {}
+
+    def batch_size(self, seeds: int) -> int:
+        """How many batch entries the policy runs (the session's seeds by default)."""
+        return seeds
+
     def init(self, key: jax.Array) -> Any:
         return jnp.zeros(())
+
+    def init_batch(self, keys: jax.Array) -> Any:
+        """The batched policy state for keys (B,)."""
+        return jax.vmap(self.init)(keys)
+
+    def check_start(self, poses) -> None:
+        """Raise InputError when the reset poses (B, 3) do not suit the policy."""
 
     @abstractmethod
     def decide(self, state, pstate, key: jax.Array) -> tuple[jax.Array, Any]:

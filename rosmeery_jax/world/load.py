@@ -29,7 +29,7 @@ from rosmeery_jax.world.freespace import FreeSpace, build_free_space
 from rosmeery_jax.world.scene import WALL, Scene
 from rosmeery_jax.world.surface import SurfaceSamples, observable_samples
 
-WORLDS_DIR = Path(__file__).resolve().parents[2] / "worlds"
+WORLDS_DIR = Path(__file__).resolve().parents[1] / "worlds"  # packaged: works from a wheel
 PAPER_WORLDS = ("kitchen", "laboratory", "small_office", "large_office")
 CATEGORY_PREFIX = "rosmeery:category:"
 SPAWN_NAME = "rosmeery:spawn"
@@ -41,12 +41,14 @@ FLOOR_RGB = (0.71, 0.69, 0.65)
 class WorldConfig:
     """How a world file is turned into ground truth.
 
-    density: surface samples per m^2 (400 = one per 25 cm^2, SPEC section 2).
+    density: surface samples per m^2 (400 = one per 25 cm^2, docs/metrics.md).
     camera_height: the camera's mounting height (m); faces seen only edge-on from that height
         are not observable (None: keep them).
     contact_gap: a face closer than this to another solid (or the floor) is not observable.
     robot_radius / robot_height: the robot's plan radius and height (m), for the free-space
         map, the reachable area and the spawn check.
+    ``env.make`` sets robot_radius, robot_height and camera_height from the env's
+    ``robot__radius``, ``robot__height`` and ``camera__mount_height`` (their one source).
     map_resolution: cell size of the free-space map (m).
     """
 
