@@ -195,26 +195,41 @@ def _cmd_detector_eval(args) -> int:
 
 
 def _cmd_teleop(args) -> int:
+    import socket
     import time as _time
 
     from rosmeery_jax.teleop.server import Teleop, serve
     from rosmeery_jax.world import load_world
 
     load_world(args.world)  # a bad name fails here, in one line
-    record = args.record or f"recordings/{Path(args.world).stem}-{_time.strftime('%Y%m%d-%H%M%S')}.jsonl"
+    record = Path(args.record or f"recordings/{Path(args.world).stem}-{_time.strftime('%Y%m%d-%H%M%S')}.jsonl")
+    if record.exists():
+        raise InputError(str(record), "--record", "exists already: recordings are never overwritten")
+    try:  # the port is checked before a minute of compiling, and before the recording exists
+        with socket.create_server((args.host, args.port)):
+            pass
+    except OSError as err:
+        raise InputError(f"{args.host}:{args.port}", "--port", f"cannot serve there ({err.strerror or err})") from None
     print(f"loading {args.world} and compiling (about a minute on first use)...", flush=True)
     app = Teleop(args.world, record=record, detector=args.detector, seed=args.seed,
-                 conf_threshold=args.conf_threshold, weights=args.weights)
+                 conf_threshold=args.conf_threshold, weights=args.weights, view=args.view)
 
     def ready(addr):
-        print(f"teleop: open http://{addr[0]}:{addr[1]}/ (arrow keys / WASD drive; Stop or Ctrl-C ends)", flush=True)
+        print(f"teleop: open http://{addr[0]}:{addr[1]}/ (arrow keys / WASD drive; Stop or Ctrl-C ends; "
+              f"{args.view} view)", flush=True)
         print(f"recording to {record}", flush=True)
 
-    serve(app, args.host, args.port, ready)
+    try:
+        serve(app, args.host, args.port, ready)
+    except OSError as err:  # taken between the check and now
+        app.stop()
+        raise InputError(f"{args.host}:{args.port}", "--port", f"cannot serve there ({err.strerror or err})") from None
+    if app.error:
+        print(f"rosmeery: {app.error}", file=sys.stderr)
     f = app.frame
-    print(f"stopped after {f.t:.1f} s; " + ", ".join(f"{k} {v:.3f}" for k, v in f.metrics.items()))
+    print(f"stopped after {f.t:.1f} s; " + ", ".join(f"{k} {v:.3f}" for k, v in app.final_metrics().items()))
     print(f"recording: {record} (replay: rosmeery run --worlds {app.env.world.name} --policies replay:{record})")
-    return 0
+    return 1 if app.error else 0
 
 
 def _cmd_plot(args) -> int:
@@ -310,6 +325,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--conf-threshold", type=float, default=0.25, metavar="C")
     p.add_argument("--weights", metavar="FILE.pt")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--view", default="blind", choices=("blind", "full"),
+                   help="blind (default): only the map and the camera, as the paper's human saw; "
+                        "full: also live scores and held labels (not a paper baseline)")
     p.set_defaults(func=_cmd_teleop)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")

@@ -88,7 +88,7 @@ def test_drive_the_page_in_chromium_then_replay_the_recording(tmp_path):
 
     port, record = _free_port(), tmp_path / "drive.jsonl"
     server = subprocess.Popen([sys.executable, "-m", "rosmeery_jax", "teleop", "--world", WORLD, "--port", str(port),
-                               "--record", str(record), "--detector", "off"],
+                               "--record", str(record), "--detector", "off", "--view", "full"],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
     try:
         deadline = time.time() + 300
@@ -140,3 +140,81 @@ def test_drive_the_page_in_chromium_then_replay_the_recording(tmp_path):
     for k, name in enumerate(final["metric_names"]):
         replayed = df[(df.metric == name) & (df.time_s == float(seconds))].value.iloc[0]
         assert replayed == pytest.approx(live[float(seconds)][k], abs=1e-3), name
+
+
+class _StubApp:
+    """What the HTTP handler needs of a Teleop, without compiling a world."""
+
+    def __init__(self):
+        from rosmeery_jax.platform import RobotConfig
+
+        self.robot, self.cmd, self.running, self.frame = RobotConfig(), None, True, None
+
+    def command(self, body):
+        from rosmeery_jax.teleop.server import parse_command
+
+        self.cmd = parse_command(body, self.robot)
+
+    def state_json(self):
+        return {}
+
+
+def _post(port, body: bytes, headers: dict) -> int:
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    conn.request("POST", "/command", body=body, headers=headers)
+    return conn.getresponse().status
+
+
+def test_commands_are_validated_and_only_the_page_may_drive():
+    import threading
+    from http.server import ThreadingHTTPServer
+
+    from rosmeery_jax.teleop.server import _handler
+
+    app = _StubApp()
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(app))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    port = server.server_address[1]
+    own = {"Content-Type": "application/json", "Origin": f"http://127.0.0.1:{port}"}
+    try:
+        for body in (b'{"v": NaN, "w": 0}', b'{"v": Infinity}', b'{"v": "fast"}', b'{"keys": "up"}', b"[1, 2]",
+                     b"not json"):
+            assert _post(port, body, own) == 400, body
+            assert app.cmd is None, body  # nothing moved
+        # another site's page: text/plain (a "simple" request), or a foreign Origin
+        assert _post(port, b'{"v": 1, "w": 0}', {"Content-Type": "text/plain"}) == 415
+        assert _post(port, b'{"v": 1, "w": 0}', {**own, "Origin": "http://evil.example"}) == 403
+        assert app.cmd is None
+        assert _post(port, b'{"v": 1e308, "w": -1e308}', own) == 200
+        assert app.cmd.tolist() == [app.robot.max_speed, -app.robot.max_turn_rate]  # clipped to the limits
+    finally:
+        server.shutdown()
+
+
+def test_teleop_refuses_an_existing_recording_and_a_busy_port_before_compiling(tmp_path, capsys):
+    record = tmp_path / "old.jsonl"
+    record.write_text("precious\n")
+    assert main(["teleop", "--world", WORLD, "--record", str(record), "--port", str(_free_port())]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "old.jsonl" in err and "never overwritten" in err
+    assert record.read_text() == "precious\n"
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        new = tmp_path / "new.jsonl"
+        assert main(["teleop", "--world", WORLD, "--record", str(new), "--port", str(port)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--port" in err and not new.exists()
+
+
+def test_blind_view_shows_only_what_the_papers_driver_saw():
+    from rosmeery_jax.teleop.server import Teleop
+
+    app = Teleop(WORLD, record=None, view="blind")
+    state = app.state_json()
+    assert not {"metrics", "labels", "history"} & set(state) and state["view"] == "blind"
+    app.view = "full"
+    assert {"metrics", "labels", "history"} <= set(app.state_json())

@@ -24,7 +24,14 @@ FORMAT = "rosmeery-yolov5"
 
 
 class _Inert:
-    """Stands in for any class an official checkpoint pickles; keeps only its state."""
+    """Stands in for any class or function a checkpoint pickles; keeps only its state.
+    Calling it (a pickled ``__reduce__``) builds another inert object and runs nothing."""
+
+    def __new__(cls, *args, **kwargs):
+        return object.__new__(cls)
+
+    def __init__(self, *args, **kwargs):
+        pass
 
     def __setstate__(self, state):
         self.__dict__["_state"] = state
@@ -45,9 +52,13 @@ class _SafeUnpickler(pickle.Unpickler):
         return type(name, (_Inert,), {"__module__": f"inert.{module}"})
 
 
-class _pickle_module:  # what torch.load expects of a pickle module
+def _safe_load(file, **kwargs):
+    return _SafeUnpickler(file, **kwargs).load()
+
+
+class _pickle_module:  # what torch.load expects of a pickle module: both entry points restricted
     Unpickler = _SafeUnpickler
-    load = staticmethod(pickle.load)
+    load = staticmethod(_safe_load)
     __name__ = "rosmeery_safe_pickle"
 
 
@@ -69,15 +80,22 @@ def read_official(path: str | Path) -> dict:
     """An official YOLO-v5 ``.pt``: ``{"state_dict", "names", "nc", "size"}`` without running
     pickled code. The size comes from the checkpoint's width multiple."""
     path = Path(path)
+    if not zipfile.is_zipfile(path):
+        # Legacy (pre-zip) torch files start with pickles torch reads before any hook of
+        # ours: refused, so no path hands a file to an unrestricted unpickler.
+        raise InputError(str(path), "file", "not a zip-format torch checkpoint (legacy or raw pickles are refused: "
+                         "they can run code; re-save it with torch.save)")
     try:
         ckpt = torch.load(path, map_location="cpu", pickle_module=_pickle_module, weights_only=False)
-    except (OSError, RuntimeError, pickle.UnpicklingError, EOFError, zipfile.BadZipFile, ValueError) as err:
+    except Exception as err:  # noqa: BLE001 - any failure of a foreign file is bad input
         raise InputError(str(path), "file", f"not a readable torch checkpoint ({type(err).__name__})") from None
     model = ckpt.get("ema") or ckpt.get("model") if isinstance(ckpt, dict) else None
     if model is None:
         raise InputError(str(path), "model", "no model in this checkpoint")
     sd: dict = {}
     _gather(model, "", sd)
+    if not sd:
+        raise InputError(str(path), "model", "holds no YOLO-v5 parameters")
     st = _state(model)
     names = st.get("names")
     names = [names[i] for i in sorted(names)] if isinstance(names, dict) else list(names or [])
@@ -95,10 +113,12 @@ def load(path: str | Path, device: str = "cpu"):
     path = Path(path)
     if not path.is_file():
         raise InputError(str(path), "file", "not found")
-    try:
-        raw = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception:  # noqa: BLE001 - not our format: maybe an official pickled checkpoint
-        raw = None
+    raw = None
+    if zipfile.is_zipfile(path):
+        try:  # torch's weights-only unpickler: tensors and plain containers, nothing else
+            raw = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception:  # noqa: BLE001 - not our format: maybe an official pickled checkpoint
+            raw = None
     if isinstance(raw, dict) and raw.get("format") == FORMAT:
         info = {"state_dict": raw.get("state_dict"), "names": list(raw.get("names", [])),
                 "size": raw.get("size", "n"), "imgsz": raw.get("imgsz")}

@@ -46,7 +46,11 @@ class Recorder:
                  dt: float = 0.1):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "w", encoding="utf-8")
+        try:  # "x": a recording is never overwritten
+            self._fh = open(self.path, "x", encoding="utf-8")
+        except FileExistsError:
+            raise InputError(str(self.path), "file", "exists already: recordings are never overwritten; "
+                             "choose another --record") from None
         self._write({"format": FORMAT, "version": VERSION, "world": world.name, "world_sha256": world_hash(world),
                      "seed": seed, "dt": dt, "start_pose": [float(v) for v in start_pose], "env": env_overrides,
                      "detector": detector,

@@ -6,9 +6,15 @@ the command the page sent last (zero once it is older than ``COMMAND_TIMEOUT_S``
 tab stops the robot), appends every step to the recording, and every ``detect_every``
 steps runs the detector on the camera frame, as a session does after each decision.
 
-The page (``static/``, plain HTML + JS, no external assets) shows only what the robot has:
-its own occupancy map with its pose, the RGB and depth images, the labels it holds, and the
-live metric values and curves. The standard library's ``http.server`` serves it, bound to
+The page (``static/``, plain HTML + JS, no external assets) shows what the robot has. In
+the ``blind`` view (the default; what the paper's human driver saw) that is its own
+occupancy map with its pose and the RGB and depth images; the ``full`` view adds the labels
+it holds and the live metric values and curves (for demos: a driver who watches the score
+is not the paper's human baseline).
+
+Commands are checked: the body must be JSON (``Content-Type: application/json``) from the
+page's own origin (a POST from another site's page is refused), ``v`` and ``w`` finite
+numbers, clipped to the robot's limits; anything else gets 400/403/415 and moves nothing. The standard library's ``http.server`` serves it, bound to
 127.0.0.1 by default. Endpoints: ``GET /`` the page, ``GET /state`` JSON,
 ``GET /map.png`` / ``/rgb.png`` / ``/depth.png``, ``POST /command`` ``{"v", "w"}`` or
 ``{"keys": [...]}``, ``POST /stop`` ends the session (the recording gets its end line).
@@ -48,7 +54,7 @@ class Frame:
 class Teleop:
     def __init__(self, world: str, record: str | Path | None = None, detector: str = "off", seed: int = 0,
                  conf_threshold: float = 0.25, weights: str | None = None, detect_every: int = 10,
-                 metric_names=None):
+                 metric_names=None, view: str = "blind"):
         import jax
 
         from rosmeery_jax import metrics
@@ -57,6 +63,7 @@ class Teleop:
         self.overrides = {"action_mode": "velocity", "start_yaw": "spawn",
                           **({"labels": "detections"} if detector != "off" else {})}
         self.env = env = make(world, **self.overrides)
+        self.view = view
         self.metric_names = metrics.resolve(metric_names or metrics.DEFAULT_METRICS)
         self.detector_name, self.detect_every = detector, detect_every
         self.detector = None
@@ -84,30 +91,29 @@ class Teleop:
         self.trail: list = [np.asarray(self.state.pose)[:2].tolist()]
         self.lock = threading.Lock()  # one tick or stop at a time
         self.running = True
+        self.error = None
         self.frames = 0
         self.frame = self._snapshot(np.zeros(2))
 
     # --- commands from the page ---
-    def command(self, body: dict) -> None:
-        r = self.env.config.robot
-        if "keys" in body:
-            keys = set(body["keys"])
-            fwd = int(bool({"ArrowUp", "w", "W"} & keys)) - int(bool({"ArrowDown", "s", "S"} & keys))
-            turn = int(bool({"ArrowLeft", "a", "A"} & keys)) - int(bool({"ArrowRight", "d", "D"} & keys))
-            v, w = fwd * r.max_speed, turn * r.max_turn_rate
-        else:
-            v, w = float(body.get("v", 0.0)), float(body.get("w", 0.0))
-        self.cmd = np.array([v, w], np.float32)
+    def command(self, body) -> None:
+        """Set the velocity command from ``{"keys": [...]}`` or ``{"v": .., "w": ..}``;
+        ValueError (nothing changes) for anything else."""
+        self.cmd = parse_command(body, self.env.config.robot)
         self.cmd_time = time.monotonic()
 
     # --- the 10 Hz loop ---
     def run(self) -> None:
         period = self.env.dt
         next_tick = time.monotonic()
-        while self.running:
-            next_tick += period
-            self.tick()
-            time.sleep(max(0.0, next_tick - time.monotonic()))
+        try:
+            while self.running:
+                next_tick += period
+                self.tick()
+                time.sleep(max(0.0, next_tick - time.monotonic()))
+        except Exception as err:  # noqa: BLE001 - end the session visibly, never a frozen page
+            self.error = f"simulation stopped: {type(err).__name__}: {err}"
+            self.stop()
 
     def tick(self) -> None:
         with self.lock:
@@ -173,11 +179,41 @@ class Teleop:
 
     def state_json(self) -> dict:
         f = self.frame
-        return {"world": self.env.world.name, "title": self.env.world.title, "step": f.step, "t": f.t,
-                "pose": f.pose, "cmd": f.cmd, "labels": f.labels, "metrics": f.metrics,
-                "metric_names": list(self.metric_names), "history": self.history[-CURVE_POINTS:],
-                "objects": self.env.world.truth.num_objects, "running": self.running,
-                "recording": str(self.recorder.path) if self.recorder else None}
+        out = {"world": self.env.world.name, "title": self.env.world.title, "step": f.step, "t": f.t,
+               "pose": f.pose, "cmd": f.cmd, "view": self.view, "objects": self.env.world.truth.num_objects,
+               "running": self.running, "error": self.error,
+               "recording": str(self.recorder.path) if self.recorder else None}
+        if self.view == "full":
+            out.update(labels=f.labels, metrics=f.metrics, metric_names=list(self.metric_names),
+                       history=self.history[-CURVE_POINTS:])
+        return out
+
+    def final_metrics(self) -> dict:
+        """The metric values at the last step (for the terminal, whatever the view)."""
+        return self.frame.metrics
+
+
+VIEWS = ("blind", "full")
+
+
+def parse_command(body, robot) -> np.ndarray:
+    """(2,) float32 (v, w) within the robot's limits; ValueError for a malformed body."""
+    if not isinstance(body, dict):
+        raise ValueError("body must be a JSON object")
+    if "keys" in body:
+        keys = body["keys"]
+        if not isinstance(keys, list) or not all(isinstance(k, str) for k in keys):
+            raise ValueError("keys must be a list of key names")
+        keys = set(keys)
+        fwd = int(bool({"ArrowUp", "w", "W"} & keys)) - int(bool({"ArrowDown", "s", "S"} & keys))
+        turn = int(bool({"ArrowLeft", "a", "A"} & keys)) - int(bool({"ArrowRight", "d", "D"} & keys))
+        return np.array([fwd * robot.max_speed, turn * robot.max_turn_rate], np.float32)
+    v, w = body.get("v", 0.0), body.get("w", 0.0)
+    for name, x in (("v", v), ("w", w)):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
+            raise ValueError(f"{name} must be a finite number")
+    return np.array([np.clip(v, -robot.max_speed, robot.max_speed),
+                     np.clip(w, -robot.max_turn_rate, robot.max_turn_rate)], np.float32)
 
 
 def _handler(app: Teleop):
@@ -209,14 +245,28 @@ def _handler(app: Teleop):
                 return self._send(images[path], "image/png")
             self._send(b"not found", "text/plain", 404)
 
+        def _error(self, code: int, message: str) -> None:
+            self._send(json.dumps({"error": message}).encode(), "application/json", code)
+
         def do_POST(self):
             path = self.path.split("?")[0]
+            # Only the page itself may drive: a browser sends Origin with a cross-site POST,
+            # and a "simple" cross-site request cannot carry application/json.
+            origin = self.headers.get("Origin")
+            if origin is not None and origin != f"http://{self.headers.get('Host', '')}":
+                return self._error(403, "cross-origin request refused")
+            if self.headers.get("Content-Type", "").split(";")[0].strip() != "application/json":
+                return self._error(415, "Content-Type must be application/json")
             try:
-                body = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0) or 0)) or b"{}")
-            except json.JSONDecodeError:
-                return self._send(b'{"error": "body is not JSON"}', "application/json", 400)
+                length = min(int(self.headers.get("Content-Length", 0) or 0), 65536)
+                body = json.loads(self.rfile.read(length) or b"{}")
+            except (ValueError, json.JSONDecodeError):
+                return self._error(400, "body is not JSON")
             if path == "/command":
-                app.command(body)
+                try:
+                    app.command(body)
+                except ValueError as err:
+                    return self._error(400, str(err))
                 return self._send(b"{}", "application/json")
             if path == "/stop":
                 app.stop()

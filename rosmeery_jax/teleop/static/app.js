@@ -39,12 +39,9 @@ function render(state) {
   document.getElementById("pose").textContent =
     `x ${state.pose[0].toFixed(2)} y ${state.pose[1].toFixed(2)} yaw ${state.pose[2].toFixed(2)}`;
   document.getElementById("rec").textContent = state.recording ? `recording to ${state.recording}` : "not recording";
-  document.getElementById("metrics").innerHTML = state.metric_names.map((m, k) =>
-    `<tr><td style="color:${COLORS[k % COLORS.length]}">■ ${m}</td><td class="num">${state.metrics[m].toFixed(3)}</td></tr>`).join("");
-  document.getElementById("nlab").textContent = `${state.labels.length} of ${state.objects}`;
-  document.querySelector("#labels table").innerHTML = "<tr><th>label</th><th>object</th><th>conf.</th></tr>" +
-    state.labels.map((l) => `<tr><td>${l.label}</td><td>${l.object}</td><td class="num">${l.confidence.toFixed(2)}</td></tr>`).join("");
-  drawCurves(state);
+  // Blind view (the paper's human baseline): only the map and the camera, no scores or labels.
+  document.querySelectorAll(".scores").forEach((el) => { el.hidden = state.view === "blind"; });
+  if (state.view !== "blind") renderScores(state);
   const stamp = `?step=${state.step}`;
   for (const id of ["map", "rgb", "depth"]) {
     const img = document.getElementById(id);
@@ -52,6 +49,15 @@ function render(state) {
   }
   document.body.dataset.step = state.step;
   if (!state.running) { running = false; document.getElementById("status").append(" — session stopped."); }
+}
+
+function renderScores(state) {
+  document.getElementById("metrics").innerHTML = state.metric_names.map((m, k) =>
+    `<tr><td style="color:${COLORS[k % COLORS.length]}">■ ${m}</td><td class="num">${state.metrics[m].toFixed(3)}</td></tr>`).join("");
+  document.getElementById("nlab").textContent = `${state.labels.length} of ${state.objects}`;
+  document.querySelector("#labels table").innerHTML = "<tr><th>label</th><th>object</th><th>conf.</th></tr>" +
+    state.labels.map((l) => `<tr><td>${l.label}</td><td>${l.object}</td><td class="num">${l.confidence.toFixed(2)}</td></tr>`).join("");
+  drawCurves(state);
 }
 
 async function poll() {
