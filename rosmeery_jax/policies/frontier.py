@@ -10,9 +10,14 @@ cells are ignored, and the robot goes to:
   frontier's centroid;
 - ``nearest``: the frontier cell nearest to the robot (straight-line distance).
 
+A target faces the unknown cells next to its frontier cell, so reaching it looks into the
+unknown (the cell under the robot is often a frontier cell, with unknown space behind it:
+the target then turns the robot round).
+
 It keeps its target while the target is still a frontier cell and the navigator is moving,
-remembers targets the navigator gave up on (stuck, unreachable, timeout) and avoids frontier
-cells within ``blacklist_radius`` of them. When no frontier is left it stops where it is.
+remembers targets the navigator gave up on (stuck, unreachable, timeout) or reached while
+they stayed frontier (nothing more can be seen from there), and avoids frontier cells
+within ``blacklist_radius`` of them. When no frontier is left it stops where it is.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax import mapping
-from rosmeery_jax.navigation import STUCK, TIMEOUT, UNREACHABLE
+from rosmeery_jax.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE
 from rosmeery_jax.policies.base import Policy, needs_target
 
 
@@ -59,6 +64,11 @@ class FrontierPolicy(Policy):
 
     def frontier_cells(self, occupancy: jax.Array) -> jax.Array:
         """(Hc, Wc) bool frontier cells from the robot's (H, W) UNKNOWN/FREE/OCCUPIED map."""
+        return self._frontier(occupancy)[0]
+
+    def _frontier(self, occupancy: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Frontier cells (Hc, Wc) bool and, per cell, the heading (Hc, Wc) towards its
+        unknown 4-neighbours (their mean direction)."""
         f = self.f
         h, w = occupancy.shape
         hc, wc = self.shape
@@ -69,8 +79,10 @@ class FrontierPolicy(Policy):
         free = any_free & ~any_occ
         unknown = ~any_free & ~any_occ
         p = jnp.pad(unknown, 1)
-        near_unknown = p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
-        return free & near_unknown
+        down, up, left, right = p[:-2, 1:-1], p[2:, 1:-1], p[1:-1, :-2], p[1:-1, 2:]  # rows grow with y
+        near_unknown = down | up | left | right
+        toward = jnp.arctan2(up.astype(jnp.float32) - down, right.astype(jnp.float32) - left)
+        return free & near_unknown, toward
 
     def components(self, frontier: jax.Array) -> jax.Array:
         """(Hc, Wc) int32 component label (0 = not frontier) by max-label propagation."""
@@ -95,7 +107,7 @@ class FrontierPolicy(Policy):
     def decide(self, state, ps: FrontierState, key):
         hc, wc = self.shape
         n = hc * wc + 1
-        frontier = self.frontier_cells(self.env.occupancy(state))
+        frontier, toward = self._frontier(self.env.occupancy(state))
         # Cells near targets the navigator gave up on are not candidates.
         d_fail = jnp.linalg.norm(self.centers[:, :, None, :] - ps.failed[None, None], axis=-1).min(-1)
         frontier = frontier & (d_fail > self.radius)
@@ -114,16 +126,17 @@ class FrontierPolicy(Policy):
         cell = jnp.argmin(score)
         any_left = jnp.isfinite(score[cell])
         goal = xy[cell]
-        heading = jnp.arctan2(goal[1] - pose[1], goal[0] - pose[0])
+        heading = toward.ravel()[cell]
         fresh = jnp.where(any_left, jnp.concatenate([goal, heading[None]]), pose)
 
         status = state.nav.status
-        gave_up = (status == STUCK) | (status == UNREACHABLE) | (status == TIMEOUT)
-        failed = jnp.where(gave_up, ps.failed.at[ps.nfailed % self.k].set(ps.target[:2]), ps.failed)
-        nfailed = ps.nfailed + gave_up.astype(jnp.int32)
         ti = jnp.clip(((ps.target[1] - self.origin[1]) / self.res).astype(jnp.int32), 0, hc - 1)
         tj = jnp.clip(((ps.target[0] - self.origin[0]) / self.res).astype(jnp.int32), 0, wc - 1)
         still_frontier = valid[ti, tj]
+        gave_up = (status == STUCK) | (status == UNREACHABLE) | (status == TIMEOUT) | (
+            (status == REACHED) & still_frontier)
+        failed = jnp.where(gave_up, ps.failed.at[ps.nfailed % self.k].set(ps.target[:2]), ps.failed)
+        nfailed = ps.nfailed + gave_up.astype(jnp.int32)
         renew = needs_target(state) | ~still_frontier
         target = jnp.where(renew, fresh, ps.target)
         return target, FrontierState(target, failed, nfailed, ~any_left)

@@ -60,8 +60,8 @@ def rasterize(scene: Scene, mask: np.ndarray, origin, shape, res: float) -> np.n
     gx, gy = np.meshgrid(xs, ys)
     pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], -1)
     sub = scene.select(mask)
-    grown = sub._replace(half=sub.half + np.array([res / 2, res / 2, np.inf]))
-    return grown.inside(pts).any(axis=1).reshape(h, w)
+    grown = sub._replace(half=sub.half + np.array([res / 2, res / 2, 0.0]))
+    return grown.inside_any(pts, planar=True).reshape(h, w)
 
 
 def build_free_space(scene: Scene, spawn_xy, robot_radius: float, robot_height: float,

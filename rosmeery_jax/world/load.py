@@ -35,6 +35,7 @@ CATEGORY_PREFIX = "rosmeery:category:"
 SPAWN_NAME = "rosmeery:spawn"
 TITLE_NAME = "rosmeery:title"
 FLOOR_RGB = (0.71, 0.69, 0.65)
+MAX_EXTENT = 1000.0  # m: coordinates and box sizes beyond this are refused (an indoor world)
 
 
 @dataclass(frozen=True)
@@ -162,6 +163,12 @@ def load_world(name_or_path: str | Path, config: WorldConfig | None = None,
 def _load(path: Path, _mtime: int, config: WorldConfig, taxonomy_path: str | None) -> World:
     taxonomy = load_taxonomy(taxonomy_path)
     try:
+        path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise InputError(path, "file", f"not UTF-8 text (byte {err.start}): save the world as UTF-8") from None
+    except OSError as err:
+        raise InputError(path, "file", f"unreadable ({err.strerror or err})") from None
+    try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
         raise InputError(path, "", "invalid MJCF: " + " ".join(str(err).split())) from None
@@ -175,7 +182,7 @@ def _load(path: Path, _mtime: int, config: WorldConfig, taxonomy_path: str | Non
     scene = _scene(model, data, path, objects)
     truth = _truth(path, model, data, scene, objects, categories, taxonomy, config)
     free = build_free_space(scene, spawn[:2], config.robot_radius, config.robot_height, config.map_resolution)
-    _check_layout(path, objects, model, truth, free, spawn, config)
+    _check_layout(path, objects, model, truth, free, spawn, config, scene)
 
     title = texts.get(TITLE_NAME) or path.stem.replace("_", " ").title()
     for arr in (*scene, spawn, *_arrays(truth), *_arrays(free)):
@@ -241,7 +248,11 @@ def _spawn(model, path) -> np.ndarray:
     adr, size = model.numeric_adr[i], model.numeric_size[i]
     if size != 3:
         raise InputError(path, f"numeric '{SPAWN_NAME}'", f"needs 3 values (x y yaw), got {size}")
-    return np.array(model.numeric_data[adr:adr + 3], dtype=np.float32)
+    spawn = np.array(model.numeric_data[adr:adr + 3], dtype=np.float64)
+    if not np.all(np.isfinite(spawn)) or np.abs(spawn).max() > MAX_EXTENT:
+        raise InputError(path, f"numeric '{SPAWN_NAME}'", f"{spawn.tolist()} must be finite numbers within "
+                         f"{MAX_EXTENT:g} m of the origin")
+    return spawn.astype(np.float32)
 
 
 def _scene(model, data, path, objects) -> Scene:
@@ -262,6 +273,11 @@ def _scene(model, data, path, objects) -> Scene:
         if gtype != mujoco.mjtGeom.mjGEOM_BOX:
             kind = mujoco.mjtGeom(gtype).name.removeprefix("mjGEOM_").lower()
             raise InputError(path, f"geom '{gname}'", f"is a {kind}; worlds are built from boxes rotated about z only")
+        numbers = np.concatenate([model.geom_size[g], data.geom_xpos[g]])
+        if not np.all(np.isfinite(numbers)) or np.abs(numbers).max() > MAX_EXTENT:
+            raise InputError(path, f"geom '{gname}'", f"position or size beyond {MAX_EXTENT:g} m (or not a number)")
+        if model.geom_size[g].min() <= 0:
+            raise InputError(path, f"geom '{gname}'", "has a zero or negative size")
         xmat = data.geom_xmat[g].reshape(3, 3)
         if abs(xmat[2, 2] - 1) > 1e-6:
             raise InputError(path, f"geom '{gname}'", "is tilted; boxes may only be rotated about z")
@@ -312,8 +328,16 @@ def _truth(path, model, data, scene, objects, categories, taxonomy, config) -> G
         preds, np.array([len(p) for p in preds], np.int32), samples, ps_G)
 
 
-def _check_layout(path, objects, model, truth, free: FreeSpace, spawn, config) -> None:
+def _check_layout(path, objects, model, truth, free: FreeSpace, spawn, config, scene: Scene) -> None:
+    walls = scene.object_id == WALL
+    if not walls.any() or free.interior.all():
+        raise InputError(path, "worldbody", "has no walls enclosing the spawn (wall boxes directly under "
+                         "<worldbody>); an open world has no inside to explore")
+    top = float((scene.center[walls, 2] + scene.half[walls, 2]).max())
     for i, name in enumerate(truth.names):
+        bottom = float(truth.bbox_center[i, 2] - truth.bbox_size[i, 2] / 2)
+        if bottom > top:
+            raise InputError(path, f"body '{name}'", f"floats at z = {bottom:.2f} m, above the walls' top ({top:.2f} m)")
         xy = truth.bbox_center[i, :2]
         if not free.contains(xy) or not free.interior[free.cell(xy)]:
             raise InputError(path, f"body '{name}'", f"lies outside the walls (centre at {xy[0]:.2f}, {xy[1]:.2f})")

@@ -62,6 +62,34 @@ class Scene(NamedTuple):
         c, s = np.cos(self.yaw)[None], np.sin(self.yaw)[None]
         return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
 
+    def inside_any(self, points: np.ndarray, margin: float = 0.0, skip: np.ndarray | None = None,
+                   planar: bool = False) -> np.ndarray:
+        """(P,) bool: point strictly inside some box shrunk by ``margin`` (``skip`` (P,): a box
+        index per point to ignore, e.g. its own). ``planar``: test x and y only.
+
+        Cost grows with points near each box, not points x boxes: a KD-tree over the points
+        gives each box the candidates within its bounding circle or sphere."""
+        from scipy.spatial import cKDTree
+
+        dims = 2 if planar else 3
+        out = np.zeros(points.shape[0], dtype=bool)
+        if points.shape[0] == 0 or self.num_boxes == 0:
+            return out
+        tree = cKDTree(points[:, :dims])
+        reach = np.linalg.norm(self.half[:, :dims], axis=1)
+        for g, idx in enumerate(tree.query_ball_point(self.center[:, :dims], reach + 1e-6)):
+            if not idx:
+                continue
+            idx = np.asarray(idx)
+            if skip is not None:
+                idx = idx[skip[idx] != g]
+            d = points[idx] - self.center[g]
+            c, s = np.cos(self.yaw[g]), np.sin(self.yaw[g])
+            local = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], -1)[:, :dims]
+            hit = np.all(np.abs(local) < self.half[g, :dims] - margin, axis=-1)
+            out[idx[hit]] = True
+        return out
+
     def inside(self, points: np.ndarray, margin: float = 0.0, chunk: int = 8192) -> np.ndarray:
         """(P, G) bool: point strictly inside box shrunk by ``margin`` on every side."""
         out = np.empty((points.shape[0], self.num_boxes), dtype=bool)

@@ -76,13 +76,12 @@ def observable_mask(scene: Scene, s: SurfaceSamples, contact_gap: float,
                     camera_height: float | None) -> np.ndarray:
     """(S,) bool: which samples some camera pose could see (see module docstring)."""
     p = s.points.astype(np.float64)
-    own = np.arange(scene.num_boxes)[None, :] == s.box[:, None]
     covered = np.zeros(p.shape[0], dtype=bool)
     # Several probes along the normal so a thin solid in front (a screen's glass) still counts.
     for gap in np.linspace(0.002, contact_gap, 4):
         q = p + gap * s.normals
-        covered |= (scene.inside(q) & ~own).any(axis=1) | (q[:, 2] < 0.0)
-    buried = (scene.inside(p, margin=1e-4) & ~own).any(axis=1)
+        covered |= scene.inside_any(q, skip=s.box) | (q[:, 2] < 0.0)
+    buried = scene.inside_any(p, margin=1e-4, skip=s.box)
     keep = ~covered & ~buried
     if camera_height is not None:
         nz = s.normals[:, 2]
