@@ -80,10 +80,16 @@ def _cmd_replay(args) -> int:
 
     times, poses = read_poses(args.poses)
     names = metrics.resolve(args.metrics.split(",")) if args.metrics else metrics.DEFAULT_METRICS
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "--out", "is a file, not a folder")
+    taken = [f for f in ("config.json", "metrics.csv", "objects.csv", "semantic_map.ply") if (out / f).exists()]
+    if taken:
+        raise InputError(str(out), "--out", f"already holds {taken[0]}: results are never overwritten; "
+                         "choose another --out")
     env = make(args.world)
     run = replay(env, times, poses)
     curves = metrics.compute(run.logs, env.sk.truth, names)
-    out = Path(args.out)
     tags = dict(policy="replay", detector="off", seed=0)
     results.write_csv(results.metric_frame(curves, times, world=env.world.name, **tags), out / "metrics.csv")
     final = jax.tree.map(lambda a: a[-1], run.logs)
@@ -236,8 +242,6 @@ def _cmd_plot(args) -> int:
     from rosmeery_jax import plots, results
 
     d = Path(args.dir)
-    if not (d / "metrics.csv").is_file():
-        raise InputError(str(d / "metrics.csv"), "file", "not found: not a results folder")
     written = plots.plot_results(results.load(d), d / "plots")
     print(f"wrote {len(written)} plots to {d / 'plots'}")
     return 0

@@ -1,6 +1,6 @@
 """Per-object surface coverage: which ground-truth samples the depth camera has observed.
 
-A sample is observed in a frame (SPEC section 2) when it projects inside the image, lies
+A sample is observed in a frame (docs/metrics.md) when it projects inside the image, lies
 within the camera's range, faces the camera, and is not occluded: its depth along the
 optical axis is at most the rendered depth at its pixel plus a tolerance
 

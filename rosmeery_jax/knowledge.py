@@ -2,7 +2,7 @@
 
 Per object n the agent holds: surface coverage (which ground-truth samples its depth camera
 has observed), a label with a confidence, c_t(n) (the best confidence among detections whose
-label is n's true category: SPEC section 2) and the label-agnostic best confidence. The
+label is n's true category: docs/metrics.md) and the label-agnostic best confidence. The
 predicates it declares follow from the label it holds, through the taxonomy.
 
 Where labels come from:

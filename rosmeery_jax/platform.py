@@ -10,7 +10,7 @@ reaches below the robot's height enters the physics model as a prism extruded fr
 floor to 1 m, and the sphere rides at 0.5 m: each contact is horizontal, an exact 2D
 disc-against-footprint collision (a sphere meeting a low board with its curved bottom would
 ride over it, since z is not free to move). The floor is not in the physics model. Only robot-vs-static pairs collide and MJX keeps
-the nearest few pairs (PERF-NOTES: the difference between 1k and 60k steps/s).
+the nearest few pairs (docs/performance.md: the difference between 1k and 60k steps/s).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ PROXY_HALF_HEIGHT = 0.5
 
 @dataclass(frozen=True)
 class RobotConfig:
-    """Platform parameters (SPEC section 5). Body about 0.4 x 0.35 m: a disc of radius
+    """Platform parameters (docs/robot.md). Body about 0.4 x 0.35 m: a disc of radius
     0.2 m in plan. Limits 1.0 m/s and 3.0 rad/s (the original navigation capped speed at
     0.12 m/s; set ``max_speed`` for that)."""
 

@@ -72,5 +72,24 @@ def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
 
 
 def load(directory: str | Path) -> pd.DataFrame:
-    """The metric curves of a results folder as one long DataFrame (``metrics.csv``)."""
-    return pd.read_csv(Path(directory) / "metrics.csv")
+    """The metric curves of a results folder as one long DataFrame (``metrics.csv``);
+    a missing or malformed file is one InputError naming the file and the column or row."""
+    from rosmeery_jax.errors import InputError
+
+    path = Path(directory) / "metrics.csv"
+    try:
+        df = pd.read_csv(path)
+    except FileNotFoundError:
+        raise InputError(str(path), "file", "not found: not a results folder") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as err:
+        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0][:120]})") from None
+    missing = [c for c in METRIC_COLUMNS if c not in df.columns]
+    if missing:
+        raise InputError(str(path), "columns", f"missing {', '.join(missing)}")
+    for c in ("seed", "time_s", "value"):
+        values = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if len(bad):
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{df[c].iloc[bad[0]]!r} is not a number")
+        df[c] = values.astype(int) if c == "seed" else values
+    return df

@@ -84,6 +84,8 @@ class SessionConfig:
         with _as_source(source):
             metrics.resolve(self.metrics)
             EnvConfig().with_overrides(source, **overrides.flatten(self.env))
+            for w in self.worlds:
+                _check_world_name(w)
             worlds = [_load_world(w) for w in self.worlds]
             for p in self.policies:
                 _check_policy(p, worlds)
@@ -129,6 +131,15 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
 
 
+def _check_world_name(name: str) -> None:
+    """A name that is neither a built-in world nor an existing file is the config's error."""
+    from rosmeery_jax.world import world_names
+
+    if name not in world_names() and not Path(name).is_file():
+        raise InputError("config", "worlds", f"{name!r} is neither a built-in world ({', '.join(world_names())}) "
+                         "nor an MJCF file")
+
+
 def _load_world(name: str):
     from rosmeery_jax.world import load_world
 
@@ -139,12 +150,20 @@ def _check_policy(spec: str, worlds) -> None:
     from rosmeery_jax.policies import REPLAY_PREFIX, policy_class
     from rosmeery_jax.policies.replay import recordings_by_world
 
+    from rosmeery_jax.env import EnvConfig
+
     policy_class(spec)
     if spec.startswith(REPLAY_PREFIX):
         recorded = recordings_by_world(spec)
         if not set(recorded) & {w.name for w in worlds}:
             raise InputError("config", "policies", f"no recording in {spec!r} is of a session world "
                              f"(recorded in: {', '.join(sorted(recorded))})")
+        for recs in recorded.values():  # one batch per world: one set of env settings
+            for rec in recs:
+                EnvConfig().with_overrides(f"{rec.path}: line 1: env", **overrides.flatten(rec.header.get("env", {})))
+                if rec.header.get("env", {}) != recs[0].header.get("env", {}):
+                    raise InputError(str(rec.path), "line 1: env", f"differs from {recs[0].path}'s: recordings "
+                                     "replayed together need the same env settings")
 
 
 def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
@@ -165,8 +184,8 @@ def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
 
 def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     """Refuse a session whose logs or batch cannot fit in this machine's memory."""
-    steps = _decisions(cfg, 0.1) * cfg.decide_every
-    batch = _padded(cfg.seeds)
+    steps = cfg.duration / 0.1  # floats: a huge duration must give a huge estimate, not an overflow
+    batch = float(_padded(cfg.seeds))
     need_host = max(batch * steps * w.truth.num_objects * LOG_BYTES_PER_OBJECT_STEP for w in worlds)
     need_device = batch * DEVICE_BYTES_PER_ENV
     have = _memory_bytes()

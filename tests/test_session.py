@@ -126,7 +126,7 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
     policy = make_policy("frontier", env)
     keys = jax.random.split(jax.random.key(0), 1)
     state, pstate = jax.vmap(env.reset)(keys), jax.vmap(policy.init)(keys)
-    chunk = _chunk_fn(env, policy, 10, 10)  # 10 s per call
+    chunk = jax.jit(jax.vmap(_chunk_fn(env, policy, 10, 10)))  # 10 s per call
 
     def free_cells(s):
         return int((np.asarray(jax.vmap(env.occupancy)(s)) == mapping.FREE).sum())

@@ -124,6 +124,16 @@ BAD_INPUTS = {
                                    {"thing": "chair"}), "spawn (0.00, 0.00) is inside an obstacle"),
     "cylinder": (room_xml('<body name="thing"><geom type="cylinder" pos="1 1 0.2" size="0.2 0.2"/></body>',
                           {"thing": "chair"}), "geom"),
+    "nan spawn": (room_xml('<body name="thing"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>',
+                           {"thing": "chair"}, spawn=("nan", 0, 0)), "numeric 'rosmeery:spawn': [nan"),
+    "huge spawn": (room_xml('<body name="thing"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>',
+                            {"thing": "chair"}, spawn=(1e30, 0, 0)), "must be finite numbers within"),
+    "huge box": (room_xml('<body name="thing"><geom name="top" type="box" pos="1 1 0.2" size="1e30 0.2 0.2"/></body>',
+                          {"thing": "chair"}), "geom 'top': position or size beyond"),
+    "no walls": (room_xml('<body name="thing"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>',
+                          {"thing": "chair"}, walls=False), "worldbody: has no walls enclosing the spawn"),
+    "floating": (room_xml('<body name="thing"><geom type="box" pos="1 1 100" size="0.2 0.2 0.2"/></body>',
+                          {"thing": "chair"}), "body 'thing': floats at z = 99.80 m"),
     "no spawn": (room_xml('<body name="thing"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>',
                           {"thing": "chair"}).replace('<numeric name="rosmeery:spawn" data="0.0 0.0 0.0"/>', ""),
                  "missing <numeric name=\"rosmeery:spawn\""),
@@ -140,6 +150,14 @@ def test_bad_world_gives_one_clear_line_naming_file_and_element(case, write_worl
     assert main(["world", "show", str(path), "--out", str(tmp_path / "x.png")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and str(path) in lines[0] and expected in lines[0]
+
+
+def test_latin1_world_file_is_one_line(tmp_path):
+    path = tmp_path / "latin.xml"
+    body = '<body name="th\u00e9"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>'
+    path.write_bytes(room_xml(body, {"th\u00e9": "chair"}).encode("latin-1"))
+    with pytest.raises(InputError, match="latin.xml: file: not UTF-8"):
+        load_world(path)
 
 
 def test_missing_world_file_and_unknown_name(tmp_path):

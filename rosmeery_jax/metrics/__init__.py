@@ -1,4 +1,4 @@
-"""Metrics over time, computed from per-object logs (SPEC section 2), and their registry.
+"""Metrics over time, computed from per-object logs (docs/metrics.md), and their registry.
 
 Every metric is a function ``fn(log, truth) -> curve``: ``log`` an :class:`ObjectLog` whose
 fields are (..., T, N) (leading axes for envs), ``truth`` a :class:`GroundTruthTable`;

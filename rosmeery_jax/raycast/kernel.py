@@ -1,6 +1,6 @@
 """Exact ray casting against yaw-rotated boxes and the floor plane, fused for the CPU.
 
-The formulation PERF-NOTES measured fastest on this machine kind: rays on the minor
+The formulation measured fastest on a 2-core CPU (docs/performance.md): rays on the minor
 (vectorised) axis; a running element-wise minimum over boxes; ``lax.scan`` over chunks of
 16 boxes with the 16 unrolled inside the body; each box's cos/sin and the ray origin in the
 box frame computed once per frame; the slab test per box; the distance's float bits with

@@ -31,7 +31,7 @@ class LaserConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """RGB-D camera (SPEC section 5): 60 deg horizontal FOV, 0.02-8 m, mounted 0.5 m high.
+    """RGB-D camera (docs/robot.md): 60 deg horizontal FOV, 0.02-8 m, mounted 0.5 m high.
 
     width x height is the depth/segmentation resolution used every step; rgb_width x
     rgb_height the detector's resolution, rendered only on detector frames.

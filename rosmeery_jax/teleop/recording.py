@@ -33,6 +33,7 @@ import numpy as np
 from rosmeery_jax.errors import InputError
 
 FORMAT, VERSION = "rosmeery-teleop", 1
+CONTROL_DT = 0.1  # s: the env's control period; a recording made at another rate is refused
 
 
 def world_hash(world) -> str:
@@ -116,9 +117,7 @@ def read(path: str | Path) -> Recording:
         raise InputError(src, "line 1: format", f"not a {FORMAT} recording")
     if header.get("version") != VERSION:
         raise InputError(src, "line 1: version", f"{header.get('version')!r} is not supported (this reads {VERSION})")
-    for key in ("world", "dt", "start_pose"):
-        if key not in header:
-            raise InputError(src, f"line 1: {key}", "missing")
+    _check_header(src, header)
     ended = bool(rows[-1].get("end")) if len(rows) > 1 else False
     steps = rows[1:-1] if ended else rows[1:]
     cmds, poses = [], []
@@ -137,6 +136,30 @@ def read(path: str | Path) -> Recording:
         raise InputError(src, f"line {len(rows)}: steps", f"says {rows[-1].get('steps')}, file has {len(steps)}")
     return Recording(path, header, np.array(cmds, np.float32).reshape(-1, 2),
                      np.array(poses, np.float32).reshape(-1, 3), ended)
+
+
+def _check_header(src: str, header: dict) -> None:
+    """Types and values of the header fields a replay relies on."""
+    for key in ("world", "dt", "start_pose"):
+        if key not in header:
+            raise InputError(src, f"line 1: {key}", "missing")
+    checks = {
+        "world": isinstance(header["world"], str),
+        "dt": isinstance(header["dt"], (int, float)) and not isinstance(header["dt"], bool)
+        and abs(header["dt"] - CONTROL_DT) < 1e-9,
+        "start_pose": isinstance(header["start_pose"], list) and len(header["start_pose"]) == 3
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                for v in header["start_pose"]),
+        "env": isinstance(header.get("env", {}), dict),
+        "seed": isinstance(header.get("seed", 0), int) and not isinstance(header.get("seed", 0), bool),
+        "world_sha256": isinstance(header.get("world_sha256", ""), str),
+    }
+    wants = {"world": "a world name", "dt": f"{CONTROL_DT} (the control period; other rates cannot be replayed)",
+             "start_pose": "[x, y, yaw], three finite numbers", "env": "a table of env overrides",
+             "seed": "a whole number", "world_sha256": "a hex string"}
+    for key, ok in checks.items():
+        if not ok:
+            raise InputError(src, f"line 1: {key}", f"{header.get(key)!r} must be {wants[key]}")
 
 
 def check_world(rec: Recording, world) -> None:

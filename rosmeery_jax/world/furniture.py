@@ -1,7 +1,7 @@
 """Furniture built from boxes: templates that fill a measured bounding box with parts.
 
 Every part is a box that may only be rotated about z, so worlds built from these templates
-stay on the fast raycast kernel (SPEC section 10). A template takes the object's measured
+stay on the fast raycast kernel (docs/performance.md). A template takes the object's measured
 extent (``size``, full lengths in the object frame) and the offset of that box's centre from
 the object origin (``center``), and returns the parts in the object frame. Parts never leave
 the given box, so ground-truth bounding boxes equal the measured ones.

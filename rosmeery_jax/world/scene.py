@@ -1,6 +1,6 @@
 """The raycast scene: every solid in a world as a yaw-rotated box tagged with its owner.
 
-The fast raycast kernel (SPEC section 10) handles boxes rotated about z, so a world is
+The fast raycast kernel (docs/performance.md) handles boxes rotated about z, so a world is
 stored as G boxes plus the implicit floor plane z = 0. Labels in segmentation images and
 in ``object_id`` below: objects are 0..N-1, and these constants mark the rest.
 """

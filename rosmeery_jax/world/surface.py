@@ -3,7 +3,7 @@
 Every face of every box of an object is covered by a regular grid of samples whose count is
 the face area times the density (at least one per face; the grid is laid along the face's
 short side first, so thin faces such as chair legs get a line of samples rather than an
-inflated grid). A sample is then dropped when no camera can ever see it (SPEC section 2):
+inflated grid). A sample is then dropped when no camera can ever see it (docs/metrics.md):
 
 - the face rests on the floor or on/against another solid: a point up to ``contact_gap``
   in front of the sample is inside another box or below the floor (a face in a slot

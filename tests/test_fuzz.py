@@ -1,0 +1,65 @@
+"""Fuzzing the loaders: mutated worlds, session configs, recordings, pose files and weight
+files give a valid result or one clear error line, never a traceback. ``scripts/fuzz.py``
+runs the same strategies for thousands of inputs and prints the counts."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import fuzz_inputs as fz
+
+def fuzz(n: int):
+    """Deterministic examples (CI runs the same inputs every time), no per-example deadline."""
+    return settings(max_examples=n, deadline=None, derandomize=True, database=None,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+def _write(tmp_path, name: str, data) -> object:
+    path = tmp_path / name
+    path.write_bytes(data if isinstance(data, bytes) else data.encode("utf-8", "surrogatepass"))
+    return path
+
+
+@fuzz(60)
+@given(st.one_of(fz.edits().map(lambda e: fz.mutate(fz.SEED_WORLD, e)), fz.number_swaps(fz.SEED_WORLD)))
+def test_mutated_worlds(tmp_path, text):
+    fz.check_one(fz.load_world_file, _write(tmp_path, "world.xml", text))
+
+
+@fuzz(120)
+@given(st.one_of(fz.edits().map(lambda e: fz.mutate(fz.SEED_CONFIG, e)), fz.number_swaps(fz.SEED_CONFIG)))
+def test_mutated_session_configs(tmp_path, text):
+    fz.check_one(fz.load_session_config, _write(tmp_path, "session.toml", text))
+    assert not (tmp_path / "never_written").exists()  # validation writes nothing
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return fz.recording_text()
+
+
+@fuzz(100)
+@given(data=st.data())
+def test_mutated_recordings(tmp_path, recording, data):
+    text = data.draw(st.one_of(fz.edits().map(lambda e: fz.mutate(recording, e)), fz.number_swaps(recording)))
+    fz.check_one(fz.load_recording, _write(tmp_path, "rec.jsonl", text))
+
+
+@fuzz(100)
+@given(st.one_of(fz.edits().map(lambda e: fz.mutate(fz.SEED_POSES, e)), fz.number_swaps(fz.SEED_POSES)))
+def test_mutated_pose_files(tmp_path, text):
+    fz.check_one(fz.load_poses, _write(tmp_path, "poses.csv", text))
+
+
+@fuzz(40)
+@given(st.binary(max_size=256), st.integers(0, 2**20), st.integers(0, 64))
+def test_corrupted_weight_files(tmp_path, junk, where, cut):
+    pytest.importorskip("torch")
+    from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+
+    good = DEFAULT_WEIGHTS.read_bytes()
+    p = where % len(good)
+    data = good[:p] + junk + good[p + cut:] if junk or cut else good[:p]
+    fz.check_one(fz.load_weights, _write(tmp_path, "weights.pt", data))

@@ -1,0 +1,253 @@
+"""What a new user trips over: overrides, keys, bad input before anything is written,
+silent overwrites, seeds independent of their batch-mates, interrupted sessions."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import room_xml
+from rosmeery_jax.cli import main
+from rosmeery_jax.env import make
+from rosmeery_jax.errors import InputError
+
+RUN = ["run", "--worlds", "small_office", "--policies", "random", "--duration", "4", "--detector", "off", "--quiet"]
+
+
+def _one_line_error(capsys, *needles) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    for n in needles:
+        assert n in err, (n, err)
+    return err
+
+
+# --- overrides and keys ---
+
+def test_overrides_reach_any_depth_and_are_type_checked():
+    env = make("small_office", knowledge__coverage__soft=True, camera__cull=64)
+    assert env.config.knowledge.coverage.soft is True and env.config.camera.cull == 64
+    with pytest.raises(InputError, match="knowledge__coverage__sof: unknown option 'sof'"):
+        make("small_office", knowledge__coverage__sof=True)
+    with pytest.raises(InputError, match=r"camera__cull: '64' is not of type int"):
+        make("small_office", camera__cull="64")
+    with pytest.raises(InputError, match="robot__max_speed: True is not of type float"):
+        make("small_office", robot__max_speed=True)
+    with pytest.raises(InputError, match="must be a finite number"):
+        make("small_office", robot__max_speed=float("nan"))
+
+
+def test_robot_dimensions_have_one_source():
+    env = make("small_office", robot__radius=0.3)
+    assert env.world.config.robot_radius == 0.3  # the free-space map was built for the wider robot
+    assert env.world.free_space.reachable.sum() < make("small_office").world.free_space.reachable.sum()
+    with pytest.raises(InputError, match="other robot or camera dimensions"):
+        make(make("small_office").world, robot__radius=0.3)
+
+
+def test_the_reset_key_sets_the_start_heading_bitwise():
+    env = make("small_office")
+    reset = jax.jit(jax.vmap(env.reset))
+    keys = jax.vmap(jax.random.key)(np.arange(4))
+    a, b = reset(keys), reset(keys)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        if x.dtype != jax.dtypes.prng_key:
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))  # same key: bitwise the same
+    yaw = np.asarray(a.pose[:, 2])
+    assert len(set(yaw.tolist())) == 4  # different keys: different starts
+    spawn = make("small_office", start_yaw="spawn")
+    assert np.all(np.asarray(jax.vmap(spawn.reset)(keys).pose[:, 2]) == np.float32(spawn.world.spawn[2]))
+
+
+# --- session configs: everything checked before anything is written ---
+
+@pytest.mark.parametrize("toml, field", [
+    ("[env]\ncamera__cul = 3\n", "camera__cul"),
+    ("[env]\ncamera = {cull = 'many'}\n", "camera__cull"),
+    ("seeds = true\n", "seeds"),
+    ("worlds = 5\n", "worlds"),
+    ("worlds = []\n", "worlds"),
+    ("metrics = []\n", "metrics"),
+    ("duration = inf\n", "duration"),
+    ("seeds = 10000\nduration = 600\n", "duration"),
+    ("duration = 1e12\n", "duration"),
+    ("seeds = 2\n[session]\nduration = 4\n", "seeds"),  # a key outside the [session] table
+    ("worlds = ['small_office', 'x/small_office.xml']\n", "worlds"),
+])
+def test_bad_configs_are_refused_before_writing(tmp_path, capsys, toml, field):
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "small_office.xml").write_bytes(
+        (Path(__file__).parents[1] / "rosmeery_jax" / "worlds" / "small_office.xml").read_bytes())
+    path = tmp_path / "session.toml"
+    path.write_text(toml.replace("x/", f"{tmp_path}/x/"))
+    assert main(["run", "--config", str(path), "--out", str(tmp_path / "o"), "--detector", "off"]) == 2
+    _one_line_error(capsys, str(path), field)
+    assert not (tmp_path / "o").exists()
+
+
+def test_non_utf8_toml_and_bad_out_are_one_line(tmp_path, capsys):
+    path = tmp_path / "s.toml"
+    path.write_bytes("seeds = 2 # caf\xe9\n".encode("latin-1"))
+    assert main(["run", "--config", str(path)]) == 2
+    _one_line_error(capsys, "s.toml", "not UTF-8")
+    target = tmp_path / "a_file"
+    target.write_text("x")
+    assert main([*RUN, "--out", str(target)]) == 2
+    _one_line_error(capsys, "a_file", "is a file")
+
+
+def test_a_folder_without_config_or_with_a_corrupt_one_is_refused(tmp_path, capsys):
+    stray = tmp_path / "stray"
+    (stray / "runs").mkdir(parents=True)
+    (stray / "runs" / "small_office__random.metrics.csv").write_text("old")
+    assert main([*RUN, "--out", str(stray), "--resume"]) == 2
+    _one_line_error(capsys, "no config.json")
+    corrupt = tmp_path / "corrupt"
+    corrupt.mkdir()
+    (corrupt / "config.json").write_text("{not json")
+    assert main([*RUN, "--out", str(corrupt), "--resume"]) == 2
+    _one_line_error(capsys, "config.json", "cannot resume")
+
+
+@pytest.fixture(scope="module")
+def two_seeds(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hard") / "two"
+    assert main([*RUN, "--seeds", "2", "--metrics", "ori,opi", "--out", str(out)]) == 0
+    return out
+
+
+def test_resume_refuses_changed_metrics_and_changed_world_files(two_seeds, tmp_path, capsys):
+    assert main([*RUN, "--seeds", "2", "--metrics", "ori", "--out", str(two_seeds), "--resume"]) == 2
+    _one_line_error(capsys, "metrics")
+    cfg = json.loads((two_seeds / "config.json").read_text())
+    cfg["inputs"]["worlds"]["small_office"] = "0" * 64  # as if the world file had been edited since
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    (copy / "config.json").write_text(json.dumps(cfg))
+    assert main([*RUN, "--seeds", "2", "--metrics", "ori,opi", "--out", str(copy), "--resume"]) == 2
+    _one_line_error(capsys, "inputs.worlds", "small_office has changed")
+
+
+def test_result_files_follow_the_umask(two_seeds):
+    umask = os.umask(0)
+    os.umask(umask)
+    for name in ("metrics.csv", "config.json", "runs/small_office__random.metrics.csv"):
+        assert (two_seeds / name).stat().st_mode & 0o777 == 0o666 & ~umask, name
+
+
+def test_replay_and_plot_never_overwrite_or_trace(two_seeds, tmp_path, capsys):
+    poses = tmp_path / "p.csv"
+    poses.write_text("t,x,y,yaw\n0,0,0,0\n1,0.1,0,0\n")
+    before = (two_seeds / "metrics.csv").read_bytes()
+    assert main(["replay", "--world", "small_office", "--poses", str(poses), "--out", str(two_seeds)]) == 2
+    _one_line_error(capsys, "never overwritten")
+    assert (two_seeds / "metrics.csv").read_bytes() == before
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "metrics.csv").write_text("world,policy\nx,y\n")
+    assert main(["plot", str(bad)]) == 2
+    _one_line_error(capsys, "metrics.csv", "columns")
+
+
+def test_two_replay_entries_are_refused(tmp_path, capsys):
+    rec = tmp_path / "r.jsonl"
+    rec.write_text("{}\n")
+    assert main(["run", "--worlds", "small_office", "--policies", f"replay:{rec},random,replay:{rec}",
+                 "--out", str(tmp_path / "o"), "--detector", "off"]) == 2
+    _one_line_error(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+# --- results independent of batch-mates ---
+
+def test_a_seed_does_not_depend_on_its_batch_mates(two_seeds, tmp_path):
+    nine = tmp_path / "nine"  # two blocks of envs instead of one
+    assert main([*RUN, "--seeds", "9", "--metrics", "ori,opi", "--out", str(nine)]) == 0
+    for table in ("metrics.csv", "trajectories.csv"):
+        a = pd.read_csv(two_seeds / table)
+        b = pd.read_csv(nine / table)
+        b = b[b.seed < 2].reset_index(drop=True)
+        pd.testing.assert_frame_equal(a, b, check_exact=True)
+
+
+def test_frontier_nearest_leaves_the_spawn_in_every_seed(tmp_path):
+    out = tmp_path / "fn"
+    assert main(["run", "--worlds", "small_office", "--policies", "frontier_nearest", "--seeds", "4", "--duration",
+                 "20", "--detector", "off", "--metrics", "ori", "--out", str(out), "--quiet"]) == 0
+    t = pd.read_csv(out / "trajectories.csv")
+    for seed, g in t.groupby("seed"):
+        assert np.hypot(g.x - g.x.iloc[0], g.y - g.y.iloc[0]).max() > 1.0, seed
+
+
+# --- interrupted sessions ---
+
+def test_kill_9_then_resume_gives_the_files_of_an_uninterrupted_run(tmp_path):
+    args = ["--worlds", "small_office", "--policies", "random,frontier", "--seeds", "2", "--duration", "6",
+            "--detector", "off", "--metrics", "ori", "--quiet"]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(["run", *args, "--out", str(whole)]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "rosmeery_jax", "run", *args, "--out", str(cut)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    first = cut / "runs" / "small_office__random.metrics.csv"
+    deadline = time.time() + 300
+    while not first.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)  # mid-session: the first run finished, the second not
+    proc.wait()
+    assert not (cut / "runs" / "small_office__frontier.metrics.csv").exists()
+    assert main(["run", *args, "--out", str(cut), "--resume"]) == 0
+    files = sorted(p.relative_to(whole) for p in whole.rglob("*") if p.is_file() and "timing" not in p.name
+                   and p.suffix != ".png")
+    assert files == sorted(p.relative_to(cut) for p in cut.rglob("*") if p.is_file() and "timing" not in p.name
+                           and p.suffix != ".png")
+    for f in files:
+        if f.name != "config.json":
+            assert (whole / f).read_bytes() == (cut / f).read_bytes(), f
+
+
+# --- weights never execute code ---
+
+class _Trap:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+@pytest.mark.parametrize("kind", ["raw pickle", "zip checkpoint"])
+def test_booby_trapped_weights_run_nothing(tmp_path, capsys, kind):
+    torch = pytest.importorskip("torch")
+    marker, weights = tmp_path / "PWNED", tmp_path / "trap.pt"
+    if kind == "raw pickle":
+        weights.write_bytes(pickle.dumps({"model": _Trap(marker)}))
+    else:
+        torch.save({"model": _Trap(marker)}, weights)
+    assert main(["detector", "eval", "--weights", str(weights)]) == 2
+    _one_line_error(capsys, "trap.pt")
+    assert not marker.exists()
+
+
+# --- world files ---
+
+def test_loading_scales_and_matches_the_dense_test(write_world):
+    """The KD-tree sample culling equals the dense points x boxes test on a paper world."""
+    from rosmeery_jax.world import load_world
+    from rosmeery_jax.world.surface import sample_boxes
+
+    w = load_world("large_office")
+    s = sample_boxes(w.scene, np.flatnonzero(w.scene.object_id >= 0), 400.0)
+    p = s.points.astype(np.float64)
+    dense = (w.scene.inside(p, margin=1e-4) & (np.arange(w.scene.num_boxes)[None] != s.box[:, None])).any(1)
+    np.testing.assert_array_equal(w.scene.inside_any(p, margin=1e-4, skip=s.box), dense)
