@@ -22,6 +22,7 @@ from rosmeery_jax.errors import InputError
 from rosmeery_jax.raycast.sensors import depth_seg
 
 POSE_COLUMNS = ("t", "x", "y", "yaw")
+MAX_COORD = 1e6  # larger coordinates are corrupt (and would overflow float32)
 
 
 def read_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -40,9 +41,12 @@ def read_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(str(path), "rows", "no poses")
     for c in POSE_COLUMNS:
         values = pd.to_numeric(df[c], errors="coerce")
-        bad = np.flatnonzero(~np.isfinite(values.to_numpy(float)))
+        v = values.to_numpy(float)
+        bad = np.flatnonzero(~(np.isfinite(v) & ((np.abs(v) <= MAX_COORD) | (c == "t"))))
         if len(bad):
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{df[c].iloc[bad[0]]!r} is not a finite number")
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}",
+                             f"{df[c].iloc[bad[0]]!r} is not a finite number" + ("" if c == "t" else
+                                                                                 f" within {MAX_COORD:g}"))
         df[c] = values
     t = df["t"].to_numpy(float)
     back = np.flatnonzero(np.diff(t) <= 0)

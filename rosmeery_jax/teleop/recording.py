@@ -33,6 +33,7 @@ import numpy as np
 from rosmeery_jax.errors import InputError
 
 FORMAT, VERSION = "rosmeery-teleop", 1
+MAX_VALUE = 1e6  # bigger commands or coordinates are corrupt (and would overflow float32)
 CONTROL_DT = 0.1  # s: the env's control period; a recording made at another rate is refused
 
 
@@ -128,8 +129,8 @@ def read(path: str | Path) -> Recording:
             raise InputError(src, f"line {i}", "a step needs k, cmd [v, w] and pose [x, y, yaw]") from None
         if k != i - 1:
             raise InputError(src, f"line {i}: k", f"step {k} where {i - 1} was expected (lines missing?)")
-        if len(cmd) != 2 or len(pose) != 3 or not np.all(np.isfinite(cmd + pose)):
-            raise InputError(src, f"line {i}", "cmd must be 2 and pose 3 finite numbers")
+        if len(cmd) != 2 or len(pose) != 3 or not np.all(np.abs(cmd + pose) <= MAX_VALUE):
+            raise InputError(src, f"line {i}", f"cmd must be 2 and pose 3 finite numbers (|x| <= {MAX_VALUE:g})")
         cmds.append(cmd)
         poses.append(pose)
     if ended and rows[-1].get("steps") != len(steps):
