@@ -102,14 +102,14 @@ def stage_breakdown(env, state, cfg: BenchConfig) -> dict[str, float]:
     import jax
     import jax.numpy as jnp
 
-    from rosmeery_jax import mapping
+    from rosmeery_jax import occupancy
     from rosmeery_jax.raycast.sensors import depth_seg, laser
 
     c = env.config
     batch = state.pose.shape[0]
     cmd = jnp.tile(jnp.array([0.5, 0.3], jnp.float32), (batch, 1))
     ranges, labels = jax.vmap(lambda p: laser(env.rays, c.laser, p))(state.pose)
-    occupied = jax.vmap(env.occupancy)(state) == mapping.OCCUPIED
+    occupied = jax.vmap(env.occupancy)(state) == occupancy.OCCUPIED
 
     def per_step(f):
         """Seconds per call of jitted f, over ``steps`` calls queued back to back."""
@@ -121,7 +121,7 @@ def stage_breakdown(env, state, cfg: BenchConfig) -> dict[str, float]:
         return many
 
     def update_map(lo, p, r, lab):
-        return mapping.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
+        return occupancy.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
 
     stages = {
         "physics": (jax.vmap(env.platform.step), (state.physics, cmd)),

@@ -75,8 +75,8 @@ def _cmd_replay(args) -> int:
 
     from rosmeery_jax import metrics, results
     from rosmeery_jax.env import make
-    from rosmeery_jax.export import write_semantic_map
-    from rosmeery_jax.replay import read_poses, replay
+    from rosmeery_jax.semantic_map import write_semantic_map
+    from rosmeery_jax.pose_replay import read_poses, replay
 
     times, poses = read_poses(args.poses)
     names = metrics.resolve(args.metrics.split(",")) if args.metrics else metrics.DEFAULT_METRICS

@@ -21,13 +21,13 @@ import jax
 import jax.numpy as jnp
 from rosmeery_jax.mjx import mjx
 
-from rosmeery_jax import mapping
+from rosmeery_jax import occupancy
 from rosmeery_jax import overrides as overrides_
 from rosmeery_jax.knowledge import Knowledge, KnowledgeConfig, ObjectLog, SpatialKnowledge
 from rosmeery_jax.errors import InputError
-from rosmeery_jax.mapping import GridGeometry, MapConfig
+from rosmeery_jax.occupancy import GridGeometry, MapConfig
 from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
-from rosmeery_jax.platform import Platform, RobotConfig
+from rosmeery_jax.robot import Platform, RobotConfig
 from rosmeery_jax.raycast.kernel import ray_scene
 from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb
 from rosmeery_jax.world import World, WorldConfig, load_world
@@ -99,7 +99,7 @@ class Env:
         if self.config.start_yaw == "random":
             key, sub = jax.random.split(key)
             pose = pose.at[2].set(jax.random.uniform(sub, (), minval=-jnp.pi, maxval=jnp.pi))
-        state = State(self.platform.init(pose), pose, mapping.empty_map(self.grid), self.navigator.init(),
+        state = State(self.platform.init(pose), pose, occupancy.empty_map(self.grid), self.navigator.init(),
                       jnp.zeros(self.config.laser.beams, jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.int32),
@@ -112,7 +112,7 @@ class Env:
             target = jnp.asarray(action, jnp.float32)
             new = (nav.status == IDLE) | jnp.any(target != nav.target)
             nav = self.navigator.set_target(nav, target, new)
-            occupied = mapping.classify(state.logodds, self.config.mapping) == mapping.OCCUPIED
+            occupied = occupancy.classify(state.logodds, self.config.mapping) == occupancy.OCCUPIED
             nav, cmd = self.navigator.step(nav, state.pose, occupied)
         else:
             cmd = jnp.asarray(action, jnp.float32)
@@ -122,7 +122,7 @@ class Env:
 
     def _sense(self, state: State) -> State:
         ranges, labels = laser(self.rays, self.config.laser, state.pose)
-        logodds = mapping.update(state.logodds, self.grid, self.config.mapping, state.pose[:2],
+        logodds = occupancy.update(state.logodds, self.grid, self.config.mapping, state.pose[:2],
                                  state.pose[2] + self.beam_angles, ranges, labels)
         depth, seg = depth_seg(self.rays, self.config.camera, state.pose)
         knowledge = self.sk.observe(state.knowledge, state.pose, depth)
@@ -136,7 +136,7 @@ class Env:
         """Fold detections (D,) object index / category / confidence into the knowledge."""
         return state._replace(knowledge=self.sk.attach(state.knowledge, obj, label, conf))
 
-    def knowledge(self, state: State) -> Knowledge:
+    def labelled_knowledge(self, state: State) -> Knowledge:
         """The knowledge with the label rule of ``config.labels`` applied."""
         if self.config.labels == "observed":
             return self.sk.label_observed(state.knowledge)
@@ -144,7 +144,7 @@ class Env:
 
     def log(self, state: State) -> ObjectLog:
         """Per-object row for the metrics (one env; vmap for a batch)."""
-        return self.sk.log(self.knowledge(state))
+        return self.sk.log(self.labelled_knowledge(state))
 
     def rollout(self, state: State, actions: jax.Array) -> tuple[State, ObjectLog]:
         """Step through actions (T, A) in one ``lax.scan``, logging every step: returns the
@@ -158,7 +158,7 @@ class Env:
 
     def occupancy(self, state: State) -> jax.Array:
         """(…, H, W) int8 UNKNOWN / FREE / OCCUPIED of the robot's own map."""
-        return mapping.classify(state.logodds, self.config.mapping)
+        return occupancy.classify(state.logodds, self.config.mapping)
 
 
 def make(world: str | World, world_config: WorldConfig | None = None, source: str = "config",

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.mapping import GridGeometry
+from rosmeery_jax.occupancy import GridGeometry
 
 IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT = range(6)
 STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout")

@@ -32,7 +32,7 @@ import hashlib
 import json
 import math
 import os
-import platform as _platform
+import platform as _platform  # the standard library
 import subprocess
 import time
 import tomllib
@@ -461,7 +461,7 @@ def simulate(cfg: SessionConfig, run: Run, bar):
         bar.set_postfix_str(rate)
     keep = lambda a: a[:run.b]  # noqa: E731 - drop the padding entries
     logs = jax.tree.map(lambda *a: keep(np.concatenate(a, axis=1)), *logs)
-    knowledge = jax.tree.map(lambda a: keep(np.asarray(a)), blocked(env.knowledge)(state))
+    knowledge = jax.tree.map(lambda a: keep(np.asarray(a)), blocked(env.labelled_knowledge)(state))
     return logs, keep(np.concatenate(poses, axis=1)), knowledge, timing
 
 
@@ -469,7 +469,7 @@ def write_run(cfg: SessionConfig, run: Run, out: Path, logs, poses, knowledge, t
     """The run's files, each atomically; the metrics file last (its presence marks the run done)."""
     import jax
 
-    from rosmeery_jax.export import write_semantic_map
+    from rosmeery_jax.semantic_map import write_semantic_map
 
     env = run.env
     times = np.arange(logs.ps.shape[1]) * env.dt

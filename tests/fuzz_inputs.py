@@ -95,7 +95,7 @@ def load_recording(path: Path):
 
 
 def load_poses(path: Path):
-    from rosmeery_jax.replay import read_poses
+    from rosmeery_jax.pose_replay import read_poses
 
     return read_poses(path)
 

@@ -19,9 +19,9 @@ from conftest import room_xml
 from rosmeery_jax import metrics
 from rosmeery_jax.cli import main
 from rosmeery_jax.env import make
-from rosmeery_jax.export import load_schema
+from rosmeery_jax.semantic_map import load_schema
 from rosmeery_jax.knowledge import GroundTruthTable, ObjectLog, predicate_tables
-from rosmeery_jax.replay import replay
+from rosmeery_jax.pose_replay import replay
 from rosmeery_jax.taxonomy import load_taxonomy
 
 # A room 8 m across. The camera (robot at the origin facing +x: camera at (0.1, 0, 0.5))

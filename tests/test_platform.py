@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from rosmeery_jax import mapping
+from rosmeery_jax import occupancy
 from rosmeery_jax.env import make
 from rosmeery_jax.navigation import MOVING, REACHED, STATUS_NAMES, UNREACHABLE
-from rosmeery_jax.platform import penetration
+from rosmeery_jax.robot import penetration
 from rosmeery_jax.raycast.kernel import cast, ray_scene
 from rosmeery_jax.world import PAPER_WORLDS, WALL, load_world
 from rosmeery_jax.world.freespace import rasterize
@@ -154,7 +154,7 @@ def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
     occ = np.asarray(env.occupancy(final))[0]
     w = env.world
     walls = rasterize(w.scene, w.scene.object_id == WALL, w.free_space.origin, occ.shape, w.free_space.resolution)
-    marked = occ == mapping.OCCUPIED
+    marked = occ == occupancy.OCCUPIED
     assert marked.sum() > 50
     # Nearly every occupied cell is on or next to a real solid, and many wall cells were seen.
     truth = w.free_space.occupied
@@ -166,6 +166,6 @@ def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
     s = w.scene
     at_laser = (s.center[:, 2] - s.half[:, 2] < z) & (s.center[:, 2] + s.half[:, 2] > z)
     solid = rasterize(s, at_laser, w.free_space.origin, occ.shape, w.free_space.resolution)
-    free = occ == mapping.FREE
+    free = occ == occupancy.FREE
     # (beyond one cell: a beam may graze through the 1 cm gap left between a desk and a wall)
     assert free.sum() > 200 and not (free & ndimage.binary_erosion(solid, iterations=2)).any()

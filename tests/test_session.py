@@ -119,7 +119,7 @@ def test_example_notebook_runs_on_a_results_folder(session_dir, tmp_path):
 
 
 def test_frontier_mapped_area_grows_and_exploration_ends():
-    from rosmeery_jax import mapping
+    from rosmeery_jax import occupancy
     from rosmeery_jax.session import _chunk_fn
 
     env = make("small_office", start_yaw="spawn")
@@ -129,10 +129,10 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
     chunk = jax.jit(jax.vmap(_chunk_fn(env, policy, 10, 10)))  # 10 s per call
 
     def free_cells(s):
-        return int((np.asarray(jax.vmap(env.occupancy)(s)) == mapping.FREE).sum())
+        return int((np.asarray(jax.vmap(env.occupancy)(s)) == occupancy.FREE).sum())
 
     def known_cells(s):
-        return int((np.asarray(jax.vmap(env.occupancy)(s)) != mapping.UNKNOWN).sum())
+        return int((np.asarray(jax.vmap(env.occupancy)(s)) != occupancy.UNKNOWN).sum())
 
     free, known, done, poses = [free_cells(state)], [known_cells(state)], [], []
     for _ in range(5):

@@ -146,7 +146,7 @@ class _StubApp:
     """What the HTTP handler needs of a Teleop, without compiling a world."""
 
     def __init__(self):
-        from rosmeery_jax.platform import RobotConfig
+        from rosmeery_jax.robot import RobotConfig
 
         self.robot, self.cmd, self.running, self.frame = RobotConfig(), None, True, None
 

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax import mapping
+from rosmeery_jax import occupancy
 from rosmeery_jax.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE
 from rosmeery_jax.policies.base import Policy, needs_target
 
@@ -74,8 +74,8 @@ class FrontierPolicy(Policy):
         hc, wc = self.shape
         occ = jnp.pad(occupancy, ((0, hc * f - h), (0, wc * f - w)))  # pads UNKNOWN (0)
         blocks = occ.reshape(hc, f, wc, f)
-        any_occ = (blocks == mapping.OCCUPIED).any(axis=(1, 3))
-        any_free = (blocks == mapping.FREE).any(axis=(1, 3))
+        any_occ = (blocks == occupancy.OCCUPIED).any(axis=(1, 3))
+        any_free = (blocks == occupancy.FREE).any(axis=(1, 3))
         free = any_free & ~any_occ
         unknown = ~any_free & ~any_occ
         p = jnp.pad(unknown, 1)

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax import mapping
+from rosmeery_jax import occupancy
 from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
 
@@ -71,7 +71,7 @@ class SemanticNBVPolicy(Policy):
 
     def decide(self, state, ps: NBVState, key):
         env = self.env
-        k = env.knowledge(state)
+        k = env.labelled_knowledge(state)
         centroid, area, count = self._objects(k.seen)
         labelled = k.label >= 0
         # Sectors seen from: objects observed more since the last decision, from the robot's bearing.
@@ -86,8 +86,8 @@ class SemanticNBVPolicy(Policy):
         # Candidates (N, V): on the ring around each labelled object, on known-free cells.
         cand = centroid[:, None, :] + self.ring[None]
         occ = env.occupancy(state)
-        free = occ == mapping.FREE
-        blocked = occ == mapping.OCCUPIED
+        free = occ == occupancy.FREE
+        blocked = occ == occupancy.OCCUPIED
         for _ in range(self.grow):
             p = jnp.pad(blocked, 1)
             blocked = p[1:-1, 1:-1] | p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]

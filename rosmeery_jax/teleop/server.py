@@ -165,7 +165,7 @@ class Teleop:
         self.trail.append(np.asarray(s.pose)[:2].tolist())
         del self.trail[:-2000]
         del self.history[:-CURVE_POINTS]
-        know = env.knowledge(s)
+        know = env.labelled_knowledge(s)
         names = env.world.taxonomy.names
         labels = [{"object": env.world.truth.names[n], "label": names[int(k)], "confidence": round(float(c), 3)}
                   for n, (k, c) in enumerate(zip(np.asarray(know.label), np.asarray(know.confidence))) if k >= 0]

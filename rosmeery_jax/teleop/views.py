@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-_MAP_COLORS = np.array([[150, 150, 150], [245, 245, 245], [30, 30, 30]], np.uint8)  # mapping.UNKNOWN, FREE, OCCUPIED
+_MAP_COLORS = np.array([[150, 150, 150], [245, 245, 245], [30, 30, 30]], np.uint8)  # occupancy.UNKNOWN, FREE, OCCUPIED
 MAP_SCALE = 3  # screen pixels per map cell
 
 
