@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rosmeery_jax import grid
+
 
 @dataclass(frozen=True)
 class BenchConfig:
@@ -46,9 +48,8 @@ def random_targets(world, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     ii, jj = np.nonzero(fs.reachable)
     k = rng.integers(len(ii), size=n)
-    x = fs.origin[0] + (jj[k] + 0.5) * fs.resolution
-    y = fs.origin[1] + (ii[k] + 0.5) * fs.resolution
-    return np.stack([x, y, rng.uniform(-np.pi, np.pi, n)], -1).astype(np.float32)
+    xy = grid.cell_centers(fs.origin, fs.resolution, ii[k], jj[k])
+    return np.concatenate([xy, rng.uniform(-np.pi, np.pi, (n, 1))], -1).astype(np.float32)
 
 
 def _timed(fn, *args, repeats: int) -> tuple[float, list[float], object]:

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.occupancy import GridGeometry
+from rosmeery_jax import grid
 
 IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT = range(6)
 STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout")
@@ -87,13 +88,8 @@ class Navigator:
 
     def costs(self, occupied: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Coarse (blocked bool, step cost float32) from the fine occupied map (H, W) bool."""
-        f = self.factor
-        h, w = occupied.shape
-        hc, wc = self.coarse_shape
-        occ = jnp.pad(occupied, ((0, hc * f - h), (0, wc * f - w)))
-        occ = occ.reshape(hc, f, wc, f).any(axis=(1, 3))
-        blocked = _grow(occ)
-        near = _grow(blocked)
+        blocked = grid.grow(grid.block_any(occupied, self.factor))
+        near = grid.grow(blocked)
         return blocked, 1.0 + self.cfg.near_cost * near.astype(jnp.float32)
 
     def sweep(self, field, blocked, cost, goal_ij):
@@ -137,7 +133,7 @@ class Navigator:
         aim = jnp.where(dist < cfg.lookahead * 1.5, jnp.arctan2(to_goal[1], to_goal[0]),
                         jnp.arctan2(self.ring[jnp.argmin(vals), 1], self.ring[jnp.argmin(vals), 0]))
         here = field[ri, rj]
-        yaw_err = _wrap(jnp.where(at_goal, nav.target[2], aim) - pose[2])
+        yaw_err = grid.wrap_angle(jnp.where(at_goal, nav.target[2], aim) - pose[2])
         w = jnp.clip(cfg.k_turn * yaw_err, -self.wmax, self.wmax)
         v = jnp.where(at_goal, 0.0, self.vmax * jnp.clip(jnp.cos(yaw_err), 0.0, 1.0) ** 2 * jnp.clip(dist / 0.5, 0.3, 1.0))
 
@@ -158,13 +154,4 @@ class Navigator:
         return NavState(nav.target, field, status, elapsed, since, best), cmd
 
 
-def _grow(m: jax.Array) -> jax.Array:
-    """Dilate a bool grid by one cell (3 x 3), as the OR of shifted copies (XLA's CPU
-    reduce_window is several times slower here)."""
-    p = jnp.pad(m, 1)
-    rows = p[:-2] | p[1:-1] | p[2:]  # (h, w + 2)
-    return rows[:, :-2] | rows[:, 1:-1] | rows[:, 2:]
 
-
-def _wrap(a):
-    return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi

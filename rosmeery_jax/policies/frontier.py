@@ -28,7 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax import occupancy
+from rosmeery_jax import occupancy as occ_map
+from rosmeery_jax import grid
 from rosmeery_jax.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE
 from rosmeery_jax.policies.base import Policy, needs_target
 
@@ -54,8 +55,7 @@ class FrontierPolicy(Policy):
         self.origin = np.asarray(geo.origin, np.float32)
         hc, wc = self.shape
         jj, ii = np.meshgrid(np.arange(wc), np.arange(hc))
-        self.centers = jnp.asarray(np.stack([self.origin[0] + (jj + 0.5) * self.res,
-                                             self.origin[1] + (ii + 0.5) * self.res], -1), jnp.float32)
+        self.centers = jnp.asarray(grid.cell_centers(self.origin, self.res, ii, jj), jnp.float32)
         self.min_size, self.k, self.radius = min_size, blacklist, blacklist_radius
 
     def init(self, key):
@@ -69,13 +69,8 @@ class FrontierPolicy(Policy):
     def _frontier(self, occupancy: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Frontier cells (Hc, Wc) bool and, per cell, the heading (Hc, Wc) towards its
         unknown 4-neighbours (their mean direction)."""
-        f = self.f
-        h, w = occupancy.shape
-        hc, wc = self.shape
-        occ = jnp.pad(occupancy, ((0, hc * f - h), (0, wc * f - w)))  # pads UNKNOWN (0)
-        blocks = occ.reshape(hc, f, wc, f)
-        any_occ = (blocks == occupancy.OCCUPIED).any(axis=(1, 3))
-        any_free = (blocks == occupancy.FREE).any(axis=(1, 3))
+        any_occ = grid.block_any(occupancy == occ_map.OCCUPIED, self.f)
+        any_free = grid.block_any(occupancy == occ_map.FREE, self.f)
         free = any_free & ~any_occ
         unknown = ~any_free & ~any_occ
         p = jnp.pad(unknown, 1)

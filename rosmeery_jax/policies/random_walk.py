@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax import grid
 from rosmeery_jax.policies.base import Policy, needs_target
 
 
@@ -21,8 +22,7 @@ class RandomPolicy(Policy):
         super().__init__(env)
         fs = env.world.free_space
         i, j = np.nonzero(fs.reachable)
-        self.cells = jnp.asarray(np.stack([fs.origin[0] + (j + 0.5) * fs.resolution,
-                                           fs.origin[1] + (i + 0.5) * fs.resolution], -1), jnp.float32)
+        self.cells = jnp.asarray(grid.cell_centers(fs.origin, fs.resolution, i, j), jnp.float32)
         self.resolution = float(fs.resolution)
 
     def init(self, key):

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax import occupancy
+from rosmeery_jax import grid
 from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
 
@@ -89,8 +90,7 @@ class SemanticNBVPolicy(Policy):
         free = occ == occupancy.FREE
         blocked = occ == occupancy.OCCUPIED
         for _ in range(self.grow):
-            p = jnp.pad(blocked, 1)
-            blocked = p[1:-1, 1:-1] | p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
+            blocked = grid.grow(blocked, diagonal=False)
         i, j = env.grid.cell(cand)
         ok = free[i, j] & ~blocked[i, j] & labelled[:, None] & ~seen_from
         dist = jnp.linalg.norm(cand - state.pose[:2], axis=-1)

@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax import grid
+
 from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns
 from rosmeery_jax.world.scene import NOTHING
 
@@ -109,15 +111,14 @@ def frustum_boxes(rs: RayScene, cfg: CameraConfig, origin: jax.Array, yaw: jax.A
     dist = jnp.linalg.norm(rel, axis=-1)
     radius = jnp.linalg.norm(rs.half[:, :2], axis=-1)
     near = dist - radius
-    off = jnp.abs(_wrap(jnp.arctan2(rel[:, 1], rel[:, 0]) - yaw))
+    off = jnp.abs(grid.wrap_angle(jnp.arctan2(rel[:, 1], rel[:, 0]) - yaw))
     spread = jnp.arcsin(jnp.clip(radius / jnp.maximum(dist, 1e-6), 0.0, 1.0))
     seen = (near <= cfg.max_range) & ((off <= half_angle(cfg, width, height) + spread) | (dist <= radius))
     _, idx = jax.lax.top_k(-jnp.where(seen, near, jnp.inf), k)
     return RayScene(rs.center[idx], rs.half[idx], rs.cos[idx], rs.sin[idx], rs.label[idx], rs.rgb[idx], rs.floor_rgb)
 
 
-def _wrap(a):
-    return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
+
 
 
 def _camera_cast(rs: RayScene, cfg: CameraConfig, pose: jax.Array, width: int, height: int):

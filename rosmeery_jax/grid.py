@@ -1,0 +1,43 @@
+"""Small operations on 2D grids and angles, shared by the occupancy map, the navigator,
+the policies, the free-space map and the bench.
+
+A grid of H x W cells with lower-left corner ``origin`` (x, y) and square cells of side
+``resolution``: cell (i, j) (row i along y, column j along x) has its centre at
+``origin + ((j + 0.5) res, (i + 0.5) res)``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def cell_centers(origin, resolution: float, rows, cols) -> np.ndarray:
+    """(..., 2) world x, y of the centres of cells (rows, cols) (index arrays, same shape)."""
+    return np.stack([origin[0] + (np.asarray(cols) + 0.5) * resolution,
+                     origin[1] + (np.asarray(rows) + 0.5) * resolution], -1)
+
+
+def block_any(mask: jax.Array, f: int) -> jax.Array:
+    """(ceil(H / f), ceil(W / f)) bool: which f x f blocks of the (H, W) mask hold a True
+    (the grid is padded with False up to whole blocks)."""
+    h, w = mask.shape
+    hc, wc = -(-h // f), -(-w // f)
+    m = jnp.pad(mask, ((0, hc * f - h), (0, wc * f - w)))
+    return m.reshape(hc, f, wc, f).any(axis=(1, 3))
+
+
+def grow(mask: jax.Array, diagonal: bool = True) -> jax.Array:
+    """Dilate a bool grid by one cell: 3 x 3 (``diagonal``) or the 4-neighbourhood, as the
+    OR of shifted copies (XLA's CPU reduce_window is several times slower here)."""
+    p = jnp.pad(mask, 1)
+    if not diagonal:
+        return p[1:-1, 1:-1] | p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
+    rows = p[:-2] | p[1:-1] | p[2:]  # (h, w + 2)
+    return rows[:, :-2] | rows[:, 1:-1] | rows[:, 2:]
+
+
+def wrap_angle(a):
+    """Angles wrapped into [-pi, pi) (numpy or jax)."""
+    return (a + np.pi) % (2 * np.pi) - np.pi
