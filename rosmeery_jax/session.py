@@ -584,12 +584,14 @@ def _detect(run: Run, label_fn, state, logs, frames, first_frame: int, steps_per
 
     from rosmeery_jax.detector.detections import pad
 
-    rgb, seg = (np.asarray(a) for a in frames)  # (B, F, H, W, 3), (B, F, H, W)
-    b, f = rgb.shape[:2]
+    b = run.b  # the padding entries' frames are not detected: they get no detections
+    rgb, seg = (np.asarray(a)[:b] for a in frames)  # (b, F, H, W, 3), (b, F, H, W)
+    f = rgb.shape[1]
     ids = np.stack(np.meshgrid(np.arange(b), first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
     found = run.detector(rgb.reshape(b * f, *rgb.shape[2:]), seg.reshape(b * f, *seg.shape[2:]).astype(np.int32),
                          ids)
     dets = [pad(found[i * f:(i + 1) * f], f, MAX_DET) for i in range(b)]
+    dets += [pad([], f, MAX_DET)] * (frames[0].shape[0] - b)
     obj, label, conf = (jnp.asarray(np.stack([d[j] for d in dets])) for j in range(3))
     knowledge, per_frame = label_fn(state.knowledge, obj, label, conf)
     state = state._replace(knowledge=knowledge)

@@ -79,9 +79,11 @@ def _load(path: str) -> Taxonomy:
         with open(path, "rb") as fh:
             raw = tomllib.load(fh)
     except FileNotFoundError:
-        raise InputError(path, "", "taxonomy file not found") from None
+        raise InputError(path, "file", "taxonomy file not found") from None
+    except UnicodeDecodeError as err:
+        raise InputError(path, "file", f"not UTF-8 text (byte {err.start})") from None
     except tomllib.TOMLDecodeError as err:
-        raise InputError(path, "", f"not valid TOML ({err})") from None
+        raise InputError(path, "file", f"not valid TOML ({err})") from None
     roots = raw.get("roots")
     macros = raw.get("macros")
     cats = raw.get("categories")

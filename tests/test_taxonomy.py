@@ -20,7 +20,7 @@ def test_builtin_taxonomy_chains_and_coco_names():
     ("[roots]\na='x'\n[macros]\nm='zzz'\n[categories.c]\nmacro='m'\n", "macros.m"),
     ("[roots]\na='x'\n[macros]\nm='a'\n[categories.c]\nmacro='q'\n", "categories.c.macro"),
     ("[roots]\na='x'\n", "[macros]"),
-    ("not = [toml", ""),
+    ("not = [toml", "file: not valid TOML"),
 ])
 def test_bad_taxonomy_names_file_and_field(tmp_path, text, where):
     path = tmp_path / "tax.toml"
