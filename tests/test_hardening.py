@@ -251,3 +251,15 @@ def test_loading_scales_and_matches_the_dense_test(write_world):
     p = s.points.astype(np.float64)
     dense = (w.scene.inside(p, margin=1e-4) & (np.arange(w.scene.num_boxes)[None] != s.box[:, None])).any(1)
     np.testing.assert_array_equal(w.scene.inside_any(p, margin=1e-4, skip=s.box), dense)
+
+
+def test_declared_requirements_and_docs_stand_alone():
+    from importlib import metadata
+
+    numpy = [r for r in metadata.requires("rosmeery-jax") if r.startswith("numpy")]
+    assert numpy == ["numpy>=2.0"]  # the code calls np.trapezoid (NumPy 2)
+    root = Path(__file__).resolve().parents[1]
+    for path in [*root.joinpath("rosmeery_jax").rglob("*.py"), root / "README.md", *root.joinpath("docs").glob("*.md")]:
+        text = path.read_text(encoding="utf-8")
+        for outside in ("SPEC section", "PERF-NOTES", "../shared"):
+            assert outside not in text, (path, outside)  # users have only this repository
