@@ -35,7 +35,6 @@ import os
 import platform as _platform  # the standard library
 import subprocess
 import time
-import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import metadata
 from pathlib import Path
@@ -45,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax import metrics, overrides, results
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.errors import InputError, read_toml
 
 DETECTORS = ("yolo", "oracle", "off")
 MAX_DET = 32  # detections kept per frame (the most confident)
@@ -234,17 +233,7 @@ def load_config(path: str | Path | None, **cli) -> SessionConfig:
 
 def _read_toml(path: Path) -> dict:
     source = str(path)
-    try:
-        text = path.read_bytes().decode("utf-8")
-        values = tomllib.loads(text)
-    except FileNotFoundError:
-        raise InputError(source, "file", "not found") from None
-    except IsADirectoryError:
-        raise InputError(source, "file", "is a folder, not a TOML file") from None
-    except UnicodeDecodeError as err:
-        raise InputError(source, "file", f"not UTF-8 text (byte {err.start})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(source, "file", f"not valid TOML ({err})") from None
+    values = read_toml(path)
     if "session" in values:
         extra = sorted(set(values) - {"session"})
         if extra:

@@ -9,14 +9,13 @@ for a ground-truth object ``n`` of category ``c``:
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
 
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.errors import InputError, read_toml
 
 DEFAULT_TAXONOMY = Path(__file__).parent / "data" / "taxonomy.toml"
 
@@ -75,15 +74,7 @@ def load_taxonomy(path: str | Path | None = None) -> Taxonomy:
 
 @lru_cache(maxsize=8)
 def _load(path: str) -> Taxonomy:
-    try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError(path, "file", "taxonomy file not found") from None
-    except UnicodeDecodeError as err:
-        raise InputError(path, "file", f"not UTF-8 text (byte {err.start})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(path, "file", f"not valid TOML ({err})") from None
+    raw = read_toml(path)
     roots = raw.get("roots")
     macros = raw.get("macros")
     cats = raw.get("categories")
