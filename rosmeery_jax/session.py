@@ -103,7 +103,8 @@ class SessionConfig:
 
 
 class _as_source:
-    """Re-label InputErrors raised with the placeholder source "config" by ``source``."""
+    """Name ``source`` in InputErrors that checks deeper down raise with the generic source
+    "config" (they do not know which file the value came from)."""
 
     def __init__(self, source: str):
         self.source = source
@@ -382,7 +383,7 @@ def build_run(cfg: SessionConfig, world: str, spec: str) -> Run:
 
     detecting = cfg.detector != "off"
     env = make(world, **{"labels": "detections" if detecting else "observed", **overrides.flatten(cfg.env),
-                         **policy_class(spec).env_overrides(spec)})
+                         **policy_class(spec).env_overrides(spec, _load_world(world).name)})
     policy = make_policy(spec, env, decide_every=cfg.decide_every,
                          total_steps=_decisions(cfg, env.dt) * cfg.decide_every)
     detector = None

@@ -17,7 +17,7 @@ class Policy(ABC):
     Class attributes a policy may change:
     - ``per_step``: ``decide`` returns one action per control step (steps, A) instead of
       one target held until the next decision;
-    - ``env_overrides(spec)``: env settings the policy needs (e.g. velocity commands).
+    - ``env_overrides(spec, world)``: env settings the policy needs (e.g. velocity commands).
     """
 
     name = "policy"
@@ -27,7 +27,8 @@ class Policy(ABC):
         self.env = env
 
     @classmethod
-    def env_overrides(cls, spec: str) -> dict:
+    def env_overrides(cls, spec: str, world: str) -> dict:
+        """Env settings the policy entry ``spec`` needs in the world named ``world``."""
         return {}
 
     def batch_size(self, seeds: int) -> int:

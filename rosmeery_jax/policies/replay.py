@@ -63,9 +63,12 @@ class ReplayPolicy(Policy):
         self.k, self.total_steps = steps_per_decision, total_steps
 
     @classmethod
-    def env_overrides(cls, spec: str) -> dict:
-        recs = next(iter(recordings_by_world(spec).values()))
-        return {**recs[0].header.get("env", {}), "start_yaw": "spawn", "action_mode": "velocity"}
+    def env_overrides(cls, spec: str, world: str) -> dict:
+        """The settings the recordings made in ``world`` were driven with (validation checks
+        that they agree), from the spawn, in velocity mode."""
+        recs = recordings_by_world(spec).get(world, [])
+        env = recs[0].header.get("env", {}) if recs else {}
+        return {**env, "start_yaw": "spawn", "action_mode": "velocity"}
 
     def batch_size(self, seeds: int) -> int:
         return len(self.recordings)
