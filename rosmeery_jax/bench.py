@@ -159,7 +159,7 @@ def mujoco_peer(env, batch: int, cfg: BenchConfig, threads: int) -> dict:
 
     from rosmeery_jax.raycast.sensors import camera_rays, laser_dirs
 
-    m = env.platform.mj_model
+    m = env.mj_model
     rc = env.config.robot
     nstep = cfg.steps * rc.substeps
     datas = [mujoco.MjData(m) for _ in range(threads)]

@@ -22,14 +22,15 @@ Shapes: S samples, N objects, (h, w) the depth image. All functions act on one e
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import NamedTuple
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.raycast.sensors import CameraConfig, camera_pose
+
+FAR = 1e4  # where padding samples stand: beyond every camera's range
 
 
 @dataclass(frozen=True)
@@ -43,22 +44,31 @@ class CoverageConfig:
     temperature: float = 0.05  # soft mode: margin scale (in each test's unit, times 20 for pixels)
 
 
-class SampleTable(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class SampleTable:
     """Ground-truth samples on device, one array per coordinate: points (3, S), normals
-    (3, S), object (S,) int32 (sorted), and the object count N. (Coordinates first: with
-    (S, 3) XLA's CPU loops under vmap ran over 100x slower.)"""
+    (3, S), object (S,) int32 (sorted), and the object count N (static). (Coordinates first:
+    with (S, 3) XLA's CPU loops under vmap ran over 100x slower.)
+
+    Padded to a session's sizes, the extra samples stand far away (never observed) on the
+    last object, and the extra objects have no samples."""
 
     points: jax.Array
     normals: jax.Array
     object: jax.Array
-    num_objects: int
+    num_objects: int = field(metadata=dict(static=True))
 
     @staticmethod
-    def of(truth) -> "SampleTable":
+    def of(truth, samples: int | None = None, objects: int | None = None) -> "SampleTable":
         s = truth.samples
-        return SampleTable(jnp.asarray(np.asarray(s.points).T, jnp.float32),
-                           jnp.asarray(np.asarray(s.normals).T, jnp.float32),
-                           jnp.asarray(s.object, jnp.int32), int(truth.num_objects))
+        n, pad = int(truth.num_objects), (samples or len(s.object)) - len(s.object)
+        objects = objects or n
+        points = np.concatenate([np.asarray(s.points, np.float32).T, np.full((3, pad), FAR, np.float32)], 1)
+        normals = np.concatenate([np.asarray(s.normals, np.float32).T, np.tile([[0], [0], [1]], pad)], 1)
+        obj = np.concatenate([np.asarray(s.object, np.int32), np.full(pad, objects - 1, np.int32)])
+        return SampleTable(jnp.asarray(points, jnp.float32), jnp.asarray(normals, jnp.float32),
+                           jnp.asarray(obj, jnp.int32), objects)
 
 
 def _project(table: SampleTable, cam: CameraConfig, pose: jax.Array):

@@ -14,6 +14,7 @@ Action modes (``EnvConfig.action_mode``):
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -25,12 +26,12 @@ from rosmeery_jax import occupancy
 from rosmeery_jax import overrides as overrides_
 from rosmeery_jax.knowledge import Knowledge, KnowledgeConfig, ObjectLog, SpatialKnowledge
 from rosmeery_jax.errors import InputError
-from rosmeery_jax.occupancy import GridGeometry, MapConfig
+from rosmeery_jax.occupancy import MapConfig
 from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
-from rosmeery_jax.robot import Platform, RobotConfig
-from rosmeery_jax.raycast.kernel import ray_scene
+from rosmeery_jax.robot import Platform, RobotConfig, robot_model
 from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb
 from rosmeery_jax.world import World, WorldConfig, load_world
+from rosmeery_jax.world_data import Sizes, WorldData, truth_table, world_data
 
 
 @dataclass(frozen=True)
@@ -81,21 +82,43 @@ class State(NamedTuple):
 
 
 class Env:
-    """The semantic-mapping robot in one world."""
+    """The semantic-mapping robot in one world.
 
-    def __init__(self, world: World, config: EnvConfig):
+    The world enters every pure method as data (:class:`WorldData`, ``env.data``); a session
+    compiles one function for several worlds by padding them to shared ``sizes`` and
+    calling ``env.with_data(world)`` on each env's world inside it.
+    """
+
+    def __init__(self, world: World, config: EnvConfig, sizes: Sizes | None = None):
         self.world, self.config = world, config
-        self.platform = Platform(world, config.robot)
-        self.rays = ray_scene(world.scene)
-        self.grid = GridGeometry.of(world.free_space)
-        r = config.robot
-        self.navigator = Navigator(self.grid, config.nav, r.control_dt, r.max_speed, r.max_turn_rate)
+        self.sizes = sizes or Sizes.of(world, config.robot)
+        self.truth = truth_table(world)
         self.beam_angles = jnp.asarray(laser_dirs(config.laser))
-        self.dt = r.control_dt
-        self.sk = SpatialKnowledge(world, config.knowledge, config.camera)
+        self.dt = config.robot.control_dt
+        self._bind(world_data(world, config.robot, self.sizes))
+
+    def _bind(self, data: WorldData) -> None:
+        c, r = self.config, self.config.robot
+        self.data = data
+        self.platform = Platform(r, data.physics, data.spawn[:2])
+        self.rays, self.grid = data.rays, data.grid
+        self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate)
+        self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)
+
+    def with_data(self, data: WorldData) -> "Env":
+        """This env in the world ``data`` (same config and padded sizes; e.g. traced arrays
+        inside a jitted function)."""
+        env = copy.copy(self)
+        env._bind(data)
+        return env
+
+    @property
+    def mj_model(self):
+        """The C MuJoCo physics model of this env's own world (unpadded), for the bench."""
+        return robot_model(self.world, self.config.robot)
 
     def reset(self, key: jax.Array) -> State:
-        pose = jnp.asarray(self.world.spawn, jnp.float32)
+        pose = self.data.spawn
         if self.config.start_yaw == "random":
             key, sub = jax.random.split(key)
             pose = pose.at[2].set(jax.random.uniform(sub, (), minval=-jnp.pi, maxval=jnp.pi))
@@ -162,11 +185,12 @@ class Env:
 
 
 def make(world: str | World, world_config: WorldConfig | None = None, source: str = "config",
-         **overrides: Any) -> Env:
+         sizes: Sizes | None = None, **overrides: Any) -> Env:
     """An env for a built-in world name, an MJCF path or a loaded :class:`World`.
 
     Keyword overrides set :class:`EnvConfig` fields at any depth as ``section__field``
     (e.g. ``make("kitchen", action_mode="velocity", knowledge__coverage__soft=True)``).
+    ``sizes`` pads the world's data to a session's shared sizes (default: its own).
     The robot's radius and height and the camera's mounting height are set here only
     (``robot__radius``, ``robot__height``, ``camera__mount_height``): the world's free-space
     map and observable samples are built with the same values.
@@ -177,8 +201,8 @@ def make(world: str | World, world_config: WorldConfig | None = None, source: st
         if world.config != body:
             raise InputError(world.name, "world config", "was loaded with other robot or camera dimensions "
                              "than the env's; load it with env.body_dimensions(...) or pass its name")
-        return Env(world, cfg)
-    return Env(load_world(world, body), cfg)
+        return Env(world, cfg, sizes)
+    return Env(load_world(world, body), cfg, sizes)
 
 
 def body_dimensions(cfg: EnvConfig, world_config: WorldConfig) -> WorldConfig:

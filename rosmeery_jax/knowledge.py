@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax import coverage
-from rosmeery_jax.coverage import CoverageConfig, SampleTable
+from rosmeery_jax.coverage import CoverageConfig
 from rosmeery_jax.raycast.sensors import CameraConfig
 
 
@@ -84,18 +84,16 @@ def predicate_tables(taxonomy, categories: tuple[str, ...]) -> tuple[np.ndarray,
 
 
 class SpatialKnowledge:
-    """Pure functions over :class:`Knowledge` for one world; vmap over envs."""
+    """Pure functions over :class:`Knowledge` for one world; vmap over envs.
 
-    def __init__(self, world, cfg: KnowledgeConfig, camera: CameraConfig):
-        self.cfg, self.camera = cfg, camera
-        truth = world.truth
-        self.table = SampleTable.of(truth)
-        self.true_category = jnp.asarray(truth.category_index, jnp.int32)
-        self.ps_G = jnp.asarray(truth.ps_G, jnp.float32)
-        declared, correct = predicate_tables(world.taxonomy, truth.categories)
-        self.declared, self.correct = jnp.asarray(declared), jnp.asarray(correct)
-        self.truth = GroundTruthTable(np.asarray(truth.ps_G), np.asarray(truth.num_predicates),
-                                      np.asarray(truth.category_index))
+    The world enters as data (``world_data.WorldData``: samples, true categories, predicate
+    tables, padded to a session's sizes); ``truth`` is the host-side table for metrics."""
+
+    def __init__(self, cfg: KnowledgeConfig, camera: CameraConfig, data, truth: GroundTruthTable | None = None):
+        self.cfg, self.camera, self.truth = cfg, camera, truth
+        self.table = data.samples
+        self.true_category, self.ps_G = data.category, data.ps_G
+        self.declared, self.correct = data.declared, data.correct
 
     def init(self) -> Knowledge:
         n = self.table.num_objects
@@ -135,8 +133,13 @@ class SpatialKnowledge:
 
     def log(self, k: Knowledge) -> ObjectLog:
         """The per-object row every metric is computed from."""
+        return ObjectLog(coverage.per_object(k.seen, self.table), *self.label_fields(k))
+
+    def label_fields(self, k: Knowledge) -> tuple[jax.Array, ...]:
+        """The label part of the log: conf_true, conf_any, label, declared, correct (N,) each
+        (``k.seen`` is not read)."""
         has = k.label >= 0
         lab = jnp.maximum(k.label, 0)
         declared = jnp.where(has, self.declared[lab], 0)
         correct = jnp.where(has, jnp.take_along_axis(self.correct, lab[:, None], 1)[:, 0], 0)
-        return ObjectLog(coverage.per_object(k.seen, self.table), k.conf_true, k.conf_any, k.label, declared, correct)
+        return k.conf_true, k.conf_any, k.label, declared, correct

@@ -64,14 +64,13 @@ class Navigator:
     def __init__(self, geo: GridGeometry, cfg: NavConfig, control_dt: float, max_speed: float, max_turn: float):
         self.geo, self.cfg = geo, cfg
         self.factor = max(1, int(round(cfg.plan_resolution / geo.resolution)))
-        h, w = geo.shape
-        self.coarse_shape = (-(-h // self.factor), -(-w // self.factor))
-        self.coarse = GridGeometry(geo.origin, geo.resolution * self.factor, self.coarse_shape)
+        self.coarse = geo.coarse(self.factor)
+        self.coarse_shape = self.coarse.shape
         self.dt, self.vmax, self.wmax = control_dt, max_speed, max_turn
         self.stuck_steps = int(round(cfg.stuck_time / control_dt))
         self.timeout_steps = int(round(cfg.timeout / control_dt))
-        # Steps for the wave to cross the whole grid: only then is "no path" believed.
-        self.settle_steps = int(np.ceil(sum(self.coarse_shape) / cfg.sweeps)) + 2
+        # Steps for the wave to cross the world's grid: only then is "no path" believed.
+        self.settle_steps = -(-jnp.sum(self.coarse.extent) // cfg.sweeps) + 2
         ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
         self.ring = jnp.asarray(np.stack([np.cos(ang), np.sin(ang)], -1) * cfg.lookahead, jnp.float32)
 
@@ -93,8 +92,10 @@ class Navigator:
         return blocked, 1.0 + self.cfg.near_cost * near.astype(jnp.float32)
 
     def sweep(self, field, blocked, cost, goal_ij):
-        """Bellman sweeps over the 8-neighbourhood (diagonals cost sqrt 2)."""
+        """Bellman sweeps over the 8-neighbourhood (diagonals cost sqrt 2); cells beyond the
+        world's extent (session padding) stay unreachable, as cells off the grid are."""
         hc, wc = self.coarse_shape
+        blocked = blocked | ~self.coarse.inside()
 
         def one(field, _):
             pad = jnp.pad(field, 1, constant_values=BIG)

@@ -8,7 +8,7 @@ UNKNOWN / FREE / OCCUPIED from the log-odds.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
@@ -32,26 +32,50 @@ class MapConfig:
     max_range: float = 6.0
 
 
+@jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class GridGeometry:
-    origin: tuple[float, float]
-    resolution: float
-    shape: tuple[int, int]
+    """An H x W grid as data: ``origin`` (2,) float32 world xy of the lower-left corner and
+    ``extent`` (2,) int32 the world's own rows and columns. ``shape`` (static) may be larger:
+    a session pads every world's grid to its largest, and the rows and columns beyond
+    ``extent`` are padding that nothing reads or writes (points clip into the extent)."""
+
+    origin: jax.Array
+    extent: jax.Array
+    resolution: float = field(metadata=dict(static=True))
+    shape: tuple[int, int] = field(metadata=dict(static=True))
 
     @staticmethod
-    def of(fs: FreeSpace) -> "GridGeometry":
-        return GridGeometry((float(fs.origin[0]), float(fs.origin[1])), float(fs.resolution), tuple(fs.occupied.shape))
+    def of(fs: FreeSpace, shape: tuple[int, int] | None = None) -> "GridGeometry":
+        own = tuple(fs.occupied.shape)
+        return GridGeometry(jnp.asarray(fs.origin, jnp.float32), jnp.asarray(own, jnp.int32), float(fs.resolution),
+                            tuple(shape or own))
+
+    def coarse(self, f: int) -> "GridGeometry":
+        """The grid of f x f blocks (partial blocks at the far edges count)."""
+        h, w = self.shape
+        return GridGeometry(self.origin, -(-self.extent // f), self.resolution * f, (-(-h // f), -(-w // f)))
 
     def cell(self, xy: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """(row, col) int32 of world points (..., 2), clipped into the grid."""
+        """(row, col) int32 of world points (..., 2), clipped into the world's extent."""
         j = jnp.floor((xy[..., 0] - self.origin[0]) / self.resolution).astype(jnp.int32)
         i = jnp.floor((xy[..., 1] - self.origin[1]) / self.resolution).astype(jnp.int32)
-        return jnp.clip(i, 0, self.shape[0] - 1), jnp.clip(j, 0, self.shape[1] - 1)
+        return jnp.clip(i, 0, self.extent[0] - 1), jnp.clip(j, 0, self.extent[1] - 1)
 
     def center(self, i: jax.Array, j: jax.Array) -> jax.Array:
         """World xy (..., 2) of cell centres."""
         return jnp.stack([self.origin[0] + (j + 0.5) * self.resolution,
                           self.origin[1] + (i + 0.5) * self.resolution], -1)
+
+    def centers(self) -> jax.Array:
+        """(H, W, 2) world xy of every cell centre (padding cells included)."""
+        i, j = jnp.meshgrid(jnp.arange(self.shape[0]), jnp.arange(self.shape[1]), indexing="ij")
+        return self.center(i, j)
+
+    def inside(self) -> jax.Array:
+        """(H, W) bool: the world's own cells (False on padding)."""
+        i, j = jnp.meshgrid(jnp.arange(self.shape[0]), jnp.arange(self.shape[1]), indexing="ij")
+        return (i < self.extent[0]) & (j < self.extent[1])
 
 
 def empty_map(geo: GridGeometry) -> jax.Array:
@@ -87,10 +111,9 @@ def update(logodds: jax.Array, geo: GridGeometry, cfg: MapConfig, origin_xy: jax
 
 
 def _inside(geo: GridGeometry, xy: jax.Array) -> jax.Array:
-    x0, y0 = geo.origin
-    h, w = geo.shape
     r = geo.resolution
-    return (xy[..., 0] >= x0) & (xy[..., 0] < x0 + w * r) & (xy[..., 1] >= y0) & (xy[..., 1] < y0 + h * r)
+    return ((xy[..., 0] >= geo.origin[0]) & (xy[..., 0] < geo.origin[0] + geo.extent[1] * r)
+            & (xy[..., 1] >= geo.origin[1]) & (xy[..., 1] < geo.origin[1] + geo.extent[0] * r))
 
 
 def classify(logodds: jax.Array, cfg: MapConfig) -> jax.Array:

@@ -53,30 +53,46 @@ class RobotConfig:
     # contact forces (hence soft-contact penetration) to millimetres when pushing a wall
 
 
-def robot_model(world: World, cfg: RobotConfig) -> mujoco.MjModel:
+FAR = 1e4  # where padding proxies stand: never among the nearest pairs MJX keeps
+
+
+def proxy_boxes(world: World, cfg: RobotConfig) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(centre, half size, yaw) of the collision proxies: every box that reaches below the
+    robot's height, split into pieces and extruded to a prism spanning the sphere's equator."""
+    s = world.scene
+    out = []
+    for g in np.flatnonzero(s.center[:, 2] - s.half[:, 2] < cfg.height):
+        for center, half in _pieces(s.center[g], s.half[g], float(s.yaw[g]), cfg.max_piece):
+            center[2], half[2] = PROXY_HALF_HEIGHT, PROXY_HALF_HEIGHT  # every contact is horizontal
+            out.append((center, half, float(s.yaw[g])))
+    return out
+
+
+def robot_model(world: World, cfg: RobotConfig, proxies: int | None = None) -> mujoco.MjModel:
     """The physics model: the robot plus, as world geoms, the static boxes it can touch.
 
     Sensing uses the raycast scene, so physics needs only collision proxies: every box that
     reaches below the robot's height, directly under the world body (no furniture bodies to
-    carry through MJX's kinematics each substep).
+    carry through MJX's kinematics each substep). ``proxies`` pads the proxy count with inert
+    boxes far away, so the models of a session's worlds have one structure and stack into
+    one batched model (their names are the same for the same reason).
     """
+    boxes = proxy_boxes(world, cfg)
+    if proxies is not None and proxies < len(boxes):
+        raise ValueError(f"{world.name}: {len(boxes)} collision proxies, more than the {proxies} padded to")
+    boxes += [(np.array([FAR + 2 * k, FAR, PROXY_HALF_HEIGHT]), np.array([0.5, 0.5, PROXY_HALF_HEIGHT]), 0.0)
+              for k in range((proxies or len(boxes)) - len(boxes))]
     spec = mujoco.MjSpec()
-    spec.modelname = f"{world.name}_physics"
+    spec.modelname = "rosmeery_physics"
     spec.compiler.degree = False
     spec.option.timestep = cfg.control_dt / cfg.substeps
     spec.option.iterations = 4
     spec.option.ls_iterations = 6
     spec.add_material(name="static", rgba=[0.7, 0.7, 0.7, 1])  # mjx needs one material
-    s = world.scene
-    top = cfg.height
-    for g in np.flatnonzero(s.center[:, 2] - s.half[:, 2] < top):
-        for center, half in _pieces(s.center[g], s.half[g], float(s.yaw[g]), cfg.max_piece):
-            yaw = float(s.yaw[g])
-            # Extruded to a prism spanning the sphere's equator: every contact is horizontal.
-            center[2], half[2] = PROXY_HALF_HEIGHT, PROXY_HALF_HEIGHT
-            spec.worldbody.add_geom(
-                type=mujoco.mjtGeom.mjGEOM_BOX, pos=center.tolist(), size=half.tolist(),
-                quat=[np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)], contype=0, conaffinity=1, material="static")
+    for center, half, yaw in boxes:
+        spec.worldbody.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_BOX, pos=center.tolist(), size=half.tolist(),
+            quat=[np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)], contype=0, conaffinity=1, material="static")
     sx, sy, syaw = (float(v) for v in world.spawn)
     body = spec.worldbody.add_body(name="robot", pos=[sx, sy, PROXY_HALF_HEIGHT])
     body.add_joint(name="x", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
@@ -116,16 +132,12 @@ def _pieces(center, half, yaw, max_len):
 
 
 class Platform:
-    """MJX physics for one world; all methods pure and vmappable over envs.
+    """MJX physics; all methods pure and vmappable over envs. The world enters as data: the
+    MJX model and the spawn position (the robot pose (x, y, yaw) is world frame; ``qpos``
+    holds offsets from the spawn)."""
 
-    The robot pose (x, y, yaw) is world frame; ``qpos`` holds offsets from the spawn.
-    """
-
-    def __init__(self, world: World, cfg: RobotConfig):
-        self.cfg = cfg
-        self.mj_model = robot_model(world, cfg)
-        self.model = mjx.put_model(self.mj_model)
-        self.spawn_xy = jnp.asarray(world.spawn[:2], jnp.float32)
+    def __init__(self, cfg: RobotConfig, model: mjx.Model, spawn_xy: jax.Array):
+        self.cfg, self.model, self.spawn_xy = cfg, model, spawn_xy
 
     def init(self, pose: jax.Array) -> mjx.Data:
         """MJX data with the robot at ``pose`` (3,), at rest."""

@@ -1,29 +1,23 @@
-"""The benchmark session: worlds x policies x seeds x duration, written as it goes.
+"""The benchmark session: worlds x policies x seeds x duration.
 
-One *run* is one (world, policy) pair with all its seeds batched. A run is built
-(:func:`build_run`), simulated in chunks (``chunk_s`` of simulated time per jitted call, a
-``lax.scan`` over decisions, each a ``lax.scan`` over ``decide_every`` control steps, every
-object logged every step), and written atomically when it ends (:func:`write_run`):
+Every unfinished (world, policy) pair of a session is simulated in one batch per env
+configuration (:mod:`rosmeery_jax.engine`: worlds as padded data, one compiled chunk
+function, the detector in a worker thread), and each *run* (one world and policy, all its
+seeds) is then written atomically (:func:`write_run`):
 
     OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
     OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
-    OUT/runs/<world>__<policy>.timing.json    wall time of simulation and of the detector
-    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged at the end
+    OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
+    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged once at the end
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
     OUT/config.json                           resolved configuration, input hashes, versions
 
 Everything is validated before anything is written. ``--resume`` skips finished runs and
 refuses a changed configuration or changed input files; without it an existing results
-folder is refused rather than overwritten.
-
-**Seeds do not depend on their batch-mates.** XLA compiles a different program for every
-batch shape, and programs of different shapes round differently, so seed 0 run beside one
-other seed would drift (by 1e-5 m within seconds, then onto another path) from seed 0 run
-beside two. The batch is therefore always padded to whole blocks of ``BLOCK`` envs, one
-compiled block width for every session, and ``lax.map`` runs the blocks: seed k's curves
-are bitwise the same in any session with the same settings.
+folder is refused rather than overwritten. A seed's curves are bitwise the same whatever
+runs beside it (engine: blocks) and whatever ``chunk_s`` is.
 """
 
 from __future__ import annotations
@@ -38,7 +32,6 @@ import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import metadata
 from pathlib import Path
-from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -47,12 +40,10 @@ from rosmeery_jax import metrics, overrides, results
 from rosmeery_jax.errors import InputError, read_toml
 
 DETECTORS = ("yolo", "oracle", "off")
-MAX_DET = 32  # detections kept per frame (the most confident)
-BLOCK = 8  # envs per compiled block (see the module docstring)
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
 DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
 # Settings that change results: resume refuses a change to any of them.
-RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "chunk_s", "sample_s",
+RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
                  "metrics", "env")
 
 
@@ -67,7 +58,10 @@ class SessionConfig:
     weights: str = ""  # YOLO-v5 weights for "yolo" ("" = the shipped ones)
     metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
     decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
-    chunk_s: float = 30.0  # simulated seconds per jitted call (progress granularity)
+    chunk_s: float = 30.0  # simulated seconds per jitted call without a detector (progress
+    # granularity only: results do not depend on it)
+    detector_period_s: float = 10.0  # labels from the frames of one period reach the robot's
+    # knowledge (what policies see) at the start of the period after next
     sample_s: float = 1.0  # seconds between rows of metrics.csv
     out: str = "results/session"
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
@@ -126,7 +120,7 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
     for name in ("seeds", "decide_every"):
         if getattr(cfg, name) < 1:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
-    for name in ("duration", "chunk_s", "sample_s"):
+    for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):
         if not getattr(cfg, name) > 0:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
 
@@ -183,18 +177,22 @@ def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
 
 
 def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
-    """Refuse a session whose logs or batch cannot fit in this machine's memory."""
+    """Refuse a session whose logs or batch cannot fit in this machine's memory (the whole
+    session is one batch: every world x policy x seed, each policy padded to whole blocks)."""
+    from rosmeery_jax.engine import BLOCK
+
     steps = cfg.duration / 0.1  # floats: a huge duration must give a huge estimate, not an overflow
-    batch = float(_padded(cfg.seeds))
-    need_host = max(batch * steps * w.truth.num_objects * LOG_BYTES_PER_OBJECT_STEP for w in worlds)
+    per_policy = -(-cfg.seeds * len(worlds) // BLOCK) * BLOCK
+    batch = float(per_policy * len(cfg.policies))
+    need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
     need_device = batch * DEVICE_BYTES_PER_ENV
     have = _memory_bytes()
-    for what, need in (("the per-step logs of one run", need_host), ("the batch's device state", need_device)):
+    for what, need in (("the per-step logs", need_host), ("the batch's device state", need_device)):
         if need > 0.8 * have:
             raise InputError(source, "seeds" if what.startswith("the batch") else "duration",
-                             f"{cfg.seeds} seeds x {cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, "
-                             f"more than this machine's {have / 1e9:.1f} GB allows (fewer seeds or a shorter "
-                             "duration)")
+                             f"{cfg.seeds} seeds x {len(worlds)} worlds x {len(cfg.policies)} policies x "
+                             f"{cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, more than this "
+                             f"machine's {have / 1e9:.1f} GB allows (fewer seeds, worlds or a shorter duration)")
 
 
 def _memory_bytes() -> float:
@@ -202,10 +200,6 @@ def _memory_bytes() -> float:
         return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
     except (ValueError, OSError, AttributeError):
         return 8e9
-
-
-def _padded(b: int) -> int:
-    return -(-b // BLOCK) * BLOCK
 
 
 def load_config(path: str | Path | None, **cli) -> SessionConfig:
@@ -337,35 +331,35 @@ def _merged(old: dict, new: dict) -> dict:
     return out
 
 
-class Run(NamedTuple):
-    """One (world, policy) pair ready to simulate. b: the entries kept (seeds or recordings);
-    the batch is padded to ``_padded(b)`` envs."""
-
-    name: str
-    env: Any
-    policy: Any
-    detector: Any
-    b: int
-
-
 class Session:
     def __init__(self, cfg: SessionConfig, progress: bool = True):
         self.cfg, self.progress = cfg, progress
 
     def run(self, resume: bool = False) -> Path:
+        """Run every unfinished (world, policy) pair in one batch per env configuration
+        (rosmeery_jax.engine), write each run's files, then the merged tables and plots."""
+        from rosmeery_jax import engine
+
         cfg = self.cfg
         out = Path(cfg.out)
         record = check_out(cfg, resume)
         results.write_atomic(out / "config.json", json.dumps({**record, "versions": _versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
                 if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
-        bar = _bar(len(todo) * cfg.duration, self.progress)
-        for world, policy in todo:
-            run = build_run(cfg, world, policy)
-            if run.b:  # a replay entry has no recording in this world
-                write_run(cfg, run, out, *simulate(cfg, run, bar))
-            bar.update(0 if run.b else cfg.duration)
-        bar.close()
+        if todo:
+            total = _decisions(cfg, 0.1)
+            groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
+                                         total * cfg.decide_every)
+            bar = _bar(sum(g.size for g in groups) * cfg.duration, self.progress)
+            for group in groups:
+                clock = engine.CompileClock()
+                t0 = time.perf_counter()
+                sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
+                                      _detectors(cfg, group), bar, clock)
+                timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0}
+                for run in group.runs:
+                    write_run(cfg, group, run, out, sim, timing)
+            bar.close()
         merge(out)
         return out
 
@@ -376,112 +370,61 @@ def run_name(world: str, policy: str) -> str:
     return f"{_load_world(world).name}__{policy_label(policy)}"
 
 
-def build_run(cfg: SessionConfig, world: str, spec: str) -> Run:
-    """The env, policy and detector of one (world, policy) pair."""
-    from rosmeery_jax.env import make
-    from rosmeery_jax.policies import make_policy, policy_class
-
-    detecting = cfg.detector != "off"
-    env = make(world, **{"labels": "detections" if detecting else "observed", **overrides.flatten(cfg.env),
-                         **policy_class(spec).env_overrides(spec, _load_world(world).name)})
-    policy = make_policy(spec, env, decide_every=cfg.decide_every,
-                         total_steps=_decisions(cfg, env.dt) * cfg.decide_every)
-    detector = None
-    if detecting:
-        from rosmeery_jax.detector.detections import make_detector
-
-        detector = make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
-    return Run(run_name(world, spec), env, policy, detector, policy.batch_size(cfg.seeds))
+def _per_call(cfg: SessionConfig, total: int) -> int:
+    """Decisions per jitted call: the detector period with a detector (the label schedule
+    is cut at its boundaries), else ``chunk_s`` (progress granularity only); the largest
+    that divides the run, so one compiled function serves."""
+    want = cfg.detector_period_s if cfg.detector != "off" else cfg.chunk_s
+    want = max(1, int(round(want / (0.1 * cfg.decide_every))))
+    return max(d for d in range(1, min(want, total) + 1) if total % d == 0)
 
 
-def blocked(fn):
-    """jit of ``fn`` (one env) over a batch of B = k * BLOCK envs: vmap over a block, lax.map
-    over blocks, so every session compiles the same block width (module docstring)."""
-    import jax
+def _detectors(cfg: SessionConfig, group) -> dict | None:
+    """{world index: detector} for the group's worlds, or None with the detector off."""
+    if cfg.detector == "off":
+        return None
+    from rosmeery_jax.detector.detections import make_detector
 
-    def run(*args):
-        blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), args)
-        out = jax.lax.map(lambda a: jax.vmap(fn)(*a), blocks)
-        return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
-
-    return jax.jit(run)
+    return {w: make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
+            for w, env in enumerate(group.envs)}
 
 
-def simulate(cfg: SessionConfig, run: Run, bar):
-    """Step the run to its end. Returns logs (ObjectLog, (B, T + 1, N) numpy), poses
-    (B, T + 1, 3), the final knowledge (batched) and the timing record; B = run.b."""
-    import jax
-    import jax.numpy as jnp
-
-    env, policy = run.env, run.policy
-    keys = jax.vmap(jax.random.key)(jnp.arange(_padded(run.b)))
-    k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
-    state = blocked(env.reset)(k_env)
-    policy.check_start(np.asarray(state.pose)[:run.b])
-    pstate = policy.init_batch(k_pol)
-    total = _decisions(cfg, env.dt)
-    want = max(1, int(round(cfg.chunk_s / (env.dt * cfg.decide_every))))
-    # The largest chunk that divides the run evenly, so one compiled function serves.
-    per_chunk = max(d for d in range(1, min(want, total) + 1) if total % d == 0)
-    capture = run.detector is not None
-    chunk_fn = blocked(_chunk_fn(env, policy, cfg.decide_every, per_chunk, capture))
-    label_fn = blocked(_label_fn(env)) if capture else None
-    logs = [jax.tree.map(lambda a: np.asarray(a)[:, None], blocked(env.log)(state))]
-    poses = [np.asarray(state.pose)[:, None]]
-    timing = {"env_s": 0.0, "detector_s": 0.0, "frames": 0}
-    label = f"{env.world.name}/{policy.name}"
-    for c in range(total // per_chunk):
-        t0 = time.perf_counter()
-        state, pstate, k_run, chunk_logs, chunk_poses, frames = chunk_fn(state, pstate, k_run)
-        chunk_logs = jax.tree.map(np.asarray, chunk_logs)  # (B, n, N)
-        poses.append(np.asarray(chunk_poses))
-        wall = time.perf_counter() - t0
-        timing["env_s"] += wall
-        if capture:
-            t1 = time.perf_counter()
-            state, chunk_logs = _detect(run, label_fn, state, chunk_logs, frames, c * per_chunk, cfg.decide_every)
-            timing["detector_s"] += time.perf_counter() - t1
-            timing["frames"] += run.b * per_chunk
-        logs.append(chunk_logs)
-        n = per_chunk * cfg.decide_every
-        bar.update(n * env.dt)
-        rate = f"{label} {run.b * n / wall:,.0f} env-steps/s"
-        if capture:
-            rate += f", detector {timing['frames'] / max(timing['detector_s'], 1e-9):,.0f} frames/s"
-        bar.set_postfix_str(rate)
-    keep = lambda a: a[:run.b]  # noqa: E731 - drop the padding entries
-    logs = jax.tree.map(lambda *a: keep(np.concatenate(a, axis=1)), *logs)
-    knowledge = jax.tree.map(lambda a: keep(np.asarray(a)), blocked(env.labelled_knowledge)(state))
-    return logs, keep(np.concatenate(poses, axis=1)), knowledge, timing
-
-
-def write_run(cfg: SessionConfig, run: Run, out: Path, logs, poses, knowledge, timing) -> None:
-    """The run's files, each atomically; the metrics file last (its presence marks the run done)."""
+def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> None:
+    """One run's files, each atomically; the metrics file last (its presence marks the run
+    done). ``sim`` holds the group's real envs in row order; padding objects are cut off."""
     import jax
 
     from rosmeery_jax.semantic_map import write_semantic_map
 
-    env = run.env
+    env = group.envs[run.world]
+    world, policy = env.world, group.policies[run.policy].name
+    n, s = world.truth.num_objects, len(world.truth.samples.object)
+    rows = np.searchsorted(np.flatnonzero(group.real), run.rows)
+    logs = jax.tree.map(lambda a: a[rows][..., :n], sim.logs)
+    poses = sim.poses[rows]
     times = np.arange(logs.ps.shape[1]) * env.dt
     every = max(1, int(round(cfg.sample_s / env.dt)))
     keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
-    tags = dict(world=env.world.name, policy=run.policy.name, detector=cfg.detector)
+    tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
-    for seed in range(run.b):  # per seed, so a seed's numbers never depend on the batch shape
+    for seed in range(len(rows)):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[seed], logs)
-        c = metrics.compute(log, env.sk.truth, cfg.metrics)  # {name: (T,)}
+        c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
         curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed, **tags))
-        paths.append(pd.DataFrame({"world": env.world.name, "policy": run.policy.name, "seed": seed,
+        paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
                                    "time_s": np.round(times[keep], 6), "x": poses[seed, keep, 0],
                                    "y": poses[seed, keep, 1], "yaw": poses[seed, keep, 2]}))
         final = jax.tree.map(lambda a: a[-1], log)
-        objects.append(results.object_frame(env.world, final, seed=seed, policy=run.policy.name,
-                                            detector=cfg.detector))
-        write_semantic_map(out / "maps", f"{run.name}__seed{seed}", env.world,
-                           jax.tree.map(lambda a: a[seed], knowledge), float(times[-1]))
+        objects.append(results.object_frame(world, final, seed=seed, policy=policy, detector=cfg.detector))
+        k = jax.tree.map(lambda a: a[rows[seed]], sim.knowledge)
+        k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
+                                                                            "conf_any")})
+        write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
     runs = out / "runs"
     results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{run.name}.objects.csv")
-    results.write_atomic(runs / f"{run.name}.timing.json", json.dumps(timing, indent=2))
+    results.write_atomic(runs / f"{run.name}.timing.json", json.dumps(
+        {**timing, "note": "simulated in one batch with the other runs of its group: the times are the group's"},
+        indent=2))
     results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{run.name}.trajectory.csv")
     results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
 
@@ -513,86 +456,6 @@ def _decisions(cfg: SessionConfig, dt: float) -> int:
         raise InputError("config", "duration", f"{cfg.duration} s is not a whole number of decision periods "
                          f"({period:g} s = decide_every x {dt:g} s)")
     return n
-
-
-def _chunk_fn(env, policy, steps_per_decision: int, decisions: int, capture: bool = False):
-    """One env: ``decisions`` policy decisions, each followed by ``steps_per_decision`` env
-    steps; returns logs (decisions * steps, N), poses (decisions * steps, 3) and, with
-    ``capture``, the detector's frames after each decision: RGB (F, Hr, Wr, 3) and labels
-    (F, Hr, Wr) int16 (F = decisions); else None."""
-    import jax
-    import jax.numpy as jnp
-
-    def one_env(state, pstate, key):
-        def decide(carry, _):
-            s, ps, k = carry
-            k, sub = jax.random.split(k)
-            action, ps = policy.decide(s, ps, sub)
-
-            def step(s, a):
-                s = env.step(s, a if policy.per_step else action)
-                return s, (env.log(s), s.pose)
-
-            s, logs = jax.lax.scan(step, s, action if policy.per_step else None, length=steps_per_decision)
-            frame = None
-            if capture:
-                img, lab = env.camera_rgb(s)
-                frame = (img, lab.astype(jnp.int16))
-            return (s, ps, k), (logs, frame)
-
-        (state, pstate, key), (logs, frames) = jax.lax.scan(decide, (state, pstate, key), None, length=decisions)
-        logs, poses = jax.tree.map(lambda a: a.reshape(decisions * steps_per_decision, *a.shape[2:]), logs)
-        return state, pstate, key, logs, poses, frames
-
-    return one_env
-
-
-def _label_fn(env):
-    """One env: knowledge + detections (F, D) -> final knowledge and the label fields of the
-    per-object log after each frame's detections (F, N)."""
-    import jax
-
-    def one_env(k, obj, label, conf):
-        def body(k, d):
-            k = env.sk.attach(k, *d)
-            log = env.sk.log(k)
-            return k, (log.conf_true, log.conf_any, log.label, log.declared, log.correct)
-
-        return jax.lax.scan(body, k, (obj, label, conf))
-
-    return one_env
-
-
-_LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
-
-
-def _detect(run: Run, label_fn, state, logs, frames, first_frame: int, steps_per_decision: int):
-    """Run the detector on a chunk's frames, fold the detections into the knowledge, and
-    rewrite the chunk's label fields from the step after each frame on, so the curves carry
-    no chunk-long lag (a frame taken at the end of decision f counts from decision f + 1)."""
-    import jax.numpy as jnp
-
-    from rosmeery_jax.detector.detections import pad
-
-    b = run.b  # the padding entries' frames are not detected: they get no detections
-    rgb, seg = (np.asarray(a)[:b] for a in frames)  # (b, F, H, W, 3), (b, F, H, W)
-    f = rgb.shape[1]
-    ids = np.stack(np.meshgrid(np.arange(b), first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
-    found = run.detector(rgb.reshape(b * f, *rgb.shape[2:]), seg.reshape(b * f, *seg.shape[2:]).astype(np.int32),
-                         ids)
-    dets = [pad(found[i * f:(i + 1) * f], f, MAX_DET) for i in range(b)]
-    dets += [pad([], f, MAX_DET)] * (frames[0].shape[0] - b)
-    obj, label, conf = (jnp.asarray(np.stack([d[j] for d in dets])) for j in range(3))
-    knowledge, per_frame = label_fn(state.knowledge, obj, label, conf)
-    state = state._replace(knowledge=knowledge)
-    frame_of_step = np.arange(logs.ps.shape[1]) // steps_per_decision - 1  # -1: before the chunk's first frame
-    take = frame_of_step >= 0
-    updates = {}
-    for name, values in zip(_LABEL_FIELDS, per_frame):
-        new = getattr(logs, name).copy()
-        new[:, take] = np.asarray(values)[:, frame_of_step[take]].astype(new.dtype)
-        updates[name] = new
-    return state, logs._replace(**updates)
 
 
 def _bar(total: float, enabled: bool):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from typing import Any
 
@@ -25,6 +26,14 @@ class Policy(ABC):
 
     def __init__(self, env):
         self.env = env
+
+    def bind(self, env) -> "Policy":
+        """This policy acting in ``env`` (an env of the same config and padded sizes, e.g.
+        ``env.with_data(world)`` inside a jitted function). Policies read the world only
+        through ``self.env`` when deciding, so one compiled function serves every world."""
+        policy = copy.copy(self)
+        policy.env = env
+        return policy
 
     @classmethod
     def env_overrides(cls, spec: str, world: str) -> dict:

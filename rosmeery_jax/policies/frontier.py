@@ -26,7 +26,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from rosmeery_jax import occupancy as occ_map
 from rosmeery_jax import grid
@@ -47,16 +46,14 @@ class FrontierPolicy(Policy):
         super().__init__(env)
         self.name = "frontier" if choose == "biggest" else f"frontier_{choose}"
         self.choose = choose
-        geo = env.grid
-        self.f = max(1, int(round(resolution / geo.resolution)))
-        h, w = geo.shape
-        self.shape = (-(-h // self.f), -(-w // self.f))
-        self.res = geo.resolution * self.f
-        self.origin = np.asarray(geo.origin, np.float32)
-        hc, wc = self.shape
-        jj, ii = np.meshgrid(np.arange(wc), np.arange(hc))
-        self.centers = jnp.asarray(grid.cell_centers(self.origin, self.res, ii, jj), jnp.float32)
+        self.f = max(1, int(round(resolution / env.grid.resolution)))
+        self.shape = env.grid.coarse(self.f).shape
         self.min_size, self.k, self.radius = min_size, blacklist, blacklist_radius
+
+    @property
+    def coarse(self):
+        """The coarse grid of the env's world (read when deciding: the world is data)."""
+        return self.env.grid.coarse(self.f)
 
     def init(self, key):
         return FrontierState(jnp.zeros(3, jnp.float32), jnp.full((self.k, 2), 1e6, jnp.float32),
@@ -68,11 +65,12 @@ class FrontierPolicy(Policy):
 
     def _frontier(self, occupancy: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Frontier cells (Hc, Wc) bool and, per cell, the heading (Hc, Wc) towards its
-        unknown 4-neighbours (their mean direction)."""
+        unknown 4-neighbours (their mean direction). Cells beyond the world's extent (session
+        padding) are neither free nor unknown, like cells off the grid."""
         any_occ = grid.block_any(occupancy == occ_map.OCCUPIED, self.f)
         any_free = grid.block_any(occupancy == occ_map.FREE, self.f)
         free = any_free & ~any_occ
-        unknown = ~any_free & ~any_occ
+        unknown = ~any_free & ~any_occ & self.coarse.inside()
         p = jnp.pad(unknown, 1)
         down, up, left, right = p[:-2, 1:-1], p[2:, 1:-1], p[1:-1, :-2], p[1:-1, 2:]  # rows grow with y
         near_unknown = down | up | left | right
@@ -102,15 +100,17 @@ class FrontierPolicy(Policy):
     def decide(self, state, ps: FrontierState, key):
         hc, wc = self.shape
         n = hc * wc + 1
+        coarse = self.coarse
+        centers = coarse.centers()
         frontier, toward = self._frontier(self.env.occupancy(state))
         # Cells near targets the navigator gave up on are not candidates.
-        d_fail = jnp.linalg.norm(self.centers[:, :, None, :] - ps.failed[None, None], axis=-1).min(-1)
+        d_fail = jnp.linalg.norm(centers[:, :, None, :] - ps.failed[None, None], axis=-1).min(-1)
         frontier = frontier & (d_fail > self.radius)
         labels = self.components(frontier)
         flat = labels.ravel()
         size = jax.ops.segment_sum(jnp.ones_like(flat), flat, n).at[0].set(0)
         valid = frontier & (size[labels] >= self.min_size)
-        xy = self.centers.reshape(-1, 2)
+        xy = centers.reshape(-1, 2)
         pose = state.pose
         if self.choose == "biggest":
             best = jnp.argmax(size)
@@ -125,9 +125,7 @@ class FrontierPolicy(Policy):
         fresh = jnp.where(any_left, jnp.concatenate([goal, heading[None]]), pose)
 
         status = state.nav.status
-        ti = jnp.clip(((ps.target[1] - self.origin[1]) / self.res).astype(jnp.int32), 0, hc - 1)
-        tj = jnp.clip(((ps.target[0] - self.origin[0]) / self.res).astype(jnp.int32), 0, wc - 1)
-        still_frontier = valid[ti, tj]
+        still_frontier = valid[coarse.cell(ps.target[:2])]
         gave_up = (status == STUCK) | (status == UNREACHABLE) | (status == TIMEOUT) | (
             (status == REACHED) & still_frontier)
         failed = jnp.where(gave_up, ps.failed.at[ps.nfailed % self.k].set(ps.target[:2]), ps.failed)

@@ -9,29 +9,21 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from rosmeery_jax import grid
 from rosmeery_jax.policies.base import Policy, needs_target
 
 
 class RandomPolicy(Policy):
     name = "random"
 
-    def __init__(self, env):
-        super().__init__(env)
-        fs = env.world.free_space
-        i, j = np.nonzero(fs.reachable)
-        self.cells = jnp.asarray(grid.cell_centers(fs.origin, fs.resolution, i, j), jnp.float32)
-        self.resolution = float(fs.resolution)
-
     def init(self, key):
         return jnp.zeros(3, jnp.float32)  # the current target
 
     def decide(self, state, target, key):
         k1, k2, k3 = jax.random.split(key, 3)
-        xy = self.cells[jax.random.randint(k1, (), 0, self.cells.shape[0])]
-        xy = xy + jax.random.uniform(k2, (2,), minval=-0.5, maxval=0.5) * self.resolution
+        world = self.env.data
+        xy = world.reachable[jax.random.randint(k1, (), 0, world.n_reachable)]
+        xy = xy + jax.random.uniform(k2, (2,), minval=-0.5, maxval=0.5) * self.env.grid.resolution
         fresh = jnp.concatenate([xy, jax.random.uniform(k3, (1,), minval=-jnp.pi, maxval=jnp.pi)])
         target = jnp.where(needs_target(state), fresh, target)
         return target, target

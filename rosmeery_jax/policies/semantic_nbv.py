@@ -44,11 +44,15 @@ class SemanticNBVPolicy(Policy):
         super().__init__(env)
         self.v, self.radius = views, radius
         self.frontier = FrontierPolicy(env, choose="biggest")
-        self.table = env.sk.table
-        self.n = self.table.num_objects
+        self.n = env.sk.table.num_objects
         ang = np.arange(views) * 2 * np.pi / views
         self.ring = jnp.asarray(np.stack([np.cos(ang), np.sin(ang)], -1) * radius, jnp.float32)  # (V, 2)
         self.grow = max(1, int(round(clearance / env.grid.resolution)))
+
+    def bind(self, env) -> "SemanticNBVPolicy":
+        policy = super().bind(env)
+        policy.frontier = self.frontier.bind(env)
+        return policy
 
     def init(self, key):
         return NBVState(jnp.zeros(3, jnp.float32), jnp.zeros((self.n, self.v), bool), jnp.zeros(self.n, jnp.float32),
@@ -57,15 +61,16 @@ class SemanticNBVPolicy(Policy):
     def _objects(self, seen):
         """Observed centroid (N, 2), footprint area (N,) and count (N,) from observed samples."""
         w = (seen > 0.5).astype(jnp.float32)
-        count = jax.ops.segment_sum(w, self.table.object, self.n, indices_are_sorted=True)
-        pts = self.table.points  # (3, S)
-        sx = jax.ops.segment_sum(w * pts[0], self.table.object, self.n, indices_are_sorted=True)
-        sy = jax.ops.segment_sum(w * pts[1], self.table.object, self.n, indices_are_sorted=True)
+        table = self.env.sk.table
+        pts, obj = table.points, table.object  # (3, S), (S,)
+        count = jax.ops.segment_sum(w, obj, self.n, indices_are_sorted=True)
+        sx = jax.ops.segment_sum(w * pts[0], obj, self.n, indices_are_sorted=True)
+        sy = jax.ops.segment_sum(w * pts[1], obj, self.n, indices_are_sorted=True)
         big = 1e6
-        lo_x = jax.ops.segment_min(jnp.where(w > 0, pts[0], big), self.table.object, self.n, indices_are_sorted=True)
-        hi_x = jax.ops.segment_max(jnp.where(w > 0, pts[0], -big), self.table.object, self.n, indices_are_sorted=True)
-        lo_y = jax.ops.segment_min(jnp.where(w > 0, pts[1], big), self.table.object, self.n, indices_are_sorted=True)
-        hi_y = jax.ops.segment_max(jnp.where(w > 0, pts[1], -big), self.table.object, self.n, indices_are_sorted=True)
+        lo_x = jax.ops.segment_min(jnp.where(w > 0, pts[0], big), obj, self.n, indices_are_sorted=True)
+        hi_x = jax.ops.segment_max(jnp.where(w > 0, pts[0], -big), obj, self.n, indices_are_sorted=True)
+        lo_y = jax.ops.segment_min(jnp.where(w > 0, pts[1], big), obj, self.n, indices_are_sorted=True)
+        hi_y = jax.ops.segment_max(jnp.where(w > 0, pts[1], -big), obj, self.n, indices_are_sorted=True)
         c = jnp.stack([sx, sy], -1) / jnp.maximum(count, 1.0)[:, None]
         area = jnp.where(count > 0, jnp.maximum(hi_x - lo_x, 0.1) * jnp.maximum(hi_y - lo_y, 0.1), 0.0)
         return c, area, count

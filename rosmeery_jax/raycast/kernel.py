@@ -23,6 +23,9 @@ from rosmeery_jax.world.scene import FLOOR, NOTHING, Scene
 
 CHUNK = 16
 _FAR = 1e6
+INDEX_BITS = 12  # box-index bits in the packed key: up to 4,095 boxes. Fixed, not sized to
+# the scene, so a world padded with extra boxes (a session's padding) breaks near-ties the
+# same way as the world alone.
 
 
 class RayScene(NamedTuple):
@@ -56,10 +59,10 @@ class Hit(NamedTuple):
     normal: jax.Array
 
 
-def ray_scene(scene: Scene) -> RayScene:
-    """Upload a world's scene, padded to whole chunks."""
+def ray_scene(scene: Scene, boxes: int | None = None) -> RayScene:
+    """Upload a world's scene, padded to ``boxes`` (at least its own) in whole chunks."""
     g = scene.num_boxes
-    pad = (-g) % CHUNK
+    pad = -(-max(g, boxes or 0) // CHUNK) * CHUNK - g
     center = np.concatenate([scene.center, np.full((pad, 3), _FAR, np.float32)])
     half = np.concatenate([scene.half, np.full((pad, 3), 0.01, np.float32)])
     yaw = np.concatenate([scene.yaw, np.zeros(pad, np.float32)])
@@ -70,10 +73,11 @@ def ray_scene(scene: Scene) -> RayScene:
                     f(rgb), f(scene.floor_rgb))
 
 
-def _index_bits(num_boxes: int) -> int:
+def index_bits(num_boxes: int) -> int:
+    """Bits that index ``num_boxes`` boxes in the packed key."""
     bits = max(1, int(np.ceil(np.log2(num_boxes + 1))))
-    if bits > 12:
-        raise ValueError(f"{num_boxes} boxes: the packed kernel handles at most 4095")
+    if bits > INDEX_BITS:
+        raise ValueError(f"{num_boxes} boxes: the packed kernel handles at most {2 ** INDEX_BITS - 1}")
     return bits
 
 
@@ -106,12 +110,13 @@ def _slab(lx, ly, lz, dx, dy, dz, hx, hy, hz):
     return jnp.where((tmax >= tmin) & (tmin > 0.0), tmin, big)
 
 
-def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float) -> Hit:
-    """Cast bundles of rays. origin (..., 3) one per bundle; dirs (..., R, 3) unit vectors."""
+def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bits: int = INDEX_BITS) -> Hit:
+    """Cast bundles of rays. origin (..., 3) one per bundle; dirs (..., R, 3) unit vectors;
+    ``bits`` of the packed key index the boxes (enough for ``rs.num_boxes``)."""
     lead = origin.shape[:-1]
     o = origin.reshape(-1, 3)
     d = dirs.reshape(o.shape[0], -1, 3)
-    bits = _index_bits(rs.num_boxes)
+    index_bits(rs.num_boxes)
     keep = jnp.int32(~((1 << bits) - 1))
     dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]  # (B, R)
     inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
@@ -168,7 +173,8 @@ def _resolve(rs: RayScene, o: jax.Array, d: jax.Array, box: jax.Array, max_range
     )
 
 
-def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float) -> Hit:
+def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float,
+                 bits: int = INDEX_BITS) -> Hit:
     """Cast a level camera's rays (H, W, 3): every column shares one horizontal direction.
 
     Exact, like :func:`cast`, and about twice as fast for camera images: the x / y slab test
@@ -188,7 +194,7 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
     ey = dc[:, :, 0, 1] / horiz[:, :, 0]
     slope = dc[..., 2] / horiz  # dz per metre of horizontal travel
     islope = 1.0 / jnp.where(jnp.abs(slope) < 1e-12, 1e-12, slope)  # (B, H, W)
-    bits = _index_bits(rs.num_boxes)
+    index_bits(rs.num_boxes)
     keep = jnp.int32(~((1 << bits) - 1))
     inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
     big = jnp.float32(1e30)

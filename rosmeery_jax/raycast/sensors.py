@@ -15,7 +15,7 @@ import numpy as np
 
 from rosmeery_jax import grid
 
-from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns
+from rosmeery_jax.raycast.kernel import INDEX_BITS, RayScene, cast, cast_columns, index_bits
 from rosmeery_jax.world.scene import NOTHING
 
 
@@ -101,12 +101,13 @@ def half_angle(cfg: CameraConfig, width: int, height: int) -> float:
 def frustum_boxes(rs: RayScene, cfg: CameraConfig, origin: jax.Array, yaw: jax.Array,
                   width: int, height: int) -> RayScene:
     """The ``cfg.cull`` boxes nearest the camera among those whose plan-view bounding circle
-    meets the camera's horizontal field of view within range (the whole scene if ``cull`` is 0
-    or not smaller than it). Conservative per box: a box left out cannot be hit unless more
-    than ``cull`` boxes pass the test."""
-    k = -(-cfg.cull // 16) * 16
-    if cfg.cull <= 0 or k >= rs.num_boxes:
+    meets the camera's horizontal field of view within range, nearest first (all boxes when
+    ``cull`` is 0). Conservative per box: a box left out cannot be hit unless more than
+    ``cull`` boxes pass the test. The order depends only on the boxes that pass, so padding
+    boxes (far away) change nothing."""
+    if cfg.cull <= 0:
         return rs
+    k = min(-(-cfg.cull // 16) * 16, rs.num_boxes)
     rel = rs.center[:, :2] - origin[:2]
     dist = jnp.linalg.norm(rel, axis=-1)
     radius = jnp.linalg.norm(rs.half[:, :2], axis=-1)
@@ -118,18 +119,17 @@ def frustum_boxes(rs: RayScene, cfg: CameraConfig, origin: jax.Array, yaw: jax.A
     return RayScene(rs.center[idx], rs.half[idx], rs.cos[idx], rs.sin[idx], rs.label[idx], rs.rgb[idx], rs.floor_rgb)
 
 
-
-
-
 def _camera_cast(rs: RayScene, cfg: CameraConfig, pose: jax.Array, width: int, height: int):
     """(hit, world ray directions (H*W, 3), culled scene) for a camera image of width x height."""
     o, _ = camera_pose(cfg, pose)
     d = _yaw_rotate(jnp.asarray(camera_rays(cfg, width, height)), pose[2])
     rs = frustum_boxes(rs, cfg, o, pose[2], width, height)
+    # The key's index bits follow the cull size (fixed), not the culled scene's padded size.
+    bits = index_bits(-(-cfg.cull // 16) * 16) if cfg.cull > 0 else INDEX_BITS
     if cfg.pitch == 0.0:  # a level camera: its columns are vertical fans (cast_columns)
-        hit = cast_columns(rs, o, d.reshape(height, width, 3), cfg.max_range)
+        hit = cast_columns(rs, o, d.reshape(height, width, 3), cfg.max_range, bits)
     else:
-        hit = cast(rs, o, d, cfg.max_range)
+        hit = cast(rs, o, d, cfg.max_range, bits)
     return hit, d, rs
 
 

@@ -1,0 +1,415 @@
+"""The session engine: every (world, policy, seed) of a session in one batch, one compiled
+chunk function, the detector overlapped with the simulation.
+
+**Worlds are data.** The session's worlds are padded to shared sizes and stacked
+(:mod:`rosmeery_jax.world_data`); each env gathers its own world inside the compiled
+function, so adding a world adds rows, not a compile. A *group* is every entry that shares
+one env configuration: all built-in policies share one, so the default and paper sessions
+compile one chunk function; replayed recordings run in velocity mode and form a group of
+their own.
+
+**Blocks.** XLA compiles a different program for every batch shape, and programs of
+different shapes round differently. The batch is therefore cut into blocks of ``BLOCK``
+envs, each block one policy (a policy's entries are padded to whole blocks), and
+``lax.map`` runs one ``vmap``ped block program over them: an env's numbers are the same
+whatever runs beside it. The block's policy is chosen with ``lax.switch`` on a per-block
+index, so only that policy's decision runs (a per-env index under ``vmap`` would run every
+policy for every env).
+
+**The detector overlaps the simulation.** Chunk k's frames are detected in a worker thread
+while chunk k + 1 simulates. The robot's knowledge receives the detections on a fixed
+simulated-time schedule, part of the experiment: the frames of detector period p (one RGB
+frame per decision) are folded in at the start of period p + 2, so a label reaches the
+policy one to two periods after its frame, whatever the chunking. The metrics' label
+fields are rebuilt afterwards without that lag: a frame counts from the step after it.
+
+Shapes: B envs in a group (a multiple of BLOCK), T steps, N objects (padded), F frames per
+chunk, D detections per frame.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rosmeery_jax import world_data as wd
+from rosmeery_jax.env import Env, EnvConfig, body_dimensions
+from rosmeery_jax.knowledge import ObjectLog
+
+BLOCK = 8  # envs per compiled block (see the module docstring)
+MAX_DET = 32  # detections kept per frame (the most confident)
+LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
+
+
+class Run(NamedTuple):
+    """One (world, policy) pair: its rows in the group's batch (one per seed or recording)."""
+
+    name: str
+    world: int
+    policy: int
+    rows: np.ndarray
+    host_policy: Any  # the policy built for this world (recordings, start checks)
+
+
+@dataclass
+class Group:
+    """Entries that share one env configuration, as one batch of B envs.
+
+    env: the template env (the group's first world at the padded sizes); envs: one per world
+    (host side: world, truth); data: the stacked worlds (W, ...); policies: one template per
+    policy entry; world / seed / real (B,) per env; block_policy (B // BLOCK,) per block."""
+
+    config: EnvConfig
+    env: Env
+    envs: list[Env]
+    data: wd.WorldData
+    policies: list
+    world: np.ndarray
+    seed: np.ndarray
+    real: np.ndarray
+    block_policy: np.ndarray
+    runs: list[Run]
+
+    @property
+    def size(self) -> int:
+        return len(self.world)
+
+
+def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: int,
+                 decide_every: int, total_steps: int) -> list[Group]:
+    """The groups of (world spec, policy spec) pairs; runs with no entries are left out."""
+    from rosmeery_jax.overrides import flatten
+    from rosmeery_jax.policies import make_policy, policy_class
+    from rosmeery_jax.world import WorldConfig, load_world
+
+    by_config: dict[EnvConfig, list] = {}
+    for world, spec in pairs:
+        name = load_world(world).name
+        overrides = {"labels": "detections" if detecting else "observed", **flatten(session_env),
+                     **policy_class(spec).env_overrides(spec, name)}
+        config = EnvConfig().with_overrides("config", **overrides)
+        by_config.setdefault(config, []).append((world, spec))
+    groups = []
+    for config, members in by_config.items():
+        specs = list(dict.fromkeys(w for w, _ in members))
+        worlds = [load_world(w, body_dimensions(config, WorldConfig())) for w in specs]
+        sizes = wd.Sizes.union([wd.Sizes.of(w, config.robot) for w in worlds])
+        envs = [Env(w, config, sizes) for w in worlds]
+        policy_specs = list(dict.fromkeys(p for _, p in members))
+        policies = [make_policy(p, envs[0], decide_every, total_steps) for p in policy_specs]
+        world_ix, seed_ix, real, block_policy, runs = [], [], [], [], []
+        for q, spec in enumerate(policy_specs):
+            start = len(world_ix)
+            for world, p in members:
+                if p != spec:
+                    continue
+                w = specs.index(world)
+                host = make_policy(spec, envs[w], decide_every, total_steps)
+                b = host.batch_size(seeds)
+                if b:
+                    rows = np.arange(len(world_ix), len(world_ix) + b)
+                    runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows, host))
+                    world_ix += [w] * b
+                    seed_ix += list(range(b))
+                    real += [True] * b
+            pad = (-(len(world_ix) - start)) % BLOCK
+            if len(world_ix) == start:
+                continue  # no entries for this policy (a replay with no recording here)
+            world_ix += [world_ix[-1]] * pad
+            seed_ix += list(range(seed_ix[-1] + 1, seed_ix[-1] + 1 + pad))
+            real += [False] * pad
+            block_policy += [q] * ((len(world_ix) - start) // BLOCK)
+        if runs:
+            groups.append(Group(config, envs[0], envs, wd.stack([e.data for e in envs]), policies,
+                                np.asarray(world_ix, np.int32), np.asarray(seed_ix, np.int32), np.asarray(real),
+                                np.asarray(block_policy, np.int32), runs))
+    return groups
+
+
+def blocked(fn):
+    """jit of ``fn(shared, block_arg, *env_args)`` over B = k * BLOCK envs: ``shared`` goes
+    to every env, ``block_arg`` (k,) one value per block, ``env_args`` (B, ...) one row per
+    env. vmap over a block, ``lax.map`` over blocks (module docstring)."""
+
+    def run(shared, block_arg, *env_args):
+        blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), env_args)
+        out = jax.lax.map(lambda x: jax.vmap(fn, in_axes=(None, None) + (0,) * len(env_args))(shared, x[0], *x[1]),
+                          (block_arg, blocks))
+        return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
+
+    return jax.jit(run)
+
+
+def _in_world(group: Group, stacked: wd.WorldData, w: jax.Array) -> tuple[Env, list]:
+    """The template env and policies, bound to world ``w`` of ``stacked`` (inside a trace)."""
+    env = group.env.with_data(wd.pick(stacked, w))
+    return env, [p.bind(env) for p in group.policies]
+
+
+def reset_fn(group: Group):
+    """(stacked, block policy, world (B,), key (B,)) -> State (B, ...)."""
+
+    def one(stacked, q, w, key):
+        env, _ = _in_world(group, stacked, w)
+        return env.reset(key)
+
+    return blocked(one)
+
+
+def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool):
+    """One env per call of the returned function (blocked): fold the pending detections
+    (F, D) into the knowledge, then ``decisions`` policy decisions, each followed by
+    ``decide_every`` env steps. Returns state, policy states, key, logs (steps, N), poses
+    (steps, 3) and, with ``capture``, the frame after each decision: RGB (F, Hr, Wr, 3)
+    uint8 and labels (F, Hr, Wr) int16 (F = decisions); else None."""
+    per_step = group.policies[0].per_step
+
+    def one(stacked, q, w, state, pstates, key, pending):
+        env, policies = _in_world(group, stacked, w)
+        if capture:
+            state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
+
+        def branch(i):
+            def decide(s, pss, k):
+                action, new = policies[i].decide(s, pss[i], k)
+                return action, pss[:i] + (new,) + pss[i + 1:]
+            return decide
+
+        def decide(carry, _):
+            s, pss, k = carry
+            k, sub = jax.random.split(k)
+            if len(policies) == 1:
+                action, pss = branch(0)(s, pss, sub)
+            else:
+                action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
+
+            def step(s, a):
+                s = env.step(s, a if per_step else action)
+                return s, (env.log(s), s.pose)
+
+            s, logs = jax.lax.scan(step, s, action if per_step else None, length=decide_every)
+            frame = None
+            if capture:
+                img, lab = env.camera_rgb(s)
+                frame = (img, lab.astype(jnp.int16))
+            return (s, pss, k), (logs, frame)
+
+        (state, pstates, key), (logs, frames) = jax.lax.scan(decide, (state, pstates, key), None, length=decisions)
+        logs, poses = jax.tree.map(lambda a: a.reshape(decisions * decide_every, *a.shape[2:]), logs)
+        return state, pstates, key, logs, poses, frames
+
+    return blocked(one)
+
+
+def attach_frames(env: Env, knowledge, obj, label, conf):
+    """Fold detections (F, D) into ``knowledge`` frame by frame, in frame order."""
+
+    def body(k, d):
+        return env.sk.attach(k, *d), None
+
+    return jax.lax.scan(body, knowledge, (obj, label, conf))[0]
+
+
+def label_fn(group: Group):
+    """(stacked, block policy, world (B,), labels, obj, label, conf (B, F, D)) -> labels
+    after the frames and the log's label fields after each frame (B, F, N) each."""
+
+    def one(stacked, q, w, k, obj, label, conf):
+        env, _ = _in_world(group, stacked, w)
+
+        def body(k, d):
+            k = env.sk.attach(k, *d)
+            return k, env.sk.label_fields(k)
+
+        return jax.lax.scan(body, k, (obj, label, conf))
+
+    return blocked(one)
+
+
+class Compiled(NamedTuple):
+    reset: Any
+    chunk: Any
+    label: Any
+    log: Any
+    knowledge: Any
+
+
+class Simulation(NamedTuple):
+    """A group's results, real envs only, in row order. logs: ObjectLog (B, T + 1, N);
+    poses (B, T + 1, 3); knowledge: the final labelled knowledge (batched); timing."""
+
+    logs: ObjectLog
+    poses: np.ndarray
+    knowledge: Any
+    timing: dict
+
+
+def simulate(group: Group, total: int, per_call: int, decide_every: int, detectors: dict | None, bar,
+             clock: "CompileClock") -> Simulation:
+    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call."""
+    b = group.size
+    capture = detectors is not None
+    keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
+    k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
+    data, qs, ws = group.data, jnp.asarray(group.block_policy), jnp.asarray(group.world)
+    frames = per_call if capture else 0
+    empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1)))
+    xla_before = dict(CompileClock._counts)
+    with clock:
+        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture),
+                       label_fn(group) if capture else None,
+                       blocked(lambda s, q, w, st: _in_world(group, s, w)[0].log(st)),
+                       blocked(lambda s, q, w, st: _in_world(group, s, w)[0].labelled_knowledge(st)))
+        state = fns.reset(data, qs, ws, k_env)
+        pstates = _init_policies(group, k_pol)
+        chunk = fns.chunk.lower(data, qs, ws, state, pstates, k_run, empty).compile()
+        first_log = fns.log(data, qs, ws, state)
+        labels = state.knowledge._replace(seen=jnp.zeros((b, 1), bool))  # the metrics' labels (no lag)
+        attach = fns.label.lower(data, qs, ws, labels, *empty).compile() if capture else None
+    pose0 = np.asarray(state.pose)
+    for run in group.runs:
+        run.host_policy.check_start(pose0[run.rows])
+    timing = {"envs": int(group.real.sum()), "padded_envs": b, "env_steps": 0, "frames": 0, "detector_s": 0.0,
+              "wait_s": 0.0}
+    holder = {"labels": labels}
+    pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
+    lock = threading.Lock()
+
+    def finish(c, logs, poses, shots):
+        """Worker: fetch chunk c, detect its frames, rebuild the log's label fields."""
+        logs, poses = jax.tree.map(np.asarray, logs), np.asarray(poses)
+        dets = None
+        if capture:
+            t0 = time.perf_counter()
+            dets = _detect(group, detectors, shots, c * per_call)
+            holder["labels"], per_frame = attach(data, qs, ws, holder["labels"], *(jnp.asarray(d) for d in dets))
+            logs = _relabel(logs, per_frame, decide_every)
+            with lock:
+                timing["detector_s"] += time.perf_counter() - t0
+                timing["frames"] += int(group.real.sum()) * per_call
+        bar.update(per_call * decide_every * group.env.dt)
+        return logs, poses, dets
+
+    t0 = time.perf_counter()
+    jobs = []
+    for c in range(total // per_call):
+        pending = empty
+        if capture and c >= 2:  # the detections of period c - 2 reach the robot now
+            t1 = time.perf_counter()
+            pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2])
+            timing["wait_s"] += time.perf_counter() - t1
+        state, pstates, k_run, logs, poses, shots = chunk(data, qs, ws, state, pstates, k_run, pending)
+        jobs.append(pool.submit(finish, c, logs, poses, shots))
+    done = [j.result() for j in jobs]
+    pool.shutdown()
+    timing["sim_s"] = time.perf_counter() - t0
+    timing["env_steps"] = int(group.real.sum()) * total * decide_every
+    first = jax.tree.map(lambda a: np.asarray(a)[:, None], first_log)
+    logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d[0] for d in done])
+    poses = np.concatenate([pose0[:, None]] + [d[1] for d in done], axis=1)
+    knowledge = fns.knowledge(data, qs, ws, state)
+    timing["compiles"] = 1  # the chunk function: one per group
+    timing["xla_compiles"] = CompileClock._counts["compiles"] - xla_before["compiles"]
+    timing["cache_hits"] = CompileClock._counts["cache_hits"] - xla_before["cache_hits"]
+    if capture:
+        lab = holder["labels"]
+        knowledge = knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
+                                       conf_any=lab.conf_any)
+    keep = group.real
+    return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
+                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing)
+
+
+def _init_policies(group: Group, keys: jax.Array) -> tuple:
+    """The union of policy states (one slot per policy; B rows each): every row holds the
+    template's initial state, overwritten by its own run's policy in that policy's slot."""
+    out = []
+    for q, template in enumerate(group.policies):
+        full = jax.tree.map(np.array, template.init_batch(keys))
+        for run in group.runs:
+            if run.policy == q:
+                part = run.host_policy.init_batch(keys[run.rows])
+                jax.tree.map(lambda f, p: f.__setitem__(run.rows, np.asarray(p)), full, part)
+        out.append(jax.tree.map(jnp.asarray, full))
+    return tuple(out)
+
+
+def _no_detections(b: int, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """obj, label (B, F, D) int32 -1 and conf (B, F, D) zeros: nothing to fold in."""
+    return (np.full((b, frames, MAX_DET), -1, np.int32), np.full((b, frames, MAX_DET), -1, np.int32),
+            np.zeros((b, frames, MAX_DET), np.float32))
+
+
+def _detect(group: Group, detectors: dict, shots, first_frame: int):
+    """Run each world's detector on its real envs' frames. Returns obj, label, conf
+    (B, F, D); padding envs get none."""
+    from rosmeery_jax.detector.detections import pad
+
+    rgb, seg = (np.asarray(a) for a in shots)  # (B, F, H, W, 3), (B, F, H, W)
+    b, f = rgb.shape[:2]
+    obj, label, conf = _no_detections(b, f)
+    for w, detector in detectors.items():
+        rows = np.flatnonzero(group.real & (group.world == w))
+        if not len(rows):
+            continue
+        ids = np.stack(np.meshgrid(group.seed[rows], first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
+        found = detector(rgb[rows].reshape(-1, *rgb.shape[2:]), seg[rows].reshape(-1, *seg.shape[2:]).astype(np.int32),
+                         ids)
+        for i, r in enumerate(rows):
+            obj[r], label[r], conf[r] = pad(found[i * f:(i + 1) * f], f, MAX_DET)
+    return obj, label, conf
+
+
+def _relabel(logs: ObjectLog, per_frame, decide_every: int) -> ObjectLog:
+    """Rewrite the chunk's label fields (B, n, N) from the step after each frame on: a frame
+    taken at the end of decision f counts from decision f + 1 (before the chunk's first
+    frame, the labels the previous chunk ended with)."""
+    frame_of_step = np.arange(logs.ps.shape[1]) // decide_every - 1
+    take = frame_of_step >= 0
+    updates = {}
+    for name, values in zip(LABEL_FIELDS, per_frame):
+        new = getattr(logs, name).copy()
+        new[:, take] = np.asarray(values)[:, frame_of_step[take]].astype(new.dtype)
+        updates[name] = new
+    return logs._replace(**updates)
+
+
+class CompileClock:
+    """Seconds spent tracing and compiling inside ``with clock:`` (with the first calls of
+    the small helpers), and every XLA compile counted by JAX's monitoring events (hits of
+    the persistent compilation cache too)."""
+
+    _counts = {"compiles": 0, "cache_hits": 0}
+    _listening = False
+
+    def __init__(self):
+        self.seconds = 0.0
+        if not CompileClock._listening:
+            jax.monitoring.register_event_duration_secs_listener(CompileClock._on_duration)
+            jax.monitoring.register_event_listener(CompileClock._on_event)
+            CompileClock._listening = True
+
+    @staticmethod
+    def _on_duration(event: str, seconds: float, **kw) -> None:
+        if event == "/jax/core/compile/backend_compile_duration":
+            CompileClock._counts["compiles"] += 1
+
+    @staticmethod
+    def _on_event(event: str, **kw) -> None:
+        if event == "/jax/compilation_cache/cache_hits":
+            CompileClock._counts["cache_hits"] += 1
+
+    def __enter__(self):
+        self._t = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds += time.perf_counter() - self._t
+        return False
