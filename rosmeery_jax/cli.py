@@ -131,13 +131,14 @@ def _print_summary(out: Path) -> None:
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
         print(f"{w:<14}{p:<18}{m:<12}{sum(final) / len(final):>8.3f} ±{pd.Series(final).std(ddof=0):.3f}"
               f"{auc:>8.3f}{t90:>8.1f}")
-    timings = [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.timing.json"))]
-    det = sum(t["detector_s"] for t in timings)
-    if det > 0:
-        total = det + sum(t["env_s"] for t in timings)
-        frames = sum(t["frames"] for t in timings)
-        print(f"detector: {frames} frames in {det:.1f} s ({frames / det:,.0f} frames/s), "
-              f"{100 * det / total:.0f}% of simulation + detection time")
+    if (out / "timing.json").exists():
+        t = json.loads((out / "timing.json").read_text())
+        print(f"engine: {t['env_steps']:,} env-steps in {t['wall_s']:.1f} s ({t['env_steps_per_s']:,.0f} env-steps/s "
+              f"end to end), of which compile {t['compile_s']:.1f} s ({t['compiles']} compiled chunk function"
+              f"{'s' if t['compiles'] != 1 else ''})")
+        if t["frames"]:
+            print(f"detector: {t['frames']:,} frames in {t['detector_s']:.1f} s ({t['frames'] / t['detector_s']:,.0f} "
+                  f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
 
@@ -270,6 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--memory-batch", type=int, default=1024, metavar="B",
                    help="also measure peak memory at this batch in a child process (0: skip)")
     p.add_argument("--json", action="store_true", help="print one JSON object (progress goes to stderr)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("replay", help="score a recorded trajectory (CSV of t, x, y, yaw) without physics")
@@ -277,6 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--poses", required=True, metavar="FILE.csv")
     p.add_argument("--out", default="out/replay", metavar="DIR")
     p.add_argument("--metrics", metavar="NAME,...", help="active metrics (default: all built-in)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_replay)
 
     p = sub.add_parser("run", help="run a benchmark session (worlds x policies x seeds) and write results")
@@ -293,6 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
@@ -332,6 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--view", default="blind", choices=("blind", "full"),
                    help="blind (default): only the map and the camera, as the paper's human saw; "
                         "full: also live scores and held labels (not a paper baseline)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_teleop)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
@@ -340,9 +345,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def compilation_cache(enabled: bool) -> str | None:
+    """Turn JAX's persistent compilation cache on (a rerun loads its compiled functions in
+    seconds instead of compiling them again) in ``$JAX_COMPILATION_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/rosmeery-jax/jax`` (``~/.cache/...``); or off. Returns the folder."""
+    import os
+
+    import jax
+
+    if not enabled:
+        jax.config.update("jax_enable_compilation_cache", False)
+        return None
+    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rosmeery-jax" / "jax")
+    jax.config.update("jax_compilation_cache_dir", folder)
+    return folder
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        if hasattr(args, "no_cache"):
+            compilation_cache(not args.no_cache)
         return args.func(args)
     except InputError as err:
         print(f"rosmeery: error: {err}", file=sys.stderr)

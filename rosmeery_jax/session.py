@@ -13,6 +13,7 @@ seeds) is then written atomically (:func:`write_run`):
     OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged once at the end
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
     OUT/config.json                           resolved configuration, input hashes, versions
+    OUT/timing.json                           compile (``compiles``), simulation, detector and wall times
 
 Everything is validated before anything is written. ``--resume`` skips finished runs and
 refuses a changed configuration or changed input files; without it an existing results
@@ -346,6 +347,8 @@ class Session:
         results.write_atomic(out / "config.json", json.dumps({**record, "versions": _versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
                 if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
+        t_start = time.perf_counter()
+        timings = []
         if todo:
             total = _decisions(cfg, 0.1)
             groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
@@ -357,11 +360,24 @@ class Session:
                 sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
                                       _detectors(cfg, group), bar, clock)
                 timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0}
+                timings.append(timing)
                 for run in group.runs:
                     write_run(cfg, group, run, out, sim, timing)
             bar.close()
         merge(out)
+        if timings:
+            results.write_atomic(out / "timing.json", json.dumps(_session_timing(timings, t_start), indent=2))
         return out
+
+
+def _session_timing(groups: list[dict], t_start: float) -> dict:
+    """This invocation's figures: every group summed, wall time from start to the merged
+    files (set-up, compile, simulation, detection, writing)."""
+    total = {k: sum(g[k] for g in groups) for k in ("env_steps", "frames", "detector_s", "wait_s", "compile_s",
+                                                   "compiles", "xla_compiles", "cache_hits", "sim_s")}
+    wall = time.perf_counter() - t_start
+    return {**total, "wall_s": wall, "env_steps_per_s": total["env_steps"] / wall,
+            "sim_env_steps_per_s": total["env_steps"] / max(total["sim_s"], 1e-9), "groups": groups}
 
 
 def run_name(world: str, policy: str) -> str:
