@@ -64,7 +64,8 @@ class Group:
 
     env: the template env (the group's first world at the padded sizes); envs: one per world
     (host side: world, truth); data: the stacked worlds (W, ...); policies: one template per
-    policy entry; world / seed / real (B,) per env; block_policy (B // BLOCK,) per block."""
+    policy entry; world / seed / real (B,) per env; blocks (B // BLOCK, 2) the policy and
+    world of each block (every run is padded to whole blocks)."""
 
     config: EnvConfig
     env: Env
@@ -74,7 +75,7 @@ class Group:
     world: np.ndarray
     seed: np.ndarray
     real: np.ndarray
-    block_policy: np.ndarray
+    blocks: np.ndarray
     runs: list[Run]
 
     @property
@@ -104,39 +105,35 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
         envs = [Env(w, config, sizes) for w in worlds]
         policy_specs = list(dict.fromkeys(p for _, p in members))
         policies = [make_policy(p, envs[0], decide_every, total_steps) for p in policy_specs]
-        world_ix, seed_ix, real, block_policy, runs = [], [], [], [], []
+        world_ix, seed_ix, real, blocks, runs = [], [], [], [], []
         for q, spec in enumerate(policy_specs):
-            start = len(world_ix)
             for world, p in members:
                 if p != spec:
                     continue
                 w = specs.index(world)
                 host = make_policy(spec, envs[w], decide_every, total_steps)
                 b = host.batch_size(seeds)
-                if b:
-                    rows = np.arange(len(world_ix), len(world_ix) + b)
-                    runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows, host))
-                    world_ix += [w] * b
-                    seed_ix += list(range(b))
-                    real += [True] * b
-            pad = (-(len(world_ix) - start)) % BLOCK
-            if len(world_ix) == start:
-                continue  # no entries for this policy (a replay with no recording here)
-            world_ix += [world_ix[-1]] * pad
-            seed_ix += list(range(seed_ix[-1] + 1, seed_ix[-1] + 1 + pad))
-            real += [False] * pad
-            block_policy += [q] * ((len(world_ix) - start) // BLOCK)
+                if not b:
+                    continue  # a replay with no recording in this world
+                rows = np.arange(len(world_ix), len(world_ix) + b)
+                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows, host))
+                padded = -(-b // BLOCK) * BLOCK
+                world_ix += [w] * padded
+                seed_ix += list(range(padded))
+                real += [True] * b + [False] * (padded - b)
+                blocks += [(q, w)] * (padded // BLOCK)
         if runs:
             groups.append(Group(config, envs[0], envs, wd.stack([e.data for e in envs]), policies,
                                 np.asarray(world_ix, np.int32), np.asarray(seed_ix, np.int32), np.asarray(real),
-                                np.asarray(block_policy, np.int32), runs))
+                                np.asarray(blocks, np.int32), runs))
     return groups
 
 
 def blocked(fn):
-    """jit of ``fn(shared, block_arg, *env_args)`` over B = k * BLOCK envs: ``shared`` goes
-    to every env, ``block_arg`` (k,) one value per block, ``env_args`` (B, ...) one row per
-    env. vmap over a block, ``lax.map`` over blocks (module docstring)."""
+    """jit of ``fn(shared, block, *env_args)`` over B = k * BLOCK envs: ``shared`` goes to
+    every env, ``block`` (k, ...) one row per block (the same for its envs, so not batched
+    inside it), ``env_args`` (B, ...) one row per env. vmap over a block, ``lax.map`` over
+    blocks (module docstring)."""
 
     def run(shared, block_arg, *env_args):
         blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), env_args)
@@ -147,17 +144,18 @@ def blocked(fn):
     return jax.jit(run)
 
 
-def _in_world(group: Group, stacked: wd.WorldData, w: jax.Array) -> tuple[Env, list]:
-    """The template env and policies, bound to world ``w`` of ``stacked`` (inside a trace)."""
-    env = group.env.with_data(wd.pick(stacked, w))
+def _in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[Env, list]:
+    """The template env and policies, bound to the world of ``block`` (policy, world) (inside
+    a trace; the block's envs share it, so it is not batched under their vmap)."""
+    env = group.env.with_data(wd.pick(stacked, block[1]))
     return env, [p.bind(env) for p in group.policies]
 
 
 def reset_fn(group: Group):
-    """(stacked, block policy, world (B,), key (B,)) -> State (B, ...)."""
+    """(stacked, blocks, key (B,)) -> State (B, ...)."""
 
-    def one(stacked, q, w, key):
-        env, _ = _in_world(group, stacked, w)
+    def one(stacked, block, key):
+        env, _ = _in_world(group, stacked, block)
         return env.reset(key)
 
     return blocked(one)
@@ -171,8 +169,9 @@ def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool):
     uint8 and labels (F, Hr, Wr) int16 (F = decisions); else None."""
     per_step = group.policies[0].per_step
 
-    def one(stacked, q, w, state, pstates, key, pending):
-        env, policies = _in_world(group, stacked, w)
+    def one(stacked, block, state, pstates, key, pending):
+        env, policies = _in_world(group, stacked, block)
+        q = block[0]
         if capture:
             state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
 
@@ -218,11 +217,11 @@ def attach_frames(env: Env, knowledge, obj, label, conf):
 
 
 def label_fn(group: Group):
-    """(stacked, block policy, world (B,), labels, obj, label, conf (B, F, D)) -> labels
-    after the frames and the log's label fields after each frame (B, F, N) each."""
+    """(stacked, blocks, labels, obj, label, conf (B, F, D)) -> labels after the frames and
+    the log's label fields after each frame (B, F, N) each."""
 
-    def one(stacked, q, w, k, obj, label, conf):
-        env, _ = _in_world(group, stacked, w)
+    def one(stacked, block, k, obj, label, conf):
+        env, _ = _in_world(group, stacked, block)
 
         def body(k, d):
             k = env.sk.attach(k, *d)
@@ -258,21 +257,21 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     capture = detectors is not None
     keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
     k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
-    data, qs, ws = group.data, jnp.asarray(group.block_policy), jnp.asarray(group.world)
+    data, blocks = group.data, jnp.asarray(group.blocks)
     frames = per_call if capture else 0
     empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1)))
     xla_before = dict(CompileClock._counts)
     with clock:
         fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture),
                        label_fn(group) if capture else None,
-                       blocked(lambda s, q, w, st: _in_world(group, s, w)[0].log(st)),
-                       blocked(lambda s, q, w, st: _in_world(group, s, w)[0].labelled_knowledge(st)))
-        state = fns.reset(data, qs, ws, k_env)
+                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st)),
+                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st)))
+        state = fns.reset(data, blocks, k_env)
         pstates = _init_policies(group, k_pol)
-        chunk = fns.chunk.lower(data, qs, ws, state, pstates, k_run, empty).compile()
-        first_log = fns.log(data, qs, ws, state)
+        chunk = fns.chunk.lower(data, blocks, state, pstates, k_run, empty).compile()
+        first_log = fns.log(data, blocks, state)
         labels = state.knowledge._replace(seen=jnp.zeros((b, 1), bool))  # the metrics' labels (no lag)
-        attach = fns.label.lower(data, qs, ws, labels, *empty).compile() if capture else None
+        attach = fns.label.lower(data, blocks, labels, *empty).compile() if capture else None
     pose0 = np.asarray(state.pose)
     for run in group.runs:
         run.host_policy.check_start(pose0[run.rows])
@@ -289,7 +288,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
         if capture:
             t0 = time.perf_counter()
             dets = _detect(group, detectors, shots, c * per_call)
-            holder["labels"], per_frame = attach(data, qs, ws, holder["labels"], *(jnp.asarray(d) for d in dets))
+            holder["labels"], per_frame = attach(data, blocks, holder["labels"], *(jnp.asarray(d) for d in dets))
             logs = _relabel(logs, per_frame, decide_every)
             with lock:
                 timing["detector_s"] += time.perf_counter() - t0
@@ -305,7 +304,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
             t1 = time.perf_counter()
             pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2])
             timing["wait_s"] += time.perf_counter() - t1
-        state, pstates, k_run, logs, poses, shots = chunk(data, qs, ws, state, pstates, k_run, pending)
+        state, pstates, k_run, logs, poses, shots = chunk(data, blocks, state, pstates, k_run, pending)
         jobs.append(pool.submit(finish, c, logs, poses, shots))
     done = [j.result() for j in jobs]
     pool.shutdown()
@@ -314,7 +313,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     first = jax.tree.map(lambda a: np.asarray(a)[:, None], first_log)
     logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d[0] for d in done])
     poses = np.concatenate([pose0[:, None]] + [d[1] for d in done], axis=1)
-    knowledge = fns.knowledge(data, qs, ws, state)
+    knowledge = fns.knowledge(data, blocks, state)
     timing["compiles"] = 1  # the chunk function: one per group
     timing["xla_compiles"] = CompileClock._counts["compiles"] - xla_before["compiles"]
     timing["cache_hits"] = CompileClock._counts["cache_hits"] - xla_before["cache_hits"]

@@ -12,12 +12,13 @@ MAP_SCALE = 3  # screen pixels per map cell
 def map_png(env, occupancy: np.ndarray, pose: np.ndarray, trail: list | None = None) -> bytes:
     """The robot's own occupancy map (north up) with its pose drawn as a disc and heading."""
     g = env.grid
+    origin = np.asarray(g.origin, float)
     img = _MAP_COLORS[np.clip(occupancy, 0, 2)][::-1]  # row 0 = south: flip so north is up
     img = cv2.resize(img, (img.shape[1] * MAP_SCALE, img.shape[0] * MAP_SCALE), interpolation=cv2.INTER_NEAREST)
     h = img.shape[0]
 
     def px(x, y):
-        return (int((x - g.origin[0]) / g.resolution * MAP_SCALE), int(h - (y - g.origin[1]) / g.resolution * MAP_SCALE))
+        return (int((x - origin[0]) / g.resolution * MAP_SCALE), int(h - (y - origin[1]) / g.resolution * MAP_SCALE))
 
     for a, b in zip(trail or [], (trail or [])[1:]):
         cv2.line(img, px(*a), px(*b), (90, 160, 230), 1, cv2.LINE_AA)

@@ -1,0 +1,113 @@
+"""The session engine: worlds as padded data, one compile per session, results that do not
+depend on the batch, the padding or the chunking."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from rosmeery_jax import engine, results
+from rosmeery_jax.cli import compilation_cache, main
+from rosmeery_jax.env import make
+from rosmeery_jax.knowledge import ObjectLog
+from rosmeery_jax.world_data import NEVER, Sizes, stack
+
+from conftest import room_xml
+
+BODIES = """
+<body name="table_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.72" size="0.5 0.3 0.03"/>
+  <geom type="box" pos="0.45 0.25 0.35" size="0.03 0.03 0.35"/><geom type="box" pos="-0.45 -0.25 0.35" size="0.03 0.03 0.35"/></body>
+<body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
+<body name="fridge_1" pos="-1.5 1.4 0"><geom type="box" pos="0 0 0.8" size="0.3 0.3 0.8"/></body>
+"""
+CATEGORIES = {"table_1": "table", "chair_1": "chair", "fridge_1": "refrigerator"}
+KEY = ["world", "policy", "seed", "metric", "time_s"]
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    path = tmp_path_factory.mktemp("world") / "room.xml"
+    path.write_text(room_xml(BODIES, CATEGORIES, spawn=(0.3, -0.4, 0.0), half=2.2))
+    return str(path)
+
+
+def _run(out, worlds, policies, seeds, *extra) -> pd.DataFrame:
+    assert main(["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", "20",
+                 "--quiet", "--out", str(out), *extra]) == 0
+    return results.load(out)
+
+
+def _rows(df, world, policy, seeds) -> pd.DataFrame:
+    part = df[(df.world == world) & (df.policy == policy) & (df.seed < seeds)]
+    return part.sort_values(KEY).reset_index(drop=True)
+
+
+def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, tmp_path):
+    """A world padded to a larger one, beside other worlds, policies and seeds, with the
+    detector's labels reaching semantic_nbv on the schedule: bitwise the same as alone."""
+    alone = _run(tmp_path / "alone", room, "semantic_nbv", 2, "--detector", "oracle")
+    mixed = _run(tmp_path / "mixed", f"{room},small_office", "random,semantic_nbv", 3, "--detector", "oracle")
+    a, b = _rows(alone, "room", "semantic_nbv", 2), _rows(mixed, "room", "semantic_nbv", 2)
+    assert len(a) and len(a) == len(b)
+    assert (a.value.to_numpy() == b.value.to_numpy()).all()
+    assert a.value[a.metric == "opi"].max() > 0  # labels arrived: the comparison has something to compare
+    ta, tb = (pd.read_csv(d / "runs" / "room__semantic_nbv.trajectory.csv") for d in (tmp_path / "alone",
+                                                                                       tmp_path / "mixed"))
+    tb = tb[tb.seed < 2].reset_index(drop=True)
+    assert np.array_equal(ta[["x", "y", "yaw"]].to_numpy(), tb[["x", "y", "yaw"]].to_numpy())
+    assert np.ptp(ta.x) > 0.3  # the robot moved
+    timing = json.loads((tmp_path / "mixed" / "timing.json").read_text())
+    assert timing["compiles"] == 1 and timing["xla_compiles"] >= 1 and timing["frames"] == 2 * 3 * 2 * 20
+    assert set(mixed.world) == {"room", "small_office"} and set(mixed.policy) == {"random", "semantic_nbv"}
+
+
+def test_results_do_not_depend_on_chunk_s(room, tmp_path):
+    a = _run(tmp_path / "a", room, "frontier", 2, "--detector", "off", "--chunk-s", "20")
+    b = _run(tmp_path / "b", room, "frontier", 2, "--detector", "off", "--chunk-s", "3")
+    pd.testing.assert_frame_equal(a.sort_values(KEY).reset_index(drop=True), b.sort_values(KEY).reset_index(drop=True))
+
+
+def test_padding_is_inert_and_worlds_stack():
+    small = make("small_office")
+    sizes = Sizes.union([small.sizes, Sizes.of(make("kitchen").world, small.config.robot)])
+    padded = make("small_office", sizes=sizes)
+    kitchen = make("kitchen", sizes=sizes)
+    both = stack([padded.data, kitchen.data])  # one structure: static fields agree
+    assert both.rays.center.shape[0] == 2 and padded.grid.shape == kitchen.grid.shape == sizes.grid
+    n, s = small.world.truth.num_objects, small.sizes.samples
+    # Padding objects are never named and padding samples never seen, from any pose.
+    k = padded.sk.init()._replace(seen=jnp.ones(sizes.samples, bool))
+    named = padded.sk.label_observed(k).label
+    assert (np.asarray(named)[:n] >= 0).all() and (np.asarray(named)[n:] == -1).all()
+    assert (np.asarray(padded.data.ps_G)[n:] == NEVER).all()
+    state = jax.jit(padded.reset)(jax.random.key(0))
+    assert not np.asarray(state.knowledge.seen)[s:].any()
+    # The padded grid's extra cells stay unknown (logodds 0) after a scan.
+    h, w = small.grid.shape
+    lo = np.asarray(state.logodds)
+    assert (lo[h:] == 0).all() and (lo[:, w:] == 0).all() and (lo[:h, :w] != 0).any()
+
+
+def test_relabel_counts_a_frame_from_the_step_after_it():
+    steps, n = 6, 2  # two decisions of 3 steps: frames after step 3 and step 6
+    logs = ObjectLog(*(np.zeros((1, steps, n), np.float32) for _ in range(6)))
+    per_frame = tuple(np.array([[[1, 1], [2, 2]]], np.float32) for _ in range(5))  # (B, F, N)
+    out = engine._relabel(logs, per_frame, 3)
+    assert out.label[0, :, 0].tolist() == [0, 0, 0, 1, 1, 1]  # frame 1 of this chunk lands in the next
+    assert out.ps[0].sum() == 0  # coverage untouched
+
+
+def test_compilation_cache_folder(monkeypatch, tmp_path):
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "jc"))
+    assert compilation_cache(True) == str(tmp_path / "jc")
+    assert jax.config.jax_compilation_cache_dir == str(tmp_path / "jc")
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert compilation_cache(True) == str(tmp_path / "xdg" / "rosmeery-jax" / "jax")
+    assert compilation_cache(False) is None and not jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", True)
