@@ -31,7 +31,7 @@ from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
 from rosmeery_jax.robot import Platform, RobotConfig, robot_model
 from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb
 from rosmeery_jax.world import World, WorldConfig, load_world
-from rosmeery_jax.world_data import Sizes, WorldData, truth_table, world_data
+from rosmeery_jax.world_data import Sizes, WorldData, physics_model, truth_table, world_data
 
 
 @dataclass(frozen=True)
@@ -93,6 +93,7 @@ class Env:
         self.world, self.config = world, config
         self.sizes = sizes or Sizes.of(world, config.robot)
         self.truth = truth_table(world)
+        self.model = physics_model(world, config.robot, self.sizes)  # a constant in compiled code
         self.beam_angles = jnp.asarray(laser_dirs(config.laser))
         self.dt = config.robot.control_dt
         self._bind(world_data(world, config.robot, self.sizes))
@@ -100,7 +101,7 @@ class Env:
     def _bind(self, data: WorldData) -> None:
         c, r = self.config, self.config.robot
         self.data = data
-        self.platform = Platform(r, data.physics, data.spawn[:2])
+        self.platform = Platform(r, self.model.replace(**data.physics), data.spawn[:2])
         self.rays, self.grid = data.rays, data.grid
         self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate)
         self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)
