@@ -40,6 +40,7 @@ class BenchConfig:
     repeats: int = 3
     memory_batch: int = 1024
     seed: int = 0
+    session_s: float = 20.0  # simulated seconds of the end-to-end default session (0 = skip)
 
 
 def random_targets(world, n: int, seed: int) -> np.ndarray:
@@ -98,45 +99,59 @@ def env_throughput(env, batch: int, cfg: BenchConfig) -> dict:
             "compile_s": compile_s, "state": state}
 
 
-def stage_breakdown(env, state, cfg: BenchConfig) -> dict[str, float]:
-    """Milliseconds per step of each stage alone at the state's batch size."""
+def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
+    """Milliseconds per step of each stage of the step, run as a chain: each stage jitted
+    alone, fed the previous stage's output and waited for, for ``steps`` steps. The parts
+    add up to a step done in pieces; set against the fused step they show what fusing the
+    stages into one program gains or loses."""
     import jax
     import jax.numpy as jnp
 
     from rosmeery_jax import occupancy
+    from rosmeery_jax.navigation import IDLE
     from rosmeery_jax.raycast.sensors import depth_seg, laser
 
     c = env.config
-    batch = state.pose.shape[0]
-    cmd = jnp.tile(jnp.array([0.5, 0.3], jnp.float32), (batch, 1))
-    ranges, labels = jax.vmap(lambda p: laser(env.rays, c.laser, p))(state.pose)
-    occupied = jax.vmap(env.occupancy)(state) == occupancy.OCCUPIED
+    targets = jnp.asarray(random_targets(env.world, state.pose.shape[0], cfg.seed + 1))
 
-    def per_step(f):
-        """Seconds per call of jitted f, over ``steps`` calls queued back to back."""
-        g = jax.jit(f)
-        def many(*args):
-            for _ in range(cfg.steps):
-                out = g(*args)
-            return out
-        return many
+    def navigate(s, target):
+        nav = env.navigator.set_target(s.nav, target, (s.nav.status == IDLE) | jnp.any(target != s.nav.target))
+        return env.navigator.step(nav, s.pose, env.occupancy(s) == occupancy.OCCUPIED)
+
+    def physics(d, cmd):
+        d = env.platform.step(d, cmd)
+        return d, env.platform.pose(d)
 
     def update_map(lo, p, r, lab):
         return occupancy.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
 
-    stages = {
-        "physics": (jax.vmap(env.platform.step), (state.physics, cmd)),
-        "laser": (jax.vmap(lambda p: laser(env.rays, c.laser, p)), (state.pose,)),
-        "mapping": (jax.vmap(update_map), (state.logodds, state.pose, ranges, labels)),
-        "camera": (jax.vmap(lambda p: depth_seg(env.rays, c.camera, p)), (state.pose,)),
-        "navigation": (jax.vmap(env.navigator.step), (state.nav, state.pose, occupied)),
-        "coverage": (jax.vmap(env.sk.observe), (state.knowledge, state.pose, state.depth)),
-    }
-    out = {}
-    for name, (f, args) in stages.items():
-        _, times, _ = _timed(per_step(f), *args, repeats=cfg.repeats)
-        out[name] = 1e3 * statistics.median(times) / cfg.steps
-    return out
+    fns = {"navigation": jax.jit(jax.vmap(navigate)), "physics": jax.jit(jax.vmap(physics)),
+           "laser": jax.jit(jax.vmap(lambda p: laser(env.rays, c.laser, p))), "mapping": jax.jit(jax.vmap(update_map)),
+           "camera": jax.jit(jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))),
+           "coverage": jax.jit(jax.vmap(env.sk.observe))}
+    times: dict[str, list] = {}
+
+    def timed(name, *args):
+        t = time.perf_counter()
+        out = jax.block_until_ready(fns[name](*args))
+        times.setdefault(name, []).append(time.perf_counter() - t)
+        return out
+
+    def step(s):
+        nav, cmd = timed("navigation", s, targets)
+        d, pose = timed("physics", s.physics, cmd)
+        ranges, labels = timed("laser", pose)
+        logodds = timed("mapping", s.logodds, pose, ranges, labels)
+        depth, seg = timed("camera", pose)
+        knowledge = timed("coverage", s.knowledge, pose, depth)
+        return s._replace(physics=d, pose=pose, nav=nav, ranges=ranges, logodds=logodds, depth=depth, seg=seg,
+                          knowledge=knowledge, t=s.t + 1)
+
+    state = step(state)  # compiles every stage
+    times.clear()
+    for _ in range(cfg.steps):
+        state = step(state)
+    return {k: 1e3 * statistics.median(v) for k, v in times.items()}
 
 
 def cull_error(env, poses) -> float:
@@ -171,9 +186,12 @@ def mujoco_peer(env, batch: int, cfg: BenchConfig, threads: int) -> dict:
     rng = np.random.default_rng(cfg.seed)
     ctrl = np.repeat(rng.uniform(-1, 1, (batch, cfg.steps, m.nu)), rc.substeps, axis=1)
     rollout.rollout(m, datas, init, ctrl, nstep=nstep)  # warm the pool
-    t = time.perf_counter()
-    states, _ = rollout.rollout(m, datas, init, ctrl, nstep=nstep)
-    physics_s = time.perf_counter() - t
+    physics = []
+    for _ in range(cfg.repeats):  # a median of repeats, like our side
+        t = time.perf_counter()
+        states, _ = rollout.rollout(m, datas, init, ctrl, nstep=nstep)
+        physics.append(time.perf_counter() - t)
+    physics_s = statistics.median(physics)
 
     # Sensors from every env's pose after each control step, on the world's own MjModel.
     wm = env.world.mj_model
@@ -199,13 +217,71 @@ def mujoco_peer(env, batch: int, cfg: BenchConfig, threads: int) -> dict:
                                n_las, env.config.laser.max_range)
 
     chunks = np.array_split(poses, threads)
+    rays = []
     with ThreadPoolExecutor(threads) as pool:
-        t = time.perf_counter()
-        list(pool.map(cast_chunk, chunks))
-        rays_s = time.perf_counter() - t
+        for _ in range(cfg.repeats):
+            t = time.perf_counter()
+            list(pool.map(cast_chunk, chunks))
+            rays.append(time.perf_counter() - t)
+    rays_s = statistics.median(rays)
     n = batch * cfg.steps
     return {"env_steps_per_s": n / (physics_s + rays_s), "physics_env_steps_per_s": n / physics_s,
-            "sensor_env_steps_per_s": n / rays_s, "threads": threads}
+            "sensor_env_steps_per_s": n / rays_s, "threads": threads,
+            "work": (ctrl[:, ::rc.substeps], poses.reshape(batch, cfg.steps, 3))}
+
+
+def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.ndarray) -> float:
+    """Our env-steps/s on the peer's work: physics under controls of the same magnitudes as
+    the peer's, then the same laser and camera rays from the peer's poses (no mapping,
+    navigation or coverage)."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax.raycast.sensors import depth_seg, laser
+
+    c = env.config
+
+    @jax.jit
+    def run(d, ctrl, poses):
+        def body(d, xs):
+            u, p = xs  # u (B, 3) world-frame velocity (x, y, yaw); p (B, 3) the peer's pose
+            d = jax.vmap(lambda d, u: env.platform.step(d, jnp.stack([jnp.hypot(u[0], u[1]), u[2]])))(d, u)
+            ranges = jax.vmap(lambda p: laser(env.rays, c.laser, p))(p)
+            depth = jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))(p)
+            return d, (ranges, depth)
+
+        return jax.lax.scan(body, d, (jnp.swapaxes(ctrl, 0, 1), jnp.swapaxes(poses, 0, 1)))[0]
+
+    keys = jax.random.split(jax.random.key(cfg.seed), batch)
+    state = jax.jit(jax.vmap(env.reset))(keys)
+    args = (state.physics, jnp.asarray(ctrl, jnp.float32), jnp.asarray(poses, jnp.float32))
+    _, times, _ = _timed(run, *args, repeats=cfg.repeats)
+    return batch * cfg.steps / statistics.median(times)
+
+
+def session_rate(world_names=None, duration: float = 20.0, detector: str = "yolo") -> dict:
+    """End to end: a short default session (the four worlds x frontier, random x 5 seeds)
+    including set-up and compile (the persistent cache counts as it would for a user)."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from rosmeery_jax.session import Session, SessionConfig
+
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        detector = "oracle"
+    with tempfile.TemporaryDirectory() as tmp:
+        kw = {"worlds": tuple(world_names)} if world_names else {}
+        cfg = SessionConfig(duration=duration, detector=detector, out=str(Path(tmp) / "s"), **kw).validate("bench")
+        Session(cfg, progress=False).run()
+        t = json.loads((Path(tmp) / "s" / "timing.json").read_text())
+    return {k: t[k] for k in ("env_steps", "wall_s", "env_steps_per_s", "sim_env_steps_per_s", "compile_s",
+                              "compiles", "cache_hits", "detector_s", "wait_s")} | {"duration_s": duration,
+                                                                                      "detector": detector}
+
+
 
 
 def memory_probe(world: str, batch: int, steps: int) -> float:
@@ -277,11 +353,16 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
         r = env_throughput(env, cfg.reference_batch, cfg)
         ref_state, ref_rate = r["state"], r["env_steps_per_s"]
     progress(f"stages at batch {cfg.reference_batch} ...")
-    result["stages_ms"] = {k: round(v, 3) for k, v in stage_breakdown(env, ref_state, cfg).items()}
+    result["stages_ms"] = {k: round(v, 3) for k, v in stage_chain(env, ref_state, cfg).items()}
+    result["fused_step_ms"] = round(1e3 * cfg.reference_batch / ref_rate, 3)
     result["camera_cull_pixel_error"] = cull_error(env, ref_state.pose)
     progress("C MuJoCo peer ...")
     peer = mujoco_peer(env, cfg.reference_batch, cfg, threads)
+    ctrl, poses = peer.pop("work")
     result["mujoco_c"] = {k: (round(v, 1) if isinstance(v, float) else v) for k, v in peer.items()}
+    progress(f"equal work (our physics + laser + camera on the peer's poses) at batch {cfg.reference_batch} ...")
+    result["equal_work_env_steps_per_s"] = round(equal_work(env, cfg.reference_batch, cfg, ctrl, poses), 1)
+    result["equal_work_ratio"] = round(result["equal_work_env_steps_per_s"] / peer["env_steps_per_s"], 2)
     # The peer's work (physics + the same rays) plus our mapping and navigation, without coverage.
     platform_env = make(cfg.world, knowledge__coverage__enabled=False)
     progress(f"platform step without coverage at batch {cfg.reference_batch} ...")
@@ -293,6 +374,11 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
     progress(f"detector at batch {cfg.reference_batch} ...")
     result["detector"] = detector_bench(env, ref_state, env_rate=ref_rate)
     result["peak_memory_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 2)
+    if cfg.session_s:
+        progress(f"a default session of {cfg.session_s:g} s end to end ...")
+        sess = session_rate(duration=cfg.session_s)
+        sess["share_of_full_step"] = round(sess["env_steps_per_s"] / ref_rate, 2)
+        result["session"] = sess
     if cfg.memory_batch:
         progress(f"memory at batch {cfg.memory_batch} ...")
         result["memory_batch"] = cfg.memory_batch
@@ -306,10 +392,11 @@ def format_table(r: dict) -> str:
     for b, v in r["env_steps_per_s"].items():
         lines.append(f"{b:>6}{v:>14,.0f}{r['compile_s'][b]:>11.1f}")
     ref = r["reference_batch"]
-    lines += ["", f"stages at batch {ref} (each alone, ms per step):"]
+    lines += ["", f"stages at batch {ref} as a chain (each jitted alone, fed the last one's output; ms per step):"]
     total = sum(r["stages_ms"].values())
     for k, v in r["stages_ms"].items():
         lines.append(f"  {k:<11}{v:>8.2f} ms  {100 * v / total:>4.0f}%")
+    lines.append(f"  {'sum':<11}{total:>8.2f} ms; the fused step: {r['fused_step_ms']:.2f} ms")
     lines.append(f"  camera cull changes {100 * r['camera_cull_pixel_error']:.3f}% of pixels")
     p = r["mujoco_c"]
     lines += ["", f"C MuJoCo peer at batch {ref} ({p['threads']} threads): {p['env_steps_per_s']:,.0f} env-steps/s "
@@ -318,6 +405,8 @@ def format_table(r: dict) -> str:
               f"{r['platform_env_steps_per_s']:,.0f} env-steps/s",
               f"speedup vs MuJoCo C: {r['speedup_vs_mujoco_c']:.2f}x (full step with coverage: "
               f"{r['speedup_full_step_vs_mujoco_c']:.2f}x)",
+              f"equal work (our physics + laser + camera on the peer's poses): "
+              f"{r['equal_work_env_steps_per_s']:,.0f} env-steps/s, {r['equal_work_ratio']:.2f}x the peer",
               f"peak memory (this process): {r['peak_memory_gb']:.2f} GB"]
     d = r.get("detector", {})
     if "skipped" in d:
@@ -327,6 +416,12 @@ def format_table(r: dict) -> str:
                      f"(batch {d['batch']}); rendering its frames {d['render_ms_per_frame']:.2f} ms each; "
                      f"share of a session's wall time (1 frame per env per second): "
                      f"{100 * d.get('session_share', 0):.0f}%")
+    if "session" in r:
+        t = r["session"]
+        lines.append(f"default session, {t['duration_s']:g} s simulated, end to end with set-up and compile "
+                     f"({t['compiles']} compile, {t['cache_hits']} cache hits): {t['env_steps_per_s']:,.0f} "
+                     f"env-steps/s ({100 * t['share_of_full_step']:.0f}% of the full step); simulation alone "
+                     f"{t['sim_env_steps_per_s']:,.0f}; compile {t['compile_s']:.1f} s of {t['wall_s']:.1f} s")
     if "memory_batch" in r:
         lines.append(f"peak memory at batch {r['memory_batch']}: {r['memory_batch_peak_gb']:.2f} GB")
     return "\n".join(lines)

@@ -63,7 +63,7 @@ def _cmd_bench(args) -> int:
 
     load_world(args.world)  # a bad name fails here, in one line, before any compile
     cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,
-                      memory_batch=args.memory_batch)
+                      memory_batch=args.memory_batch, session_s=args.session_s)
     quiet = (lambda msg: print(msg, file=sys.stderr)) if args.json else print
     result = run_bench(cfg, progress=quiet)
     print(json.dumps(result, indent=2) if args.json else format_table(result))
@@ -109,7 +109,8 @@ def _cmd_run(args) -> int:
 
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
-                      conf_threshold=args.conf_threshold, weights=args.weights)
+                      conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
+                      detector_period_s=args.detector_period_s)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
     out = Session(cfg, progress=not args.quiet).run(resume=args.resume)
@@ -270,6 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=20, help="env-steps per timed chunk")
     p.add_argument("--memory-batch", type=int, default=1024, metavar="B",
                    help="also measure peak memory at this batch in a child process (0: skip)")
+    p.add_argument("--session-s", type=float, default=20.0, metavar="S",
+                   help="also time a default session of S simulated seconds end to end (0: skip)")
     p.add_argument("--json", action="store_true", help="print one JSON object (progress goes to stderr)")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_bench)

@@ -294,6 +294,8 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
                 timing["detector_s"] += time.perf_counter() - t0
                 timing["frames"] += int(group.real.sum()) * per_call
         bar.update(per_call * decide_every * group.env.dt)
+        done_steps = int(group.real.sum()) * (c + 1) * per_call * decide_every
+        bar.set_postfix_str(f"{done_steps / (time.perf_counter() - t0):,.0f} env-steps/s")
         return logs, poses, dets
 
     t0 = time.perf_counter()

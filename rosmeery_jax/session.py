@@ -353,7 +353,7 @@ class Session:
             total = _decisions(cfg, 0.1)
             groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
                                          total * cfg.decide_every)
-            bar = _bar(sum(g.size for g in groups) * cfg.duration, self.progress)
+            bar = _bar(len(groups) * cfg.duration, self.progress)
             for group in groups:
                 clock = engine.CompileClock()
                 t0 = time.perf_counter()
