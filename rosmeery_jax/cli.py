@@ -298,6 +298,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--metrics", metavar="M,N", help="active metrics (default: all built-in)")
     p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
+    p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
+                   "detector (progress granularity only; default 30)")
+    p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "
+                   "the robot at the start of the period after next (default 10)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_run)

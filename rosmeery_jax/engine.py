@@ -295,10 +295,10 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
                 timing["frames"] += int(group.real.sum()) * per_call
         bar.update(per_call * decide_every * group.env.dt)
         done_steps = int(group.real.sum()) * (c + 1) * per_call * decide_every
-        bar.set_postfix_str(f"{done_steps / (time.perf_counter() - t0):,.0f} env-steps/s")
+        bar.set_postfix_str(f"{done_steps / (time.perf_counter() - started):,.0f} env-steps/s")
         return logs, poses, dets
 
-    t0 = time.perf_counter()
+    started = time.perf_counter()
     jobs = []
     for c in range(total // per_call):
         pending = empty
@@ -310,7 +310,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
         jobs.append(pool.submit(finish, c, logs, poses, shots))
     done = [j.result() for j in jobs]
     pool.shutdown()
-    timing["sim_s"] = time.perf_counter() - t0
+    timing["sim_s"] = time.perf_counter() - started
     timing["env_steps"] = int(group.real.sum()) * total * decide_every
     first = jax.tree.map(lambda a: np.asarray(a)[:, None], first_log)
     logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d[0] for d in done])

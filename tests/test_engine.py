@@ -25,7 +25,7 @@ BODIES = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
 <body name="fridge_1" pos="-1.5 1.4 0"><geom type="box" pos="0 0 0.8" size="0.3 0.3 0.8"/></body>
 """
-CATEGORIES = {"table_1": "table", "chair_1": "chair", "fridge_1": "refrigerator"}
+CATEGORIES = {"table_1": "desk", "chair_1": "chair", "fridge_1": "refrigerator"}
 KEY = ["world", "policy", "seed", "metric", "time_s"]
 
 
