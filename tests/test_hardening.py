@@ -9,7 +9,6 @@ import pickle
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -17,7 +16,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import room_xml
 from rosmeery_jax.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.errors import InputError
@@ -197,14 +195,21 @@ def test_kill_9_then_resume_gives_the_files_of_an_uninterrupted_run(tmp_path):
             "--detector", "off", "--metrics", "ori", "--quiet"]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert main(["run", *args, "--out", str(whole)]) == 0
-    proc = subprocess.Popen([sys.executable, "-m", "rosmeery_jax", "run", *args, "--out", str(cut)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    first = cut / "runs" / "small_office__random.metrics.csv"
-    deadline = time.time() + 300
-    while not first.exists() and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGKILL)  # mid-session: the first run finished, the second not
-    proc.wait()
+    # A session writes its runs one after another once the batch is simulated: this one is
+    # killed (SIGKILL, no clean-up) right after its first run's files are written.
+    killer = ("import os, signal, sys\n"
+              "from rosmeery_jax import session\n"
+              "write = session.write_run\n"
+              "def write_then_die(*a, **k):\n"
+              "    write(*a, **k)\n"
+              "    os.kill(os.getpid(), signal.SIGKILL)\n"
+              "session.write_run = write_then_die\n"
+              "from rosmeery_jax.cli import main\n"
+              "sys.exit(main(sys.argv[1:]))\n")
+    proc = subprocess.run([sys.executable, "-c", killer, "run", *args, "--out", str(cut)],
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    assert proc.returncode == -signal.SIGKILL
+    assert (cut / "runs" / "small_office__random.metrics.csv").exists()
     assert not (cut / "runs" / "small_office__frontier.metrics.csv").exists()
     assert main(["run", *args, "--out", str(cut), "--resume"]) == 0
     files = sorted(p.relative_to(whole) for p in whole.rglob("*") if p.is_file() and "timing" not in p.name

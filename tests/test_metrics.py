@@ -85,8 +85,6 @@ def test_turning_round_covers_the_box_behind(three_box_world):
 
 def test_soft_coverage_is_a_smooth_version_of_the_hard_test(three_box_world):
     hard = _one_pose(_env(str(three_box_world)))
-    from rosmeery_jax.coverage import CoverageConfig
-    from rosmeery_jax.knowledge import KnowledgeConfig
 
     env = _env(str(three_box_world), knowledge__coverage__soft=True, knowledge__coverage__temperature=0.01)
     soft = _one_pose(env)

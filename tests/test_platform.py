@@ -13,7 +13,7 @@ from scipy import ndimage
 
 from rosmeery_jax import occupancy
 from rosmeery_jax.env import make
-from rosmeery_jax.navigation import MOVING, REACHED, STATUS_NAMES, UNREACHABLE
+from rosmeery_jax.navigation import STATUS_NAMES
 from rosmeery_jax.robot import penetration
 from rosmeery_jax.raycast.kernel import cast, ray_scene
 from rosmeery_jax.world import PAPER_WORLDS, WALL, load_world

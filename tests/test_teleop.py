@@ -6,13 +6,11 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 import shutil
 import socket
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd

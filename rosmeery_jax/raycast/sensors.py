@@ -15,7 +15,7 @@ import numpy as np
 
 from rosmeery_jax import grid
 
-from rosmeery_jax.raycast.kernel import INDEX_BITS, RayScene, cast, cast_columns, index_bits
+from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns, index_bits
 from rosmeery_jax.world.scene import NOTHING
 
 
@@ -125,7 +125,7 @@ def _camera_cast(rs: RayScene, cfg: CameraConfig, pose: jax.Array, width: int, h
     d = _yaw_rotate(jnp.asarray(camera_rays(cfg, width, height)), pose[2])
     rs = frustum_boxes(rs, cfg, o, pose[2], width, height)
     # The key's index bits follow the cull size (fixed), not the culled scene's padded size.
-    bits = index_bits(-(-cfg.cull // 16) * 16) if cfg.cull > 0 else INDEX_BITS
+    bits = index_bits(-(-cfg.cull // 16) * 16) if cfg.cull > 0 else None
     if cfg.pitch == 0.0:  # a level camera: its columns are vertical fans (cast_columns)
         hit = cast_columns(rs, o, d.reshape(height, width, 3), cfg.max_range, bits)
     else:
