@@ -65,7 +65,7 @@ def test_the_reset_key_sets_the_start_heading_bitwise():
     yaw = np.asarray(a.pose[:, 2])
     assert len(set(yaw.tolist())) == 4  # different keys: different starts
     spawn = make("small_office", start_yaw="spawn")
-    assert np.all(np.asarray(jax.vmap(spawn.reset)(keys).pose[:, 2]) == np.float32(spawn.world.spawn[2]))
+    assert np.all(np.asarray(jax.jit(jax.vmap(spawn.reset))(keys).pose[:, 2]) == np.float32(spawn.world.spawn[2]))
 
 
 # --- session configs: everything checked before anything is written ---

@@ -91,10 +91,10 @@ def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, toml, fi
 
 def test_frontier_policy_explores_and_random_targets_are_reachable():
     env = make("small_office")
+    keys = jax.random.split(jax.random.key(0), 2)
+    state = jax.jit(jax.vmap(env.reset))(keys)
     for name in ("frontier", "frontier_nearest", "random", "semantic_nbv"):
         policy = make_policy(name, env)
-        keys = jax.random.split(jax.random.key(0), 2)
-        state = jax.vmap(env.reset)(keys)
         target, _ = jax.jit(jax.vmap(policy.decide))(state, jax.vmap(policy.init)(keys), keys)
         for t in np.asarray(target):
             i, j = env.world.free_space.cell(t[:2])
