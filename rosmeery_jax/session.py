@@ -183,7 +183,7 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     from rosmeery_jax.engine import BLOCK
 
     steps = cfg.duration / 0.1  # floats: a huge duration must give a huge estimate, not an overflow
-    per_policy = -(-cfg.seeds * len(worlds) // BLOCK) * BLOCK
+    per_policy = -(-cfg.seeds // BLOCK) * BLOCK * len(worlds)
     batch = float(per_policy * len(cfg.policies))
     need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
     need_device = batch * DEVICE_BYTES_PER_ENV
