@@ -303,6 +303,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     for c in range(total // per_call):
         pending = empty
         if capture and c >= 2:  # the detections of period c - 2 reach the robot now
+            jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
             t1 = time.perf_counter()
             pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2])
             timing["wait_s"] += time.perf_counter() - t1
