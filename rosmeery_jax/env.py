@@ -96,7 +96,7 @@ class Env:
         self.model = physics_model(world, config.robot, self.sizes)  # a constant in compiled code
         self.beam_angles = jnp.asarray(laser_dirs(config.laser))
         self.dt = config.robot.control_dt
-        self._bind(world_data(world, config.robot, self.sizes))
+        self._bind(world_data(world, config.robot, self.sizes, self.model))
 
     def _bind(self, data: WorldData) -> None:
         c, r = self.config, self.config.robot

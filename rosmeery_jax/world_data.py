@@ -88,12 +88,14 @@ class WorldData(NamedTuple):
     n_reachable: jax.Array
 
 
-def world_data(world: World, robot: RobotConfig, sizes: Sizes | None = None) -> WorldData:
-    """``world`` as data, padded to ``sizes`` (its own sizes by default)."""
+def world_data(world: World, robot: RobotConfig, sizes: Sizes | None = None,
+               model: mjx.Model | None = None) -> WorldData:
+    """``world`` as data, padded to ``sizes`` (its own sizes by default); ``model``: its
+    :func:`physics_model` at those sizes, when the caller has built it already."""
     own = Sizes.of(world, robot)
     sizes = sizes or own
     t, fs = world.truth, world.free_space
-    model = physics_model(world, robot, sizes)
+    model = model if model is not None else physics_model(world, robot, sizes)
     extra = sizes.objects - own.objects
     declared, correct = predicate_tables(world.taxonomy, t.categories)
     declared = np.pad(declared, (0, sizes.categories - len(declared)))
