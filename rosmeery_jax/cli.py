@@ -37,6 +37,53 @@ def _cmd_worlds(args) -> int:
     return 0
 
 
+def _cmd_worlds_generate(args) -> int:
+    import time
+
+    from rosmeery_jax.world.generate import GenOptions, check_options, generate, write_world
+
+    if args.count < 1:
+        raise InputError("command line", "--count", f"{args.count}: at least 1")
+    first = GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter)
+    check_options(first, "command line")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "", "exists and is not a folder")
+    t0 = time.perf_counter()
+    layouts = [generate(GenOptions(args.kind, s, args.rooms, args.objects, args.clutter))
+               for s in range(args.seed, args.seed + args.count)]  # all or nothing: generate, then write
+    gen_s = time.perf_counter() - t0
+    paths = [write_world(layout, out) for layout in layouts]
+    total_s = time.perf_counter() - t0
+    print(f"wrote {len(paths)} {args.kind} worlds to {out}/ in {total_s:.2f} s "
+          f"({1000 * gen_s / len(paths):.1f} ms per world to generate, {total_s:.2f} s with writing)")
+    if args.check:
+        from rosmeery_jax.world import load_world
+
+        t1 = time.perf_counter()
+        for p in paths:
+            load_world(p)  # a world that fails the loader's validation stops here, in one line
+        print(f"all {len(paths)} pass the loader's validation ({time.perf_counter() - t1:.1f} s)")
+    return 0
+
+
+def _cmd_worlds_stats(args) -> int:
+    from rosmeery_jax.world.stats import stats_table, summary, world_names_in
+
+    names = world_names_in(args.worlds)
+    table, cats = stats_table(names)
+    if args.csv:
+        table.to_csv(sys.stdout, index=False)
+        return 0
+    if len(table) <= args.rows:
+        print(table.to_string(index=False))
+    if len(table) > 1:
+        print(f"\n{len(table)} worlds:")
+        print(summary(table).to_string())
+    print("\ncategories (objects over all worlds): " + ", ".join(f"{c} {n}" for c, n in cats.items()))
+    return 0
+
+
 def _cmd_world_show(args) -> int:
     from rosmeery_jax.world import load_world
     from rosmeery_jax.world.draw import save_world_picture
@@ -147,7 +194,9 @@ def _cmd_detector_dataset(args) -> int:
     from rosmeery_jax.detector.dataset import DatasetConfig, write
     from rosmeery_jax.world import load_world
 
-    worlds = tuple(w.strip() for w in args.worlds.split(",") if w.strip())
+    from rosmeery_jax.world.generate import expand_names
+
+    worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
     cfg = DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
@@ -257,6 +306,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON list instead of a table")
     p.add_argument("--pictures", metavar="DIR", help="also draw every world's top-down map into DIR")
     p.set_defaults(func=_cmd_worlds)
+    wsub = p.add_subparsers(dest="worlds_command", metavar="{generate,stats}")
+    s = wsub.add_parser("generate", help="write procedural worlds (MJCF, the format of the built-in ones)")
+    s.add_argument("--kind", required=True, help="apartment, office, kitchen or lab")
+    s.add_argument("--seed", type=int, required=True, metavar="S", help="the first seed")
+    s.add_argument("--count", type=int, default=1, metavar="N", help="worlds of seeds S..S+N-1 (default 1)")
+    s.add_argument("--rooms", type=int, metavar="R", help="rooms (default: by kind)")
+    s.add_argument("--objects", type=int, metavar="K", help="objects (default: by kind)")
+    s.add_argument("--clutter", type=float, default=0.2, metavar="X", help="share of small clutter objects (0.2)")
+    s.add_argument("--out", required=True, metavar="DIR")
+    s.add_argument("--check", action="store_true", help="also load every world with the loader's validation")
+    s.set_defaults(func=_cmd_worlds_generate)
+    s = wsub.add_parser("stats", help="objects, floor and reachable area, categories and samples of worlds")
+    s.add_argument("worlds", nargs="+", metavar="DIR_OR_NAMES", help="folders of world files, names, paths "
+                   "or procedural:KIND:A-B")
+    s.add_argument("--rows", type=int, default=40, metavar="N", help="print per-world rows up to N worlds (40)")
+    s.add_argument("--csv", action="store_true", help="print the per-world table as CSV")
+    s.set_defaults(func=_cmd_worlds_stats)
 
     p = sub.add_parser("world", help="commands on one world")
     wsub = p.add_subparsers(dest="world_command", required=True)

@@ -130,9 +130,9 @@ def _check_world_name(name: str) -> None:
     """A name that is neither a built-in world nor an existing file is the config's error."""
     from rosmeery_jax.world import world_names
 
-    if name not in world_names() and not Path(name).is_file():
+    if name not in world_names() and not Path(name).is_file() and not name.startswith("procedural:"):
         raise InputError("config", "worlds", f"{name!r} is neither a built-in world ({', '.join(world_names())}) "
-                         "nor an MJCF file")
+                         "nor an MJCF file nor procedural:KIND:SEED")
 
 
 def _load_world(name: str):
@@ -218,6 +218,10 @@ def load_config(path: str | Path | None, **cli) -> SessionConfig:
             if not isinstance(values[key], (list, tuple)) or not all(isinstance(x, str) for x in values[key]):
                 raise InputError(source, key, f"{values[key]!r} must be a list of names or a comma-separated string")
             values[key] = tuple(values[key])
+    if "worlds" in values:  # procedural:KIND:A-B is one world per seed
+        from rosmeery_jax.world.generate import expand_names
+
+        values["worlds"] = tuple(expand_names(values["worlds"]))
     if "policies" in values:
         values["policies"] = _group_replay(values["policies"])
     if "env" in values and not isinstance(values["env"], dict):

@@ -16,11 +16,11 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from rosmeery_jax.world import furniture as F
+from rosmeery_jax.world.mjcf import Body, Wall, world_xml
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -119,7 +119,6 @@ EDITS = {
     },
 }
 
-WALL_RGBA = (0.88, 0.86, 0.80, 1.0)
 SUPPORT_SNAP_M = 0.25  # an object this close above a surface is dropped onto it
 
 
@@ -310,51 +309,13 @@ def author(name: str, ref: dict) -> tuple[str, list[Obj], list[str]]:
     return _mjcf(name, ref, ordered), ordered, log
 
 
-def _f(v) -> str:
-    return " ".join(f"{x:.4f}".rstrip("0").rstrip(".") if abs(x) > 1e-9 else "0" for x in v)
-
-
 def _mjcf(name: str, ref: dict, objs: list[Obj]) -> str:
     title = WORLDS[name]
-    sx, sy, syaw = ref["robot_spawn"]
-    lines = [
-        f'<mujoco model="{name}">',
-        f"  <!-- {title}: re-authored by tools/author_paper_worlds.py from the measured layout of the",
-        f"       original Gazebo world '{ref['source_world']}'. Edits and reasons: NOTES.md beside this file. -->",
-        '  <compiler angle="radian"/>',
-        '  <option timestep="0.02"/>',
-        '  <visual><headlight ambient="0.45 0.45 0.45" diffuse="0.5 0.5 0.5"/></visual>',
-        "  <asset>",
-        '    <texture name="grid" type="2d" builtin="checker" rgb1="0.74 0.72 0.68" rgb2="0.68 0.66 0.62" width="256" height="256"/>',
-        '    <material name="floor" texture="grid" texrepeat="10 10" texuniform="true"/>',
-        f'    <material name="wall" rgba="{_f(WALL_RGBA)}"/>',
-        "  </asset>",
-        "  <default>",
-        '    <default class="static"><geom type="box" contype="0" conaffinity="1"/></default>',
-        "  </default>",
-        "  <custom>",
-        f'    <text name="rosmeery:title" data={quoteattr(title)}/>',
-        f'    <numeric name="rosmeery:spawn" data="{_f([sx, sy, syaw])}"/>',
-    ]
-    for o in objs:
-        lines.append(f'    <text name="rosmeery:category:{o.id}" data={quoteattr(o.category)}/>')
-    lines += [
-        "  </custom>",
-        "  <worldbody>",
-        '    <light name="sun" pos="0 0 8" dir="0 0 -1" directional="true" diffuse="0.5 0.5 0.5"/>',
-        '    <geom name="floor" type="plane" size="0 0 0.05" material="floor" contype="0" conaffinity="1"/>',
-    ]
-    for i, w in enumerate(ref["walls"]):
-        half = [v / 2 for v in w["size"]]
-        lines.append(f'    <geom name="wall_{i}" class="static" pos="{_f(w["center"])}" size="{_f(half)}" euler="0 0 {w["yaw"]:.4f}" material="wall"/>')
-    for o in objs:
-        lines.append(f'    <body name="{o.id}" pos="{_f(o.pose[:3])}" euler="0 0 {o.pose[3]:.4f}">')
-        for p in o.parts:
-            euler = f' euler="0 0 {p.yaw:.4f}"' if abs(p.yaw) > 1e-9 else ""
-            lines.append(f'      <geom name="{o.id}/{p.name}" class="static" pos="{_f(p.pos)}" size="{_f(p.half)}"{euler} rgba="{_f(p.rgba)}"/>')
-        lines.append("    </body>")
-    lines += ["  </worldbody>", "</mujoco>", ""]
-    return "\n".join(lines)
+    comment = [f"{title}: re-authored by tools/author_paper_worlds.py from the measured layout of the",
+               f"original Gazebo world '{ref['source_world']}'. Edits and reasons: NOTES.md beside this file."]
+    walls = [Wall(w["center"], w["size"], w["yaw"]) for w in ref["walls"]]
+    bodies = [Body(o.id, o.category, o.pose, o.parts) for o in objs]
+    return world_xml(name, title, comment, ref["robot_spawn"], walls, bodies)
 
 
 def main() -> None:

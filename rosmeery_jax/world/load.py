@@ -137,8 +137,13 @@ def world_names() -> tuple[str, ...]:
 
 
 def resolve_world_path(name_or_path: str | Path) -> Path:
-    """A built-in world name, or a path to a user's MJCF file."""
+    """A built-in world name, a procedural name (``procedural:KIND:SEED``), or a path to a
+    user's MJCF file."""
     text = str(name_or_path)
+    if text.startswith("procedural:"):  # generated on first use (rosmeery_jax/world/generate.py)
+        from rosmeery_jax.world.generate import procedural_path
+
+        return procedural_path(text)
     if "/" not in text and not text.endswith(".xml"):
         path = WORLDS_DIR / f"{text}.xml"
         if not path.is_file():

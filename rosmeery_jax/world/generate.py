@@ -1,0 +1,723 @@
+"""Procedural indoor worlds: a seeded generator of apartments, offices, kitchens and labs.
+
+``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
+world file in the format of ``rosmeery_jax/worlds/`` (it loads with ``load_world``). The
+name ``procedural:KIND:SEED[:rooms=R,objects=K,clutter=X]`` works wherever a world name
+does: the file is generated on first use into a cache folder (:func:`procedural_path`).
+
+How a world is made (all lengths whole centimetres, so the text is exact):
+
+1. **Rooms.** The kind fixes the room types (:mod:`.recipes`); each draws a target area.
+   A rectangle of the summed area is cut recursively (a binary space partition): each cut
+   splits the rooms into two groups of near-equal area and the rectangle in proportion,
+   across its longer side; rooms are at least 2.2 m on a side.
+2. **Walls and doors.** 10 cm walls, 2.5 m high: four outer walls and one wall per cut,
+   with one doorway (90-110 cm) per cut, kept 40 cm clear of every wall meeting it. Each
+   side of a cut is connected, so one door per cut connects every room.
+3. **Furniture by rules.** Groups from the templates: desks with a chair and a monitor,
+   benches, tables with chairs around, a kitchen counter (cabinets, stove, sink, fridge,
+   microwave), sofa and TV, beds and wardrobes, toilet, sink and shower, shelves. Pieces
+   that belong against a wall turn their back to it and keep 60 cm free in front; tables
+   keep 50 cm free around their chairs; 1 m on each side of a door stays free. Groups go
+   first where a room must have them, then wherever the room is emptiest, until the
+   object budget minus the clutter share is spent; clutter (plants, bins, boxes, books on
+   desks and tables) fills the rest. No two objects overlap (their boxes may touch).
+4. **Checks.** On a 5 cm grid: the spawn is the free cell of the first room farthest from
+   any obstacle; every room has reachable floor (clearance above 25 cm, connected to the
+   spawn) and every object has reachable floor within 1 m of its footprint.
+
+A layout that fails a check is drawn again from the next sub-seed (deterministic); a world
+that cannot hold what was asked raises :class:`GenerationError` naming what was not placed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from scipy import ndimage
+
+from rosmeery_jax.errors import InputError
+from rosmeery_jax.world import furniture as F
+from rosmeery_jax.world.mjcf import Body, Wall, world_xml
+from rosmeery_jax.world.recipes import KIND_DEFAULTS, KIND_ROOMS, PIECES, REPEAT, ROOMS, SUPPORTS, Piece, room_types
+
+KINDS = tuple(KIND_ROOMS)
+VERSION = 1  # bump when the same options would give a different file
+PREFIX = "procedural:"
+
+WALL_T, WALL_H = 10, 250  # cm
+MIN_SIDE = 220  # cm: the shortest room side
+DOOR = (90, 110)  # cm: doorway width range
+DOOR_CLEAR = 100  # cm kept free on each side of a doorway
+JUNCTION = 40  # cm between a doorway and a wall meeting its wall
+ACCESS = 60  # cm kept free in front of a piece against a wall
+AROUND = 50  # cm kept free around a table group
+GAP = 2  # cm between a piece and the wall behind it
+CELL = 5  # cm: the check grid
+CLEAR = 25  # cm: clearance a reachable cell needs (robot radius 20 cm + margin)
+VIEW = 100  # cm: reachable floor must come this close to every object
+ROBOT_TOP = 50  # cm: pieces starting below this block the robot
+MIN_ROOM_REACH = 0.25  # m^2 of reachable floor every room needs
+PER_OBJECT_M2 = 1.5  # capacity: floor area per object at most
+ATTEMPTS = 8  # whole layouts tried per world before giving up
+
+
+class GenerationError(InputError):
+    """The options ask for more than a world of this kind and size can hold."""
+
+
+@dataclass(frozen=True)
+class GenOptions:
+    """What to generate. rooms / objects: None = the kind's default; clutter: the share of
+    objects that are small clutter (plants, bins, boxes, books), in [0, 1]."""
+
+    kind: str
+    seed: int
+    rooms: int | None = None
+    objects: int | None = None
+    clutter: float = 0.2
+
+    def resolved(self) -> "GenOptions":
+        rooms, objects = KIND_DEFAULTS[self.kind]
+        return GenOptions(self.kind, self.seed, self.rooms or rooms, self.objects or objects, self.clutter)
+
+    @property
+    def name(self) -> str:
+        """The world's name: ``procedural_KIND_SEED`` plus any option not at its default."""
+        o, d = self.resolved(), KIND_DEFAULTS[self.kind]
+        extra = "".join(s for s, on in [(f"_r{o.rooms}", o.rooms != d[0]), (f"_k{o.objects}", o.objects != d[1]),
+                                        (f"_c{o.clutter:g}", o.clutter != 0.2)] if on)
+        return f"procedural_{self.kind}_{self.seed}{extra}"
+
+
+class Rect(NamedTuple):
+    """An axis-aligned plan rectangle in cm."""
+
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+
+    @property
+    def w(self) -> int:
+        return self.x1 - self.x0
+
+    @property
+    def h(self) -> int:
+        return self.y1 - self.y0
+
+    def overlaps(self, o: "Rect") -> bool:
+        return self.x0 < o.x1 and o.x0 < self.x1 and self.y0 < o.y1 and o.y0 < self.y1
+
+    def within(self, o: "Rect") -> bool:
+        return o.x0 <= self.x0 and self.x1 <= o.x1 and o.y0 <= self.y0 and self.y1 <= o.y1
+
+    def grow(self, d: int) -> "Rect":
+        return Rect(self.x0 - d, self.y0 - d, self.x1 + d, self.y1 + d)
+
+
+@dataclass
+class Item:
+    """A placed object: its piece, canonical size (cm), plan footprint, quarter turns ``k``
+    (its back faces +y, -x, -y, +x for k = 0..3), bottom height ``z`` and colours."""
+
+    piece: Piece
+    size: tuple[int, int, int]
+    rect: Rect
+    k: int
+    z: int = 0
+    room: int = 0
+    colors: dict = field(default_factory=dict)
+
+    @property
+    def top(self) -> int:
+        return self.z + self.size[2]
+
+
+class Cut(NamedTuple):
+    """An interior wall on x = c (axis 0) or y = c (axis 1) from lo to hi, with a doorway."""
+
+    axis: int
+    c: int
+    lo: int
+    hi: int
+
+
+@dataclass
+class Layout:
+    """A generated world: options, building size, rooms (type, interior), cuts with their
+    doorways, placed items and the spawn (x, y in cm; yaw)."""
+
+    options: GenOptions
+    size: tuple[int, int]
+    rooms: list[tuple[str, Rect]]
+    cuts: list[Cut]
+    doors: list[tuple[int, int]]
+    items: list[Item]
+    spawn: tuple[int, int, float]
+    attempt: int
+
+    def walls(self) -> list[Wall]:
+        W, H = self.size
+        t = WALL_T
+        walls = [Wall((W / 200, 0, WALL_H / 200), ((W + t) / 100, t / 100, WALL_H / 100)),
+                 Wall((W / 200, H / 100, WALL_H / 200), ((W + t) / 100, t / 100, WALL_H / 100)),
+                 Wall((0, H / 200, WALL_H / 200), (t / 100, (H + t) / 100, WALL_H / 100)),
+                 Wall((W / 100, H / 200, WALL_H / 200), (t / 100, (H + t) / 100, WALL_H / 100))]
+        for cut, (d0, d1) in zip(self.cuts, self.doors):
+            for a, b in ((cut.lo, d0), (d1, cut.hi)):
+                if b - a <= 0:
+                    continue
+                mid, length = (a + b) / 200, (b - a) / 100
+                pos = (cut.c / 100, mid) if cut.axis == 0 else (mid, cut.c / 100)
+                size = (t / 100, length) if cut.axis == 0 else (length, t / 100)
+                walls.append(Wall((*pos, WALL_H / 200), (*size, WALL_H / 100)))
+        return walls
+
+    def bodies(self) -> list[Body]:
+        counts: dict[str, int] = {}
+        out = []
+        for it in self.items:
+            slug = it.piece.category.replace(" ", "_")
+            n = counts[slug] = counts.get(slug, -1) + 1
+            sx, sy, sz = (v / 100 for v in it.size)
+            parts = F.build(it.piece.template, (sx, sy, sz), (0.0, 0.0, sz / 2), **it.piece.kwargs, **it.colors)
+            cx, cy = (it.rect.x0 + it.rect.x1) / 200, (it.rect.y0 + it.rect.y1) / 200
+            out.append(Body(f"{slug}_{n}", it.piece.category, (cx, cy, it.z / 100, it.k * math.pi / 2), parts))
+        return out
+
+    def xml(self) -> str:
+        o = self.options.resolved()
+        title = f"Procedural {o.kind.title()} {o.seed}"
+        comment = [f"{title}: generated by rosmeery-jax's procedural world generator (version {VERSION}):",
+                   f"rosmeery worlds generate --kind {o.kind} --seed {o.seed} --rooms {o.rooms} "
+                   f"--objects {o.objects} --clutter {o.clutter:g}",
+                   "rooms: " + ", ".join(t for t, _ in self.rooms) + "."]
+        sx, sy, syaw = self.spawn
+        return world_xml(self.options.name, title, comment, (sx / 100, sy / 100, syaw), self.walls(), self.bodies())
+
+
+# ----------------------------------------------------------------------------- options
+
+
+def check_options(o: GenOptions, source: str = "options") -> GenOptions:
+    """``o`` with defaults filled in; a bad option raises one InputError naming it."""
+    if o.kind not in KINDS:
+        raise InputError(source, "kind", f"unknown kind {o.kind!r} (one of {', '.join(KINDS)})")
+    if isinstance(o.seed, bool) or not isinstance(o.seed, (int, np.integer)) or o.seed < 0:
+        raise InputError(source, "seed", f"{o.seed!r} is not a non-negative integer")
+    r = o.resolved()
+    if not isinstance(r.rooms, (int, np.integer)) or not 1 <= r.rooms <= 12:
+        raise InputError(source, "rooms", f"{o.rooms!r}: between 1 and 12 rooms")
+    if not isinstance(r.objects, (int, np.integer)) or r.objects < r.rooms:
+        raise InputError(source, "objects", f"{o.objects!r}: at least one object per room ({r.rooms} rooms)")
+    if not isinstance(r.clutter, (int, float)) or not 0.0 <= r.clutter <= 1.0:
+        raise InputError(source, "clutter", f"{o.clutter!r}: a share between 0 and 1")
+    area = sum(ROOMS[t].area[1] for t in room_types(r.kind, r.rooms))
+    most = int(area / PER_OBJECT_M2)
+    if r.objects > most:
+        raise InputError(source, "objects", f"{r.objects} objects do not fit {r.rooms} rooms of a {r.kind} "
+                         f"(at most {most}: one per {PER_OBJECT_M2:g} m^2 of up to {area:g} m^2); "
+                         "ask for more rooms or fewer objects")
+    return r
+
+
+# ----------------------------------------------------------------------------- generation
+
+
+def generate(options: GenOptions) -> Layout:
+    """A layout for ``options`` (the same options always give the same layout)."""
+    o = check_options(options)
+    unplaced: list[str] = []
+    for attempt in range(ATTEMPTS):
+        rng = np.random.default_rng([VERSION, KINDS.index(o.kind), o.seed, attempt])
+        plan = _plan(o, rng)
+        if plan is None:
+            continue
+        size, rooms, cuts, doors = plan
+        items, unplaced = _furnish(o, rng, rooms, cuts, doors)
+        if unplaced:
+            continue
+        spawn = _check(size, rooms, cuts, doors, items)
+        if spawn is not None:
+            return Layout(options, size, rooms, cuts, doors, items, spawn, attempt)
+    what = f"could not place {', '.join(unplaced)}" if unplaced else "no layout passed the reachability checks"
+    raise GenerationError(options.name, "objects", f"{what} in {ATTEMPTS} attempts for {o.objects} objects in "
+                          f"{o.rooms} rooms; ask for fewer objects or more rooms")
+
+
+def _even(rng, lo: int, hi: int) -> int:
+    """An even number of cm in [lo, hi]."""
+    return 2 * int(rng.integers(-(-lo // 2), hi // 2 + 1))
+
+
+def _plan(o: GenOptions, rng):
+    """Building size, rooms (type, interior) and cuts with doorways, or None if the cut failed."""
+    types = room_types(o.kind, o.rooms)
+    areas = [float(rng.uniform(*ROOMS[t].area)) * 1e4 for t in types]
+    aspect = float(rng.uniform(1.0, 1.6))
+    W = max(MIN_SIDE, int(round(math.sqrt(sum(areas) * aspect) / 10)) * 10)
+    H = max(MIN_SIDE, int(round(sum(areas) / W / 10)) * 10)
+    leaves: dict[int, Rect] = {}
+    cuts: list[Cut] = []
+    if not _partition(Rect(0, 0, W, H), list(range(len(types))), areas, rng, leaves, cuts):
+        return None
+    doors = []
+    for cut in cuts:
+        d = _doorway(cut, cuts, rng)
+        if d is None:
+            return None
+        doors.append(d)
+    h = WALL_T // 2
+    rooms = [(types[i], Rect(r.x0 + h, r.y0 + h, r.x1 - h, r.y1 - h)) for i, r in sorted(leaves.items())]
+    return (W, H), rooms, cuts, doors
+
+
+def _partition(rect: Rect, ids: list[int], areas: list[float], rng, leaves: dict, cuts: list) -> bool:
+    """Cut ``rect`` among rooms ``ids`` (recursive); False when a room would be too narrow."""
+    if len(ids) == 1:
+        leaves[ids[0]] = rect
+        return min(rect.w, rect.h) >= MIN_SIDE + WALL_T
+    order = [ids[i] for i in rng.permutation(len(ids))]
+    a, b, sa, sb = [], [], 0.0, 0.0
+    for i in sorted(order, key=lambda i: -areas[i]):  # stable: ties keep the random order
+        if sa <= sb:
+            a.append(i)
+            sa += areas[i]
+        else:
+            b.append(i)
+            sb += areas[i]
+    frac = sa / (sa + sb)
+    axis = 0 if rect.w > rect.h or (rect.w == rect.h and rng.random() < 0.5) else 1
+    lo, hi = (rect.x0, rect.x1) if axis == 0 else (rect.y0, rect.y1)
+    need = MIN_SIDE + WALL_T  # a narrow side takes floor from the wide one
+    c = min(max(lo + int(round(frac * (hi - lo) / 10)) * 10, lo + need), hi - need)
+    if axis == 0:
+        ra, rb = Rect(rect.x0, rect.y0, c, rect.y1), Rect(c, rect.y0, rect.x1, rect.y1)
+        cuts.append(Cut(0, c, rect.y0, rect.y1))
+    else:
+        ra, rb = Rect(rect.x0, rect.y0, rect.x1, c), Rect(rect.x0, c, rect.x1, rect.y1)
+        cuts.append(Cut(1, c, rect.x0, rect.x1))
+    return _partition(ra, a, areas, rng, leaves, cuts) and _partition(rb, b, areas, rng, leaves, cuts)
+
+
+def _doorway(cut: Cut, cuts: list[Cut], rng) -> tuple[int, int] | None:
+    """A doorway (start, end along the cut) clear of the walls that meet it, or None."""
+    width = _even(rng, *DOOR)
+    keep = [cut.lo, cut.hi] + [o.c for o in cuts if o.axis != cut.axis and cut.lo < o.c < cut.hi
+                               and cut.c in (o.lo, o.hi)]
+    free = [s for s in range(cut.lo, cut.hi - width + 1, 2)
+            if all(s >= j + JUNCTION or s + width <= j - JUNCTION for j in keep)]
+    if not free:
+        return None
+    s = free[int(rng.integers(len(free)))]
+    return s, s + width
+
+
+def _door_zones(cuts, doors) -> list[Rect]:
+    out = []
+    for cut, (d0, d1) in zip(cuts, doors):
+        if cut.axis == 0:
+            out.append(Rect(cut.c - DOOR_CLEAR, d0 - 10, cut.c + DOOR_CLEAR, d1 + 10))
+        else:
+            out.append(Rect(d0 - 10, cut.c - DOOR_CLEAR, d1 + 10, cut.c + DOOR_CLEAR))
+    return out
+
+
+# ----------------------------------------------------------------------------- furnishing
+
+
+class _Room(NamedTuple):
+    index: int
+    type: str
+    rect: Rect
+
+
+class _Placer:
+    """Placed items and the zones that must stay free (each zone tagged with its group)."""
+
+    def __init__(self, zones: list[Rect]):
+        self.items: list[Item] = []
+        self.group: list[int] = []
+        self.zones: list[tuple[Rect, int]] = [(z, -1) for z in zones]
+        self.next_group = 0
+        self.used: dict[tuple[int, str], int] = {}  # (room, group name) -> times placed
+
+    def fits(self, items: list[Item], zones: list[Rect], room: Rect) -> bool:
+        g = self.next_group
+        for it in items:
+            if not it.rect.within(room):
+                return False
+            for other in self.items:
+                if it.rect.overlaps(other.rect) and it.z < other.top and other.z < it.top:
+                    return False
+            if it.z == 0 and any(it.rect.overlaps(z) for z, owner in self.zones if owner != g):
+                return False
+        for z in zones:
+            if not z.within(room):
+                return False
+            if any(z.overlaps(o.rect) for o in self.items if o.z == 0):
+                return False
+        return True
+
+    def add(self, items: list[Item], zones: list[Rect]) -> None:
+        g = self.next_group
+        self.items += items
+        self.group += [g] * len(items)
+        self.zones += [(z, g) for z in zones]
+        self.next_group += 1
+
+
+def _draw(rng, key: str) -> tuple[Piece, tuple[int, int, int], dict]:
+    p = PIECES[key]
+    size = (_even(rng, *p.width), _even(rng, *p.depth), _even(rng, *p.height))
+    colors = {arg: choices[int(rng.integers(len(choices)))] for arg, choices in p.colors.items()}
+    return p, size, colors
+
+
+def _wall_rect(room: Rect, side: int, u0: int, u1: int, v0: int, v1: int) -> Rect:
+    """The plan rect at offsets u (along the wall of ``side``) and v (out from it).
+    Sides: 0 north (y1), 1 west (x0), 2 south (y0), 3 east (x1); k of a back to it = side."""
+    x0, y0, x1, y1 = room
+    if side == 0:
+        return Rect(x0 + u0, y1 - v1, x0 + u1, y1 - v0)
+    if side == 1:
+        return Rect(x0 + v0, y0 + u0, x0 + v1, y0 + u1)
+    if side == 2:
+        return Rect(x0 + u0, y0 + v0, x0 + u1, y0 + v1)
+    return Rect(x1 - v1, y0 + u0, x1 - v0, y0 + u1)
+
+
+def _wall_group(rng, room: Rect, key: str, front: list[str] = (), on: list[str] = (),
+                access: int = ACCESS):
+    """``key`` against a random wall, pieces ``front`` facing it side by side in front of it,
+    pieces ``on`` on top of it. Returns (items, zones) or None if it cannot fit."""
+    side = int(rng.integers(4))
+    length = room.w if side in (0, 2) else room.h
+    piece, size, colors = _draw(rng, key)
+    if size[0] > length:
+        return None
+    t = int(rng.integers(0, length - size[0] + 1))
+    anchor = Item(piece, size, _wall_rect(room, side, t, t + size[0], GAP, GAP + size[1]), side, colors=colors)
+    items, v = [anchor], GAP + size[1]
+    fronts = [_draw(rng, f) for f in front]
+    if fronts:
+        slot = size[0] // len(fronts)
+        depth = max(s[1] for _, s, _ in fronts)
+        for i, (p, s, c) in enumerate(fronts):
+            u = t + i * slot + (slot - s[0]) // 2
+            items.append(Item(p, s, _wall_rect(room, side, u, u + s[0], v + 6, v + 6 + s[1]), (side + 2) % 4,
+                              colors=c))
+        v += 6 + depth
+    for i, key_on in enumerate(on):
+        p, s, c = _draw(rng, key_on)
+        slot = size[0] // len(on)
+        if s[0] > slot or s[1] > size[1] - 4:
+            continue
+        u = t + i * slot + (slot - s[0]) // 2
+        back = GAP + 2 + (size[1] - 4 - s[1]) // 3
+        items.append(Item(p, s, _wall_rect(room, side, u, u + s[0], back, back + s[1]), side, anchor.top, colors=c))
+    zone = _wall_rect(room, side, t, t + size[0], v, v + access)
+    return items, [zone]
+
+
+def _table_group(rng, room: Rect, table: str, chair: str, ends: bool):
+    """A table standing free with chairs on its long sides (and ends), backs turned away."""
+    p, size, colors = _draw(rng, table)
+    turn = int(rng.integers(2))  # 0: the long side along x
+    tw, th = (size[0], size[1]) if turn == 0 else (size[1], size[0])
+    top = Rect(0, 0, tw, th)
+    items = [Item(p, size, top, turn, colors=colors)]
+    cp, cs, cc = _draw(rng, chair)
+    cw, cd = cs[0], cs[1]
+    n_long = max(1, min(3, size[0] // 70))  # chairs 70 cm apart at least (they are <= 62 wide)
+    long_sides, end_sides = ((0, 2), (1, 3)) if turn == 0 else ((1, 3), (0, 2))
+    plan = [(s, n_long) for s in long_sides] + ([(s, 1) for s in end_sides] if ends else [])
+    for side, n in plan:
+        length = tw if side in (0, 2) else th
+        for i in range(n):
+            u = length * (2 * i + 1) // (2 * n) - cw // 2
+            if side == 0:  # north of the table, back to +y
+                r = Rect(u, th + 6, u + cw, th + 6 + cd)
+            elif side == 2:
+                r = Rect(u, -6 - cd, u + cw, -6)
+            elif side == 1:  # west, back to -x
+                r = Rect(-6 - cd, u, -6, u + cw)
+            else:
+                r = Rect(tw + 6, u, tw + 6 + cd, u + cw)
+            items.append(Item(cp, cs, r, side, colors=cc))
+    bound = Rect(min(i.rect.x0 for i in items), min(i.rect.y0 for i in items),
+                 max(i.rect.x1 for i in items), max(i.rect.y1 for i in items)).grow(AROUND)
+    if bound.w > room.w or bound.h > room.h:
+        return None
+    dx = room.x0 - bound.x0 + int(rng.integers(0, room.w - bound.w + 1))
+    dy = room.y0 - bound.y0 + int(rng.integers(0, room.h - bound.h + 1))
+    for it in items:
+        it.rect = Rect(it.rect.x0 + dx, it.rect.y0 + dy, it.rect.x1 + dx, it.rect.y1 + dy)
+    return items, [Rect(bound.x0 + dx, bound.y0 + dy, bound.x1 + dx, bound.y1 + dy)]
+
+
+def _counter(rng, room: Rect):
+    """A kitchen counter along a wall: fridge, cabinets, stove, sink; a microwave on a cabinet."""
+    side = int(rng.integers(4))
+    length = room.w if side in (0, 2) else room.h
+    keys = ["refrigerator", "kitchen_cabinet", "stove", "kitchen_cabinet", "sink", "kitchen_cabinet"]
+    units = [_draw(rng, k) for k in keys]
+    while units and sum(s[0] for _, s, _ in units) > length:
+        units.pop()
+    if len(units) < 3:
+        return None
+    total = sum(s[0] for _, s, _ in units)
+    t = int(rng.integers(0, length - total + 1))
+    items = []
+    for p, s, c in units:
+        items.append(Item(p, s, _wall_rect(room, side, t, t + s[0], GAP, GAP + s[1]), side, colors=c))
+        t += s[0]
+    cabinets = [it for it in items if it.piece.template == "cabinet"]
+    mp, ms, mc = _draw(rng, "microwave")
+    host = cabinets[int(rng.integers(len(cabinets)))]
+    if ms[0] <= host.size[0] - 4:
+        u0 = (host.rect.x0 if side in (0, 2) else host.rect.y0) - (room.x0 if side in (0, 2) else room.y0)
+        u = u0 + (host.size[0] - ms[0]) // 2
+        items.insert(items.index(host) + 1, Item(mp, ms, _wall_rect(room, side, u, u + ms[0], GAP + 4, GAP + 4 + ms[1]),
+                                                 side, host.top, colors=mc))
+    depth = max(s[1] for _, s, _ in units)
+    return items, [_wall_rect(room, side, t - total, t, GAP + depth, GAP + depth + ACCESS + 30)]
+
+
+def _on_support(rng, placer: _Placer, room: _Room, key: str):
+    """A small piece on a desk, table or cabinet top in ``room``."""
+    tops = [it for it in placer.items if it.room == room.index and it.z == 0 and it.piece.category in SUPPORTS]
+    if not tops:
+        return None
+    host = tops[int(rng.integers(len(tops)))]
+    p, s, c = _draw(rng, key)
+    w, d = (s[0], s[1]) if host.k % 2 == 0 else (s[1], s[0])
+    inner = host.rect.grow(-4) if host.piece.template != "round_table" else host.rect.grow(-host.rect.w // 5)
+    if w > inner.w or d > inner.h:
+        return None
+    x0 = inner.x0 + int(rng.integers(0, inner.w - w + 1))
+    y0 = inner.y0 + int(rng.integers(0, inner.h - d + 1))
+    return [Item(p, s, Rect(x0, y0, x0 + w, y0 + d), host.k, host.top, colors=c)], []
+
+
+def _group(rng, name: str, room: _Room, placer: _Placer):
+    """Candidate (items, zones) of group ``name`` in ``room`` (or None)."""
+    r = room.rect
+    if name == "desk":
+        return _wall_group(rng, r, "desk", ["office_chair"], ["monitor"])
+    if name == "bench":
+        return _wall_group(rng, r, "bench_desk", ["office_chair", "office_chair"], ["monitor", "monitor"])
+    if name == "tv":
+        return _wall_group(rng, r, "tv_stand", on=["tv"])
+    if name == "dining":
+        return _table_group(rng, r, "dining_table", "chair", ends=bool(rng.random() < 0.4))
+    if name == "round_dining":
+        return _table_group(rng, r, "round_table", "chair", ends=True)
+    if name == "meeting":  # a long table where the room takes one, else a dining table
+        table = "meeting_table" if rng.random() < 0.6 else "dining_table"
+        return _table_group(rng, r, table, "chair" if rng.random() < 0.5 else "office_chair", ends=True)
+    if name == "counter":
+        return _counter(rng, r)
+    if name == "bed":
+        return _wall_group(rng, r, "bed" if rng.random() < 0.6 else "single_bed")
+    if name == "book":
+        return _on_support(rng, placer, room, "book")
+    small = name in ("potted_plant", "trash_can", "boxes", "coat_rack", "pc_tower")
+    return _wall_group(rng, r, name, access=30 if small else ACCESS)
+
+
+def _try(rng, placer: _Placer, room: _Room, names, budget: int, tries: int) -> int:
+    """Place one group of a name drawn from ``names`` (cut to ``budget`` objects); returns the
+    number of objects placed (0: nothing fitted in ``tries`` draws)."""
+    names = [n for n in names if placer.used.get((room.index, n), 0) < REPEAT.get(n, 2)]
+    for _ in range(tries if names else 0):
+        name = names[int(rng.integers(len(names)))]
+        cand = _group(rng, name, room, placer)
+        if cand is None:
+            continue
+        items, zones = cand
+        items = items[:budget]
+        if placer.fits(items, zones, room.rect):
+            for it in items:
+                it.room = room.index
+            placer.add(items, zones)
+            placer.used[room.index, name] = placer.used.get((room.index, name), 0) + 1
+            return len(items)
+    return 0
+
+
+def _furnish(o: GenOptions, rng, rooms, cuts, doors) -> tuple[list[Item], list[str]]:
+    placer = _Placer(_door_zones(cuts, doors))
+    rs = [_Room(i, t, r) for i, (t, r) in enumerate(rooms)]
+    clutter = int(round(o.objects * o.clutter))
+    budget = o.objects - clutter
+    count = [0] * len(rs)
+    for depth in range(max(len(ROOMS[r.type].must) for r in rs)):
+        for r in rs:
+            must = ROOMS[r.type].must
+            if depth < len(must) and budget > 0:
+                n = _try(rng, placer, r, (must[depth],), budget, 12)
+                count[r.index] += n
+                budget -= n
+    open_rooms = [r for r in rs]
+    while budget > 0 and open_rooms:
+        r = min(open_rooms, key=lambda r: (count[r.index] / r.rect.w / r.rect.h, r.index))
+        n = _try(rng, placer, r, ROOMS[r.type].more, budget, 8)
+        if n == 0:
+            open_rooms.remove(r)
+        count[r.index] += n
+        budget -= n
+    left = clutter + budget
+    weights = np.array([r.rect.w * r.rect.h for r in rs], float)
+    misses: list[str] = []
+    while left > 0:
+        placed = 0
+        for _ in range(6):
+            r = rs[int(rng.choice(len(rs), p=weights / weights.sum()))]
+            placed = _try(rng, placer, r, ROOMS[r.type].clutter, 1, 4)
+            if placed:
+                break
+        if not placed:
+            misses.append("a clutter object")
+        left -= 1
+    if misses:
+        misses = [f"{len(misses)} clutter object{'s' * (len(misses) > 1)}"]
+    return placer.items, misses
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def occupancy(size, cuts, doors, items) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool grid of cells (``CELL`` cm, origin at (-WALL_T, -WALL_T)) blocked for the
+    robot by walls or low pieces, and the cell centres' plan coordinates (2, H, W) in cm."""
+    W, H = size
+    o = -WALL_T
+    shape = ((H + 2 * WALL_T) // CELL + 1, (W + 2 * WALL_T) // CELL + 1)
+    occ = np.zeros(shape, bool)
+
+    def mark(r: Rect):
+        i0, i1 = (r.y0 - o) // CELL, -(-(r.y1 - o) // CELL)
+        j0, j1 = (r.x0 - o) // CELL, -(-(r.x1 - o) // CELL)
+        occ[max(i0, 0):i1, max(j0, 0):j1] = True
+
+    h = WALL_T // 2
+    for r in (Rect(-h, -h, W + h, h), Rect(-h, H - h, W + h, H + h), Rect(-h, -h, h, H + h), Rect(W - h, -h, W + h, H + h)):
+        mark(r)
+    for cut, (d0, d1) in zip(cuts, doors):
+        for a, b in ((cut.lo, d0), (d1, cut.hi)):
+            if b > a:
+                mark(Rect(cut.c - h, a, cut.c + h, b) if cut.axis == 0 else Rect(a, cut.c - h, b, cut.c + h))
+    for it in items:
+        if it.z < ROBOT_TOP:
+            mark(it.rect)
+    ys = o + (np.arange(shape[0]) + 0.5) * CELL
+    xs = o + (np.arange(shape[1]) + 0.5) * CELL
+    return occ, np.stack(np.meshgrid(xs, ys))
+
+
+def _cells(r: Rect, xy: np.ndarray) -> np.ndarray:
+    x, y = xy
+    return (x > r.x0) & (x < r.x1) & (y > r.y0) & (y < r.y1)
+
+
+def _check(size, rooms, cuts, doors, items) -> tuple[int, int, float] | None:
+    """The spawn if every room is reachable and every object is viewable, else None."""
+    occ, xy = occupancy(size, cuts, doors, items)
+    clear = ndimage.distance_transform_edt(~occ) * CELL
+    free = clear > CLEAR
+    first = _cells(rooms[0][1], xy) & free
+    if not first.any():
+        return None
+    i, j = np.unravel_index(np.argmax(np.where(first, clear, -1.0)), clear.shape)
+    labels, _ = ndimage.label(free)
+    reach = labels == labels[i, j]
+    for _, r in rooms:
+        if (reach & _cells(r, xy)).sum() * CELL ** 2 < MIN_ROOM_REACH * 1e4:
+            return None
+    near = ndimage.distance_transform_edt(~reach) * CELL
+    for it in items:
+        cells = _cells(it.rect.grow(CELL), xy)
+        if not cells.any() or near[cells].min() > VIEW:
+            return None
+    return int(round(xy[0, i, j])), int(round(xy[1, i, j])), 0.0
+
+
+# ----------------------------------------------------------------------------- names and files
+
+
+_NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")
+
+
+def parse_name(text: str) -> GenOptions:
+    """``procedural:KIND:SEED[:rooms=R,objects=K,clutter=X]`` as options (InputError if bad)."""
+    m = _NAME.match(text)
+    if not m:
+        raise InputError(text, "", "a procedural world is named procedural:KIND:SEED[:rooms=R,objects=K,clutter=X]")
+    kind, seed, extra = m.groups()
+    opts: dict = {}
+    for item in filter(None, (extra or "").split(",")):
+        key, _, value = item.partition("=")
+        if key not in ("rooms", "objects", "clutter"):
+            raise InputError(text, key, "unknown option (rooms, objects or clutter)")
+        try:
+            opts[key] = float(value) if key == "clutter" else int(value)
+        except ValueError:
+            raise InputError(text, key, f"{value!r} is not a number") from None
+    if not seed.isdigit():
+        raise InputError(text, "seed", f"{seed!r} is not a non-negative integer")
+    options = GenOptions(kind, int(seed), **opts)
+    check_options(options, text)
+    return options
+
+
+def expand_names(names) -> list[str]:
+    """World names with seed ranges expanded: ``procedural:office:0-99`` is 100 worlds."""
+    out = []
+    for name in names:
+        m = _NAME.match(name)
+        rng = re.fullmatch(r"(\d+)-(\d+)", m.group(2)) if m else None
+        if rng is None:
+            out.append(name)
+            continue
+        lo, hi = int(rng.group(1)), int(rng.group(2))
+        if hi < lo:
+            raise InputError(name, "seed", f"empty range {lo}-{hi}")
+        tail = f":{m.group(3)}" if m.group(3) else ""
+        out += [f"{PREFIX}{m.group(1)}:{s}{tail}" for s in range(lo, hi + 1)]
+    return out
+
+
+def cache_dir() -> Path:
+    """Where named procedural worlds are written on first use."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "rosmeery-jax" / "worlds" / f"v{VERSION}"
+
+
+def write_world(layout: Layout, folder: Path) -> Path:
+    """Write ``layout`` to ``folder/<name>.xml`` atomically (unchanged files are not touched)."""
+    text = layout.xml()
+    path = Path(folder) / f"{layout.options.name}.xml"
+    if path.is_file() and path.read_text(encoding="utf-8") == text:
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def procedural_path(text: str) -> Path:
+    """The file of procedural world ``text``, generated into :func:`cache_dir` on first use."""
+    options = parse_name(text)
+    path = cache_dir() / f"{options.name}.xml"
+    if path.is_file():
+        return path
+    return write_world(generate(options), cache_dir())
