@@ -2,7 +2,7 @@
 
 ``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
 world file in the format of ``rosmeery_jax/worlds/`` (it loads with ``load_world``). The
-name ``procedural:KIND:SEED[:rooms=R,objects=K,clutter=X]`` works wherever a world name
+name ``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X]`` works wherever a world name
 does: the file is generated on first use into a cache folder (:func:`procedural_path`).
 
 How a world is made (all lengths whole centimetres, so the text is exact):
@@ -653,17 +653,17 @@ def _check(size, rooms, cuts, doors, items) -> tuple[int, int, float] | None:
 # ----------------------------------------------------------------------------- names and files
 
 
-_NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")
+_NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")  # options after the seed, ":"-separated
 
 
 def parse_name(text: str) -> GenOptions:
-    """``procedural:KIND:SEED[:rooms=R,objects=K,clutter=X]`` as options (InputError if bad)."""
+    """``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X]`` as options (InputError if bad)."""
     m = _NAME.match(text)
     if not m:
-        raise InputError(text, "", "a procedural world is named procedural:KIND:SEED[:rooms=R,objects=K,clutter=X]")
+        raise InputError(text, "", "a procedural world is named procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X]")
     kind, seed, extra = m.groups()
     opts: dict = {}
-    for item in filter(None, (extra or "").split(",")):
+    for item in filter(None, (extra or "").split(":")):
         key, _, value = item.partition("=")
         if key not in ("rooms", "objects", "clutter"):
             raise InputError(text, key, "unknown option (rooms, objects or clutter)")
