@@ -16,7 +16,7 @@ from rosmeery_jax.world.load import World  # noqa: E402
 from rosmeery_jax.world.scene import WALL  # noqa: E402
 
 
-def draw_world(world: World, ax=None, labels: bool = True):
+def draw_world(world: World, ax=None, labels: bool = True, legend: bool = True):
     """Draw ``world`` on ``ax`` (a new figure if None); returns the axes."""
     if ax is None:
         _, ax = plt.subplots(figsize=(9, 9))
@@ -45,7 +45,8 @@ def draw_world(world: World, ax=None, labels: bool = True):
     handles = [Patch(color=world.taxonomy[c].color, label=f"{c} ({truth.categories.count(c)})") for c in cats]
     handles += [Patch(color="0.25", label="wall"), Patch(color=plt.get_cmap("Greens")(1 / 6), label="reachable"),
                 Patch(color="red", label="robot spawn")]
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
+    if legend:
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
     x0, x1, y0, y1 = fs.extent
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
