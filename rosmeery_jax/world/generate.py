@@ -45,7 +45,7 @@ from scipy import ndimage
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.world import furniture as F
 from rosmeery_jax.world.mjcf import Body, Wall, world_xml
-from rosmeery_jax.world.recipes import KIND_DEFAULTS, KIND_ROOMS, PIECES, REPEAT, ROOMS, SUPPORTS, Piece, room_types
+from rosmeery_jax.world.recipes import KIND_DEFAULTS, KIND_ROOMS, PIECES, REPEAT, ROOMS, SMALL, SUPPORTS, Piece, room_types
 
 KINDS = tuple(KIND_ROOMS)
 VERSION = 1  # bump when the same options would give a different file
@@ -164,21 +164,8 @@ class Layout:
     attempt: int
 
     def walls(self) -> list[Wall]:
-        W, H = self.size
-        t = WALL_T
-        walls = [Wall((W / 200, 0, WALL_H / 200), ((W + t) / 100, t / 100, WALL_H / 100)),
-                 Wall((W / 200, H / 100, WALL_H / 200), ((W + t) / 100, t / 100, WALL_H / 100)),
-                 Wall((0, H / 200, WALL_H / 200), (t / 100, (H + t) / 100, WALL_H / 100)),
-                 Wall((W / 100, H / 200, WALL_H / 200), (t / 100, (H + t) / 100, WALL_H / 100))]
-        for cut, (d0, d1) in zip(self.cuts, self.doors):
-            for a, b in ((cut.lo, d0), (d1, cut.hi)):
-                if b - a <= 0:
-                    continue
-                mid, length = (a + b) / 200, (b - a) / 100
-                pos = (cut.c / 100, mid) if cut.axis == 0 else (mid, cut.c / 100)
-                size = (t / 100, length) if cut.axis == 0 else (length, t / 100)
-                walls.append(Wall((*pos, WALL_H / 200), (*size, WALL_H / 100)))
-        return walls
+        return [Wall(((r.x0 + r.x1) / 200, (r.y0 + r.y1) / 200, WALL_H / 200), (r.w / 100, r.h / 100, WALL_H / 100))
+                for r in wall_rects(self.size, self.cuts, self.doors)]
 
     def bodies(self) -> list[Body]:
         counts: dict[str, int] = {}
@@ -529,8 +516,7 @@ def _group(rng, name: str, room: _Room, placer: _Placer):
         return _wall_group(rng, r, "bed" if rng.random() < 0.6 else "single_bed")
     if name == "book":
         return _on_support(rng, placer, room, "book")
-    small = name in ("potted_plant", "trash_can", "boxes", "coat_rack", "pc_tower")
-    return _wall_group(rng, r, name, access=30 if small else ACCESS)
+    return _wall_group(rng, r, name, access=30 if name in SMALL else ACCESS)
 
 
 def _try(rng, placer: _Placer, room: _Room, names, budget: int, tries: int) -> int:
@@ -595,9 +581,25 @@ def _furnish(o: GenOptions, rng, rooms, cuts, doors) -> tuple[list[Item], list[s
 # ----------------------------------------------------------------------------- checks
 
 
+def wall_rects(size, cuts, doors) -> list[Rect]:
+    """Plan rects (cm) of the four outer walls and of each cut's wall on both sides of its doorway."""
+    W, H = size
+    h = WALL_T // 2
+    out = [Rect(-h, -h, W + h, h), Rect(-h, H - h, W + h, H + h), Rect(-h, -h, h, H + h), Rect(W - h, -h, W + h, H + h)]
+    for cut, (d0, d1) in zip(cuts, doors):
+        for a, b in ((cut.lo, d0), (d1, cut.hi)):
+            if b > a:
+                out.append(Rect(cut.c - h, a, cut.c + h, b) if cut.axis == 0 else Rect(a, cut.c - h, b, cut.c + h))
+    return out
+
+
 def occupancy(size, cuts, doors, items) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) bool grid of cells (``CELL`` cm, origin at (-WALL_T, -WALL_T)) blocked for the
-    robot by walls or low pieces, and the cell centres' plan coordinates (2, H, W) in cm."""
+    robot by walls or low pieces, and the cell centres' plan coordinates (2, H, W) in cm.
+
+    Whole footprints block, not the parts the loader rasterises (a table's legs): this check
+    is conservative, so the loader's free space (``freespace.py``) reaches at least as far,
+    and it needs no boxes built, which keeps generation at milliseconds per world."""
     W, H = size
     o = -WALL_T
     shape = ((H + 2 * WALL_T) // CELL + 1, (W + 2 * WALL_T) // CELL + 1)
@@ -608,13 +610,8 @@ def occupancy(size, cuts, doors, items) -> tuple[np.ndarray, np.ndarray]:
         j0, j1 = (r.x0 - o) // CELL, -(-(r.x1 - o) // CELL)
         occ[max(i0, 0):i1, max(j0, 0):j1] = True
 
-    h = WALL_T // 2
-    for r in (Rect(-h, -h, W + h, h), Rect(-h, H - h, W + h, H + h), Rect(-h, -h, h, H + h), Rect(W - h, -h, W + h, H + h)):
+    for r in wall_rects(size, cuts, doors):
         mark(r)
-    for cut, (d0, d1) in zip(cuts, doors):
-        for a, b in ((cut.lo, d0), (d1, cut.hi)):
-            if b > a:
-                mark(Rect(cut.c - h, a, cut.c + h, b) if cut.axis == 0 else Rect(a, cut.c - h, b, cut.c + h))
     for it in items:
         if it.z < ROBOT_TOP:
             mark(it.rect)

@@ -82,6 +82,9 @@ PIECES: dict[str, Piece] = dict([
     ("coat_rack", Piece("coat_rack", "coat_rack", (44, 50), (44, 50), (170, 180))),
 ])
 
+# Small pieces against a wall: they keep 30 cm free in front (furniture 60 cm).
+SMALL = ("potted_plant", "trash_can", "boxes", "coat_rack", "pc_tower")
+
 # Pieces that others may stand on (books, a monitor, a microwave).
 SUPPORTS = ("desk", "dining table", "tv_stand", "dresser", "kitchen_cabinet")
 
