@@ -116,6 +116,7 @@ def test_procedural_names_load_everywhere_and_ranges_expand():
 @pytest.mark.parametrize("name, where", [
     ("procedural:castle:1", "kind"), ("procedural:office:x", "seed"), ("procedural:office:-1", "seed"),
     ("procedural:office:1:floors=2", "floors"), ("procedural:office:1:rooms=two", "rooms"),
+    ("procedural:office:1:rooms=0", "rooms"), ("procedural:office:1:objects=0", "objects"),
     ("procedural:office:1:objects=400", "objects"), ("procedural:office:1:clutter=2", "clutter"),
 ])
 def test_bad_procedural_names_are_one_clear_error(name, where):

@@ -85,7 +85,8 @@ class GenOptions:
 
     def resolved(self) -> "GenOptions":
         rooms, objects = KIND_DEFAULTS[self.kind]
-        return GenOptions(self.kind, self.seed, self.rooms or rooms, self.objects or objects, self.clutter)
+        return GenOptions(self.kind, self.seed, rooms if self.rooms is None else self.rooms,
+                          objects if self.objects is None else self.objects, self.clutter)
 
     @property
     def name(self) -> str:
