@@ -289,6 +289,28 @@ def _cmd_teleop(args) -> int:
     return 1 if app.error else 0
 
 
+def _cmd_evaluate(args) -> int:
+    from rosmeery_jax import results
+    from rosmeery_jax.map_eval import evaluate, read_map
+    from rosmeery_jax.world import load_world
+
+    if not args.tolerance > 0:
+        raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
+    world = load_world(args.world)
+    maps = [read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
+    metric_df, objects, classes, summary = evaluate(world, maps, args.tolerance, args.name)
+    out = Path(args.out)
+    results.write_csv(metric_df, out / "metrics.csv")
+    results.write_csv(objects, out / "objects.csv")
+    results.write_csv(classes, out / "classes.csv")
+    results.write_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    print(", ".join(f"{k} {summary[k]:.3f}" for k in ("ori", "cori", "opi", "opi_strict")) +
+          f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
+          f"{summary['unmatched_instances']} instances matched to no object")
+    print(f"results in {out}/ (metrics.csv, objects.csv, classes.csv, summary.json)")
+    return 0
+
+
 def _cmd_plot(args) -> int:
     from rosmeery_jax import plots, results
 
@@ -411,6 +433,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "full: also live scores and held labels (not a paper baseline)")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_teleop)
+
+    p = sub.add_parser("evaluate", help="score your own semantic map(s) (PLY + JSON) against a world's ground truth")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--map", required=True, nargs="+", metavar="MAP.ply", help="one or more maps of one run "
+                   "(with MAP.json beside each: frame, labels; several maps with times give curves)")
+    p.add_argument("--out", default="out/evaluate", metavar="DIR")
+    p.add_argument("--tolerance", type=float, default=0.05, metavar="M",
+                   help="a point within M metres of a surface sample lies on it (default 0.05)")
+    p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
+    p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
     p.add_argument("dir", metavar="DIR")

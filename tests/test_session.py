@@ -157,3 +157,15 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
     assert free[-1] >= 0.8 * env.world.free_space.reachable.sum()
     first = done.index(True)
     assert all(np.allclose(p, poses[first], atol=0.05) for p in poses[first + 1:])
+
+
+def test_an_exported_map_evaluates_to_the_sessions_own_scores(session_dir, tmp_path):
+    out = tmp_path / "eval"
+    ply = session_dir / "maps" / "small_office__random__seed1.ply"
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(out)]) == 0
+    ours = pd.read_csv(out / "metrics.csv").set_index("metric").value
+    df = results.load(session_dir)
+    final = df[(df.seed == 1) & (df.time_s == df.time_s.max())].set_index("metric").value
+    for metric in ("ori", "opi", "opi_strict"):
+        assert ours[metric] == pytest.approx(final[metric], abs=1e-6), metric
+    assert ours["ori"] > 0  # the robot saw something: the equality is not 0 == 0
