@@ -290,6 +290,8 @@ def _cmd_teleop(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
+    import numpy as np
+
     from rosmeery_jax import results
     from rosmeery_jax.map_eval import evaluate, read_map
     from rosmeery_jax.world import load_world
@@ -298,7 +300,24 @@ def _cmd_evaluate(args) -> int:
         raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
     world = load_world(args.world)
     maps = [read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
+    frame = None
+    if args.transform or args.align:
+        from rosmeery_jax.align import apply, icp, read_transform
+
+        if args.transform:
+            frame = {"transform": read_transform(args.transform).tolist(), "source": args.transform}
+        else:  # one transform for the run's maps, estimated on its last (fullest) map
+            fit = icp(maps[-1].points, np.asarray(world.truth.samples.points, np.float64),
+                      np.asarray(world.truth.samples.normals, np.float64))
+            frame = {"transform": fit.transform.tolist(), "source": "icp", "rms_m": fit.rms,
+                     "inliers": fit.inliers, "iterations": fit.iterations}
+            print(f"aligned by point-to-plane ICP: residual {1000 * fit.rms:.1f} mm over {100 * fit.inliers:.0f}% "
+                  f"of points, {fit.iterations} iterations")
+        T = np.asarray(frame["transform"])
+        maps = [m._replace(points=apply(T, m.points)) for m in maps]
     metric_df, objects, classes, summary = evaluate(world, maps, args.tolerance, args.name)
+    if frame:
+        summary["alignment"] = frame
     out = Path(args.out)
     results.write_csv(metric_df, out / "metrics.csv")
     results.write_csv(objects, out / "objects.csv")
@@ -442,6 +461,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, default=0.05, metavar="M",
                    help="a point within M metres of a surface sample lies on it (default 0.05)")
     p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
+    frame = p.add_mutually_exclusive_group()
+    frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")
+    frame.add_argument("--transform", metavar="FILE", help="a 4 x 4 map-to-world transform (JSON or text) to apply first")
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")

@@ -130,3 +130,40 @@ def test_bad_maps_are_one_line_naming_file_and_field_and_nothing_is_written(worl
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(ply.stem) in err and field in err
     assert not out.exists()
+
+
+def _moved(yaw_deg: float, t) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def test_alignment_recovers_a_known_transform_and_a_given_one_is_applied(tmp_path, capsys):
+    from rosmeery_jax.align import apply
+
+    world = load_world("small_office")
+    pts, obj = np.asarray(world.truth.samples.points, float), np.asarray(world.truth.samples.object)
+    moved = _moved(4.0, [0.15, -0.10, 0.02])  # world -> the map's own frame
+    objects = {n: (c, 1.0) for n, c in enumerate(world.truth.categories)}
+    ply = _write(tmp_path, world, apply(moved, pts), obj, objects)
+    out = tmp_path / "aligned"
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--align", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    recovered = np.asarray(summary["alignment"]["transform"])
+    np.testing.assert_allclose(recovered @ moved, np.eye(4), atol=1e-3)
+    assert summary["alignment"]["rms_m"] < 1e-3 and summary["ori"] == pytest.approx(1.0)
+    (tmp_path / "T.json").write_text(json.dumps({"transform": np.linalg.inv(moved).tolist()}))
+    given = tmp_path / "given"
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--transform", str(tmp_path / "T.json"),
+                 "--out", str(given)]) == 0
+    assert json.loads((given / "summary.json").read_text())["ori"] == pytest.approx(1.0)
+    unaligned = tmp_path / "raw"
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(unaligned)]) == 0
+    assert json.loads((unaligned / "summary.json").read_text())["ori"] < 0.5  # the test's premise
+    (tmp_path / "bad.json").write_text(json.dumps({"transform": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}))
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--transform", str(tmp_path / "bad.json"),
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "bad.json: transform: is not a rigid transform" in capsys.readouterr().err
