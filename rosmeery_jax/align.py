@@ -88,3 +88,19 @@ def read_transform(path: str | Path) -> np.ndarray:
             or not np.allclose(T[3], [0, 0, 0, 1]):
         raise InputError(path, "transform", "is not a rigid transform (rotation and translation, last row 0 0 0 1)")
     return T
+
+
+def to_world(world, maps: list, transform: str | Path | None = None, align: bool = False) -> tuple[list, dict | None]:
+    """``maps`` (SemanticMap) moved into ``world``'s frame by a given ``transform`` file or, with
+    ``align``, by ICP on the run's last (fullest) map; also what was done (for summary.json)."""
+    if transform is not None:
+        frame = {"transform": read_transform(transform).tolist(), "source": str(transform)}
+    elif align:
+        samples = world.truth.samples
+        fit = icp(maps[-1].points, np.asarray(samples.points, np.float64), np.asarray(samples.normals, np.float64))
+        frame = {"transform": fit.transform.tolist(), "source": "icp", "rms_m": fit.rms,
+                 "inliers": fit.inliers, "iterations": fit.iterations}
+    else:
+        return maps, None
+    T = np.asarray(frame["transform"])
+    return [m._replace(points=apply(T, m.points)) for m in maps], frame

@@ -44,8 +44,7 @@ def _cmd_worlds_generate(args) -> int:
 
     if args.count < 1:
         raise InputError("command line", "--count", f"{args.count}: at least 1")
-    first = GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter)
-    check_options(first, "command line")
+    check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter), "command line")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "", "exists and is not a folder")
@@ -56,7 +55,7 @@ def _cmd_worlds_generate(args) -> int:
     paths = [write_world(layout, out) for layout in layouts]
     total_s = time.perf_counter() - t0
     print(f"wrote {len(paths)} {args.kind} worlds to {out}/ in {total_s:.2f} s "
-          f"({1000 * gen_s / len(paths):.1f} ms per world to generate, {total_s:.2f} s with writing)")
+          f"({1000 * gen_s / len(paths):.1f} ms per world to generate, the rest writing)")
     if args.check:
         from rosmeery_jax.world import load_world
 
@@ -290,9 +289,8 @@ def _cmd_teleop(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    import numpy as np
-
     from rosmeery_jax import results
+    from rosmeery_jax.align import to_world
     from rosmeery_jax.map_eval import evaluate, read_map
     from rosmeery_jax.world import load_world
 
@@ -300,21 +298,10 @@ def _cmd_evaluate(args) -> int:
         raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
     world = load_world(args.world)
     maps = [read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
-    frame = None
-    if args.transform or args.align:
-        from rosmeery_jax.align import apply, icp, read_transform
-
-        if args.transform:
-            frame = {"transform": read_transform(args.transform).tolist(), "source": args.transform}
-        else:  # one transform for the run's maps, estimated on its last (fullest) map
-            fit = icp(maps[-1].points, np.asarray(world.truth.samples.points, np.float64),
-                      np.asarray(world.truth.samples.normals, np.float64))
-            frame = {"transform": fit.transform.tolist(), "source": "icp", "rms_m": fit.rms,
-                     "inliers": fit.inliers, "iterations": fit.iterations}
-            print(f"aligned by point-to-plane ICP: residual {1000 * fit.rms:.1f} mm over {100 * fit.inliers:.0f}% "
-                  f"of points, {fit.iterations} iterations")
-        T = np.asarray(frame["transform"])
-        maps = [m._replace(points=apply(T, m.points)) for m in maps]
+    maps, frame = to_world(world, maps, args.transform, args.align)
+    if frame and frame["source"] == "icp":
+        print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
+              f"{100 * frame['inliers']:.0f}% of points, {frame['iterations']} iterations")
     metric_df, objects, classes, summary = evaluate(world, maps, args.tolerance, args.name)
     if frame:
         summary["alignment"] = frame

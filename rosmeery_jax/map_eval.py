@@ -198,7 +198,7 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
     objects["instance"] = scores[-1].matched
     classes = objects.groupby("category").agg(objects=("object", "size"), ps_G=("ps_G", "sum"), ps=("ps", "sum"),
                                               coverage=("coverage", "mean")).reset_index()
-    classes["ori"] = 1.0 - np.minimum(1.0, objects.assign(e=1 - objects.coverage).groupby("category").e.mean().values)
+    classes["ori"] = classes.coverage  # ORI over a class's objects: ps <= ps_G, so 1 - mean(1 - coverage)
     last = scores[-1]
     summary = {"world": world.name, "maps": [str(maps[k].path) for k in order], "tolerance_m": tolerance,
                **{k: float(v[-1]) for k, v in curves.items()}, "points_on_no_object": round(last.off_object, 6),

@@ -553,7 +553,7 @@ def _furnish(o: GenOptions, rng, rooms, cuts, doors) -> tuple[list[Item], list[s
                 n = _try(rng, placer, r, (must[depth],), budget, 12)
                 count[r.index] += n
                 budget -= n
-    open_rooms = [r for r in rs]
+    open_rooms = list(rs)
     while budget > 0 and open_rooms:
         r = min(open_rooms, key=lambda r: (count[r.index] / r.rect.w / r.rect.h, r.index))
         n = _try(rng, placer, r, ROOMS[r.type].more, budget, 8)
