@@ -156,7 +156,7 @@ def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
-                      detector_period_s=args.detector_period_s)
+                      detector_period_s=args.detector_period_s, mappers=args.mapper)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
     out = Session(cfg, progress=not args.quiet).run(resume=args.resume)
@@ -167,9 +167,10 @@ def _cmd_run(args) -> int:
 def _print_summary(out: Path) -> None:
     import pandas as pd
 
-    from rosmeery_jax import metrics
+    from rosmeery_jax import metrics, results
 
-    df = pd.read_csv(out / "metrics.csv")
+    df = results.load(out)
+    df["policy"] = df.policy.where(df.mapper == "oracle", df.policy + " [" + df.mapper + "]")
     print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final':>14}{'auc':>8}{'t90 s':>8}")
     for (w, p, m), g in df.groupby(["world", "policy", "metric"], sort=False):
         per_seed = [metrics.summarize(s.time_s.to_numpy(), s.value.to_numpy()) for _, s in g.groupby("seed")]
@@ -390,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--conf-threshold", type=float, metavar="C", help="drop detections below C (default 0.25)")
     p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
     p.add_argument("--metrics", metavar="M,N", help="active metrics (default: all built-in)")
+    p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (default: the built-in "
+                   "knowledge, ground-truth association) and/or perceived (depth inside detector boxes)")
     p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
     p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "

@@ -161,12 +161,13 @@ def reset_fn(group: Group):
     return blocked(one)
 
 
-def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool):
+def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, depth: bool = False):
     """One env per call of the returned function (blocked): fold the pending detections
     (F, D) into the knowledge, then ``decisions`` policy decisions, each followed by
     ``decide_every`` env steps. Returns state, policy states, key, logs (steps, N), poses
     (steps, 3) and, with ``capture``, the frame after each decision: RGB (F, Hr, Wr, 3)
-    uint8 and labels (F, Hr, Wr) int16 (F = decisions); else None."""
+    uint8 and labels (F, Hr, Wr) int16 (F = decisions), with ``depth`` also its depth
+    (F, Hr, Wr) float32; else None."""
     per_step = group.policies[0].per_step
 
     def one(stacked, block, state, pstates, key, pending):
@@ -196,8 +197,8 @@ def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool):
             s, logs = jax.lax.scan(step, s, action if per_step else None, length=decide_every)
             frame = None
             if capture:
-                img, lab = env.camera_rgb(s)
-                frame = (img, lab.astype(jnp.int16))
+                img, dep, lab = env.camera_rgbd(s)
+                frame = (img, lab.astype(jnp.int16)) + ((dep,) if depth else ())
             return (s, pss, k), (logs, frame)
 
         (state, pstates, key), (logs, frames) = jax.lax.scan(decide, (state, pstates, key), None, length=decisions)
@@ -242,27 +243,33 @@ class Compiled(NamedTuple):
 
 class Simulation(NamedTuple):
     """A group's results, real envs only, in row order. logs: ObjectLog (B, T + 1, N);
-    poses (B, T + 1, 3); knowledge: the final labelled knowledge (batched); timing."""
+    poses (B, T + 1, 3); knowledge: the final labelled knowledge (batched); timing;
+    mappers: one PerceivedMapper per env fed every detector frame, or None."""
 
     logs: ObjectLog
     poses: np.ndarray
     knowledge: Any
     timing: dict
+    mappers: list | None = None
 
 
 def simulate(group: Group, total: int, per_call: int, decide_every: int, detectors: dict | None, bar,
-             clock: "CompileClock") -> Simulation:
-    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call."""
+             clock: "CompileClock", perceive: bool = False) -> Simulation:
+    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call; with
+    ``perceive`` (needs detectors), also feed a perceived mapper per env."""
+    from rosmeery_jax.perceived import PerceivedMapper
+
     b = group.size
     capture = detectors is not None
+    mappers = [PerceivedMapper(group.config.camera) if real else None for real in group.real] if perceive else None
     keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
     k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
     data, blocks = group.data, jnp.asarray(group.blocks)
     frames = per_call if capture else 0
-    empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1)))
+    empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1))[:3])
     xla_before = dict(CompileClock._counts)
     with clock:
-        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture),
+        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture, perceive),
                        label_fn(group) if capture else None,
                        blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st)),
                        blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st)))
@@ -288,8 +295,10 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
         if capture:
             t0 = time.perf_counter()
             dets = _detect(group, detectors, shots, c * per_call)
-            holder["labels"], per_frame = attach(data, blocks, holder["labels"], *(jnp.asarray(d) for d in dets))
+            holder["labels"], per_frame = attach(data, blocks, holder["labels"], *(jnp.asarray(d) for d in dets[:3]))
             logs = _relabel(logs, per_frame, decide_every)
+            if mappers:
+                _perceive(mappers, c * per_call, poses, shots[2], dets, decide_every)
             with lock:
                 timing["detector_s"] += time.perf_counter() - t0
                 timing["frames"] += int(group.real.sum()) * per_call
@@ -305,7 +314,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
         if capture and c >= 2:  # the detections of period c - 2 reach the robot now
             jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
             t1 = time.perf_counter()
-            pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2])
+            pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2][:3])
             timing["wait_s"] += time.perf_counter() - t1
         state, pstates, k_run, logs, poses, shots = chunk(data, blocks, state, pstates, k_run, pending)
         jobs.append(pool.submit(finish, c, logs, poses, shots))
@@ -326,7 +335,21 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
                                        conf_any=lab.conf_any)
     keep = group.real
     return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
-                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing)
+                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing,
+                      [m for m in mappers if m is not None] if mappers else None)
+
+
+def _perceive(mappers: list, first_frame: int, poses: np.ndarray, depth, dets, decide_every: int) -> None:
+    """Feed each env's frames (F of this chunk; poses (B, steps, 3), depth (B, F, Hr, Wr))
+    and detections to its perceived mapper; a frame is taken at its decision's last step."""
+    depth = np.asarray(depth)
+    _, label, conf, box = dets
+    for r, mapper in enumerate(mappers):
+        if mapper is None:
+            continue
+        for f in range(depth.shape[1]):
+            mapper.add(first_frame + f, poses[r, (f + 1) * decide_every - 1], depth[r, f], box[r, f], label[r, f],
+                       conf[r, f])
 
 
 def _init_policies(group: Group, keys: jax.Array) -> tuple:
@@ -343,20 +366,20 @@ def _init_policies(group: Group, keys: jax.Array) -> tuple:
     return tuple(out)
 
 
-def _no_detections(b: int, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """obj, label (B, F, D) int32 -1 and conf (B, F, D) zeros: nothing to fold in."""
+def _no_detections(b: int, frames: int) -> tuple[np.ndarray, ...]:
+    """obj, label (B, F, D) int32 -1, conf (B, F, D) and box (B, F, D, 4) zeros: nothing."""
     return (np.full((b, frames, MAX_DET), -1, np.int32), np.full((b, frames, MAX_DET), -1, np.int32),
-            np.zeros((b, frames, MAX_DET), np.float32))
+            np.zeros((b, frames, MAX_DET), np.float32), np.zeros((b, frames, MAX_DET, 4), np.float32))
 
 
 def _detect(group: Group, detectors: dict, shots, first_frame: int):
     """Run each world's detector on its real envs' frames. Returns obj, label, conf
-    (B, F, D); padding envs get none."""
+    (B, F, D) and box (B, F, D, 4); padding envs get none."""
     from rosmeery_jax.detector.detections import pad
 
-    rgb, seg = (np.asarray(a) for a in shots)  # (B, F, H, W, 3), (B, F, H, W)
+    rgb, seg = (np.asarray(a) for a in shots[:2])  # (B, F, H, W, 3), (B, F, H, W)
     b, f = rgb.shape[:2]
-    obj, label, conf = _no_detections(b, f)
+    obj, label, conf, box = _no_detections(b, f)
     for w, detector in detectors.items():
         rows = np.flatnonzero(group.real & (group.world == w))
         if not len(rows):
@@ -365,8 +388,8 @@ def _detect(group: Group, detectors: dict, shots, first_frame: int):
         found = detector(rgb[rows].reshape(-1, *rgb.shape[2:]), seg[rows].reshape(-1, *seg.shape[2:]).astype(np.int32),
                          ids)
         for i, r in enumerate(rows):
-            obj[r], label[r], conf[r] = pad(found[i * f:(i + 1) * f], f, MAX_DET)
-    return obj, label, conf
+            obj[r], label[r], conf[r], box[r] = pad(found[i * f:(i + 1) * f], f, MAX_DET)
+    return obj, label, conf, box
 
 
 def _relabel(logs: ObjectLog, per_frame, decide_every: int) -> ObjectLog:

@@ -29,7 +29,7 @@ from rosmeery_jax.errors import InputError
 from rosmeery_jax.occupancy import MapConfig
 from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
 from rosmeery_jax.robot import Platform, RobotConfig, robot_model
-from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb
+from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb, rgbd
 from rosmeery_jax.world import World, WorldConfig, load_world
 from rosmeery_jax.world_data import Sizes, WorldData, physics_model, truth_table, world_data
 
@@ -155,6 +155,11 @@ class Env:
     def camera_rgb(self, state: State) -> tuple[jax.Array, jax.Array]:
         """The detector's frame: RGB (Hr, Wr, 3) uint8 and object labels (Hr, Wr) int32."""
         return rgb(self.rays, self.config.camera, state.pose)
+
+    def camera_rgbd(self, state: State) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The detector's frame with its depth: RGB (Hr, Wr, 3) uint8, depth (Hr, Wr) (0 = no
+        return) and object labels (Hr, Wr) int32."""
+        return rgbd(self.rays, self.config.camera, state.pose)
 
     def attach(self, state: State, obj: jax.Array, label: jax.Array, conf: jax.Array) -> State:
         """Fold detections (D,) object index / category / confidence into the knowledge."""

@@ -147,34 +147,56 @@ def score(world, m: SemanticMap, tolerance: float = TOLERANCE) -> Score:
     """Score map ``m`` against ``world``'s ground truth (see the module docstring)."""
     if m.world is not None and m.world != world.name:
         raise InputError(m.path.with_suffix(".json"), "frame.world", f"{m.world!r} is not the world scored ({world.name!r})")
-    truth, tax = world.truth, world.taxonomy
-    samples = np.asarray(truth.samples.points, np.float64)
-    sample_obj = np.asarray(truth.samples.object)
-    n_obj, n_samples = truth.num_objects, len(samples)
-    _, s = cKDTree(samples).query(m.points, distance_upper_bound=tolerance)
-    on = s < n_samples
+    s = tie(world, m.points, tolerance)
     ids, inst = np.unique(m.instance, return_inverse=True)
-    pairs = np.unique(inst[on] * n_samples + s[on])  # distinct (instance, sample) pairs
-    shared = np.zeros((len(ids), n_obj), np.int64)
-    np.add.at(shared, (pairs // n_samples, sample_obj[pairs % n_samples]), 1)
+    shared = shared_samples(world, inst, s, len(ids))
+    names = [m.labels.get(int(i)) for i in ids]
+    label = np.array([world.taxonomy.index(k) if k else -1 for k in names], np.int32)
+    conf = np.array([m.confidence.get(int(i), 0.0) if k else 0.0 for i, k in zip(ids, names)], np.float32)
+    log, ix = score_shared(world, shared, label, conf)
+    on = s >= 0
+    off = float(1.0 - on.mean()) if len(on) else 0.0
+    return Score(log, np.where(ix >= 0, ids[np.maximum(ix, 0)], -1), off, int(len(ids) - (ix >= 0).sum()))
+
+
+def tie(world, points: np.ndarray, tolerance: float = TOLERANCE) -> np.ndarray:
+    """(P,) index of the surface sample each point (P, 3) lies on, -1 for none (step 1)."""
+    samples = np.asarray(world.truth.samples.points, np.float64)
+    _, s = cKDTree(samples).query(points, distance_upper_bound=tolerance)
+    return np.where(s < len(samples), s, -1)
+
+
+def shared_samples(world, instance: np.ndarray, sample: np.ndarray, instances: int) -> np.ndarray:
+    """(I, N) distinct samples of each object that each instance covers, from points'
+    instance index (P,) in [0, I) and tied sample (P,) (-1 none)."""
+    n_samples = len(world.truth.samples.object)
+    on = sample >= 0
+    pairs = np.unique(instance[on].astype(np.int64) * n_samples + sample[on])  # distinct (instance, sample)
+    shared = np.zeros((instances, world.truth.num_objects), np.int64)
+    np.add.at(shared, (pairs // n_samples, np.asarray(world.truth.samples.object)[pairs % n_samples]), 1)
+    return shared
+
+
+def score_shared(world, shared: np.ndarray, label: np.ndarray, conf: np.ndarray) -> tuple[ObjectLog, np.ndarray]:
+    """Steps 2-4 for instances with shared samples (I, N), label (I,) category index (-1
+    none) and its confidence (I,). Returns the ObjectLog (fields (N,)) and each object's
+    instance index (N,), -1 for none."""
+    truth, n_obj = world.truth, world.truth.num_objects
     rows, cols = linear_sum_assignment(shared, maximize=True)
     keep = shared[rows, cols] > 0
     rows, cols = rows[keep], cols[keep]
-    ix = np.full(n_obj, -1, np.int64)  # each object's instance (index into ids), -1 none
+    ix = np.full(n_obj, -1, np.int64)
     ix[cols] = rows
     ps = np.zeros(n_obj, np.float32)
     ps[cols] = shared[rows, cols]
-    names = [m.labels.get(int(ids[i])) if i >= 0 else None for i in ix]
-    label = np.array([tax.index(k) if k else -1 for k in names], np.int32)
-    conf = np.array([m.confidence.get(int(ids[i]), 0.0) if k else 0.0 for i, k in zip(ix, names)], np.float32)
-    declared_table, correct_table = predicate_tables(tax, truth.categories)
-    has = label >= 0
-    declared = np.where(has, declared_table[np.maximum(label, 0)], 0).astype(np.int32)
-    correct = np.where(has, correct_table[np.arange(n_obj), np.maximum(label, 0)], 0).astype(np.int32)
-    conf_true = np.where(label == np.asarray(truth.category_index), conf, 0.0).astype(np.float32)
-    log = ObjectLog(ps, conf_true, conf, label, declared, correct)
-    off = float(1.0 - on.mean()) if len(on) else 0.0
-    return Score(log, np.where(ix >= 0, ids[ix], -1), off, int(len(ids) - len(rows)))
+    lab = np.where(ix >= 0, np.asarray(label)[np.maximum(ix, 0)], -1).astype(np.int32)
+    c = np.where(lab >= 0, np.asarray(conf)[np.maximum(ix, 0)], 0.0).astype(np.float32)
+    declared_table, correct_table = predicate_tables(world.taxonomy, truth.categories)
+    has = lab >= 0
+    declared = np.where(has, declared_table[np.maximum(lab, 0)], 0).astype(np.int32)
+    correct = np.where(has, correct_table[np.arange(n_obj), np.maximum(lab, 0)], 0).astype(np.int32)
+    conf_true = np.where(lab == np.asarray(truth.category_index), c, 0.0).astype(np.float32)
+    return ObjectLog(ps, conf_true, c, lab, declared, correct), ix
 
 
 def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external"):
@@ -192,7 +214,7 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
     table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))
     log = ObjectLog(*(np.stack(f) for f in zip(*(sc.log for sc in scores))))
     curves = metrics.compute(log, table)
-    tags = dict(policy=name, detector="own", seed=0)
+    tags = dict(policy=name, detector="own", mapper="own", seed=0)
     metric_df = results.metric_frame(curves, np.asarray(times)[order], world=world.name, **tags)
     objects = results.object_frame(world, scores[-1].log, **tags)
     objects["instance"] = scores[-1].matched

@@ -1,5 +1,6 @@
 """Metric curves in the style of the paper's Figures 4-5: one line per policy (mean over
-seeds) with a shaded band of one standard deviation, x = simulated seconds."""
+seeds) with a shaded band of one standard deviation, x = simulated seconds; a perceived
+mapper's curve is dashed in its policy's color."""
 
 from __future__ import annotations
 
@@ -17,8 +18,10 @@ LABELS = {"ori": "ORI", "cori": "cORI", "cori_any": "cORI (any label)", "opi": "
 
 
 def mean_std(df: pd.DataFrame) -> pd.DataFrame:
-    """Per (world, policy, detector, metric, time_s): mean and std over seeds."""
-    g = df.groupby(["world", "policy", "detector", "metric", "time_s"])["value"]
+    """Per (world, policy, detector, mapper, metric, time_s): mean and std over seeds."""
+    if "mapper" not in df.columns:
+        df = df.assign(mapper="oracle")
+    g = df.groupby(["world", "policy", "detector", "mapper", "metric", "time_s"])["value"]
     return g.agg(["mean", "std", "count"]).reset_index().fillna({"std": 0.0})
 
 
@@ -26,9 +29,12 @@ def plot_curves(df: pd.DataFrame, world: str, metric: str, ax=None):
     """Draw one world's metric curves (all policies) on ax; returns the axes."""
     ax = ax or plt.subplots(figsize=(6, 3.6))[1]
     stats = mean_std(df[(df.world == world) & (df.metric == metric)])
-    for (policy, detector), s in stats.groupby(["policy", "detector"]):
+    colors = {p: f"C{i}" for i, p in enumerate(sorted(stats.policy.unique()))}
+    for (policy, detector, mapper), s in stats.groupby(["policy", "detector", "mapper"]):
         name = policy if detector == "off" else f"{policy} ({detector})"
-        line, = ax.plot(s.time_s, s["mean"], label=f"{name} (n={int(s['count'].max())})")
+        name += "" if mapper == "oracle" else f" [{mapper}]"  # one color per policy, dashed when perceived
+        line, = ax.plot(s.time_s, s["mean"], color=colors[policy], linestyle="-" if mapper == "oracle" else "--",
+                        label=f"{name} (n={int(s['count'].max())})")
         ax.fill_between(s.time_s, (s["mean"] - s["std"]).clip(0, 1), (s["mean"] + s["std"]).clip(0, 1),
                         color=line.get_color(), alpha=0.2, linewidth=0)
     ax.set_xlabel("time [s]")

@@ -1,8 +1,10 @@
 """Results tables: long-format metric curves and per-object states, written atomically.
 
-``metrics.csv``: world, policy, detector, seed, time_s, metric, value (one row per sample).
-``objects.csv``: world, policy, detector, seed, object, category, ps_G, ps, coverage, label,
-confidence, P_G, p (the final state of each object).
+``metrics.csv``: world, policy, detector, mapper, seed, time_s, metric, value (one row per
+sample; ``mapper`` is who built the scored map: "oracle", "perceived", or "own" for a map
+scored by ``rosmeery evaluate``).
+``objects.csv``: world, policy, detector, mapper, seed, object, category, ps_G, ps, coverage,
+label, confidence, P_G, p (the final state of each object).
 """
 
 from __future__ import annotations
@@ -16,25 +18,26 @@ import pandas as pd
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)  # read once: the process's umask, for the mode of files written atomically
-METRIC_COLUMNS = ["world", "policy", "detector", "seed", "time_s", "metric", "value"]
-OBJECT_COLUMNS = ["world", "policy", "detector", "seed", "object", "category", "ps_G", "ps", "coverage",
+METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
+OBJECT_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "object", "category", "ps_G", "ps", "coverage",
                   "label", "confidence", "P_G", "p"]
 
 
 def metric_frame(curves: dict[str, np.ndarray], times: np.ndarray, *, world: str, policy: str,
-                 detector: str, seed: int) -> pd.DataFrame:
+                 detector: str, seed: int, mapper: str = "oracle") -> pd.DataFrame:
     """Long table of curves {metric: (T,)} sampled at times (T,) seconds."""
     parts = [pd.DataFrame({"time_s": np.asarray(times, float), "metric": name, "value": np.asarray(c, float)})
              for name, c in curves.items()]
     df = pd.concat(parts, ignore_index=True)
     df.insert(0, "seed", int(seed))
+    df.insert(0, "mapper", mapper)
     df.insert(0, "detector", detector)
     df.insert(0, "policy", policy)
     df.insert(0, "world", world)
     return df[METRIC_COLUMNS]
 
 
-def object_frame(world, log, *, policy: str, detector: str, seed: int) -> pd.DataFrame:
+def object_frame(world, log, *, policy: str, detector: str, seed: int, mapper: str = "oracle") -> pd.DataFrame:
     """Per-object final state from one env's :class:`ObjectLog` at one time (fields (N,))."""
     truth = world.truth
     names = world.taxonomy.names
@@ -43,7 +46,7 @@ def object_frame(world, log, *, policy: str, detector: str, seed: int) -> pd.Dat
     ps = np.asarray(log.ps)
     ps = ps.astype(int) if np.all(ps == np.round(ps)) else ps.astype(float)
     return pd.DataFrame({
-        "world": world.name, "policy": policy, "detector": detector, "seed": int(seed),
+        "world": world.name, "policy": policy, "detector": detector, "mapper": mapper, "seed": int(seed),
         "object": list(truth.names), "category": list(truth.categories),
         "ps_G": np.asarray(truth.ps_G), "ps": ps, "coverage": ps / np.asarray(truth.ps_G),
         "label": [names[k] if k >= 0 else "" for k in label], "confidence": conf_held,
@@ -83,6 +86,8 @@ def load(directory: str | Path) -> pd.DataFrame:
         raise InputError(str(path), "file", "not found: not a results folder") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as err:
         raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0][:120]})") from None
+    if "mapper" not in df.columns:  # results written before mappers were a column
+        df.insert(METRIC_COLUMNS.index("mapper"), "mapper", "oracle")
     missing = [c for c in METRIC_COLUMNS if c not in df.columns]
     if missing:
         raise InputError(str(path), "columns", f"missing {', '.join(missing)}")

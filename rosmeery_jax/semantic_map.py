@@ -34,27 +34,33 @@ def semantic_map(world, knowledge, time_s: float) -> tuple[trimesh.Trimesh, dict
     truth = world.truth
     seen = np.asarray(knowledge.seen) > 0.5
     obj = np.asarray(truth.samples.object)[seen]
-    label = np.asarray(knowledge.label)
-    conf = np.asarray(knowledge.confidence, np.float32)
-    pts = np.asarray(truth.samples.points)[seen]
-    cloud = trimesh.Trimesh(vertices=pts, faces=np.zeros((0, 3), np.int64), process=False)
-    cloud.vertex_attributes["object_id"] = obj.astype(np.int32)
-    cloud.vertex_attributes["label"] = label[obj].astype(np.int32)
-    cloud.vertex_attributes["confidence"] = conf[obj]
-    names = world.taxonomy.names
+    return build_map(world, np.asarray(truth.samples.points)[seen], obj, list(truth.names),
+                     np.asarray(knowledge.label), np.asarray(knowledge.confidence, np.float32), time_s)
+
+
+def build_map(world, points: np.ndarray, instance: np.ndarray, names: list[str], label: np.ndarray,
+              confidence: np.ndarray, time_s: float) -> tuple[trimesh.Trimesh, dict]:
+    """The map of points (P, 3) with instance ids (P,) indexing names, label (category index,
+    -1 none) and confidence (one entry per id): the PLY cloud and the JSON's dict."""
+    label = np.asarray(label)
+    conf = np.asarray(confidence, np.float32)
+    cloud = trimesh.Trimesh(vertices=points, faces=np.zeros((0, 3), np.int64), process=False)
+    cloud.vertex_attributes["object_id"] = instance.astype(np.int32)
+    cloud.vertex_attributes["label"] = label[instance].astype(np.int32)
+    cloud.vertex_attributes["confidence"] = conf[instance]
+    categories = world.taxonomy.names
     objects, predicates = [], []
-    for n in np.unique(obj):
-        p = pts[obj == n].astype(np.float64)
+    for n in np.unique(instance):
+        p = points[instance == n].astype(np.float64)
         lo, hi = p.min(0), p.max(0)
         k = int(label[n])
-        name = truth.names[n]
         objects.append({
-            "id": int(n), "name": name, "label": names[k] if k >= 0 else None,
+            "id": int(n), "name": names[n], "label": categories[k] if k >= 0 else None,
             "confidence": round(float(conf[n]), 6), "observed_points": int(len(p)),
             "bbox": {"center": ((lo + hi) / 2).round(4).tolist(), "size": (hi - lo).round(4).tolist(), "yaw": 0.0},
         })
         if k >= 0:
-            predicates += [list(t) for t in world.taxonomy.predicates(name, names[k])]
+            predicates += [list(t) for t in world.taxonomy.predicates(names[n], categories[k])]
     meta = {
         "frame": {"id": "map", "world": world.name, "units": "m", "axes": "x forward, y left, z up (world)",
                   "time_s": float(time_s)},
@@ -64,13 +70,17 @@ def semantic_map(world, knowledge, time_s: float) -> tuple[trimesh.Trimesh, dict
     return cloud, meta
 
 
-def write_semantic_map(directory: str | Path, stem: str, world, knowledge, time_s: float) -> tuple[Path, Path]:
+def write_map(directory: str | Path, stem: str, cloud: trimesh.Trimesh, meta: dict) -> tuple[Path, Path]:
     """Write ``<stem>.ply`` and ``<stem>.json`` into directory (atomically)."""
-    cloud, meta = semantic_map(world, knowledge, time_s)
     d = Path(directory)
     ply = write_atomic(d / f"{stem}.ply", trimesh.exchange.ply.export_ply(cloud, encoding="binary", include_attributes=True))
     js = write_atomic(d / f"{stem}.json", json.dumps(meta, indent=1))
     return ply, js
+
+
+def write_semantic_map(directory: str | Path, stem: str, world, knowledge, time_s: float) -> tuple[Path, Path]:
+    """Write ``<stem>.ply`` and ``<stem>.json`` into directory (atomically)."""
+    return write_map(directory, stem, *semantic_map(world, knowledge, time_s))
 
 
 def load_schema() -> dict:

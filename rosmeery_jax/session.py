@@ -41,11 +41,12 @@ from rosmeery_jax import metrics, overrides, results
 from rosmeery_jax.errors import InputError, read_toml
 
 DETECTORS = ("yolo", "oracle", "off")
+MAPPERS = ("oracle", "perceived")
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
 DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
-                 "metrics", "env")
+                 "metrics", "env", "mappers")
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,9 @@ class SessionConfig:
     detector_period_s: float = 10.0  # labels from the frames of one period reach the robot's
     # knowledge (what policies see) at the start of the period after next
     sample_s: float = 1.0  # seconds between rows of metrics.csv
+    mappers: tuple[str, ...] = ("oracle",)  # who builds the scored map: "oracle" (the built-in
+    # knowledge: detections tied to objects by the ground-truth segmentation) and/or
+    # "perceived" (depth inside detector boxes, no ground truth: rosmeery_jax.perceived)
     out: str = "results/session"
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
 
@@ -72,7 +76,8 @@ class SessionConfig:
         from rosmeery_jax.env import EnvConfig
 
         _check_values(self, source)
-        for name, values in (("worlds", self.worlds), ("policies", self.policies), ("metrics", self.metrics)):
+        for name, values in (("worlds", self.worlds), ("policies", self.policies), ("metrics", self.metrics),
+                         ("mappers", self.mappers)):
             if not values:
                 raise InputError(source, name, "is empty: name at least one")
         with _as_source(source):
@@ -124,6 +129,12 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
     for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):
         if not getattr(cfg, name) > 0:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
+    for m in cfg.mappers:
+        if m not in MAPPERS:
+            raise InputError(source, "mappers", f"{m!r} is not a mapper (mappers: {', '.join(MAPPERS)})")
+    if "perceived" in cfg.mappers and cfg.detector == "off":
+        raise InputError(source, "mappers", "'perceived' builds its map from detector boxes: use --detector yolo "
+                         "or oracle")
 
 
 def _check_world_name(name: str) -> None:
@@ -211,7 +222,7 @@ def load_config(path: str | Path | None, **cli) -> SessionConfig:
         source = str(path)
         values = _read_toml(Path(path))
     values.update({k: v for k, v in cli.items() if v is not None})
-    for key in ("worlds", "policies", "metrics"):
+    for key in ("worlds", "policies", "metrics", "mappers"):
         if isinstance(values.get(key), str):
             values[key] = tuple(x.strip() for x in values[key].split(",") if x.strip())
         elif key in values:
@@ -226,7 +237,7 @@ def load_config(path: str | Path | None, **cli) -> SessionConfig:
         values["policies"] = _group_replay(values["policies"])
     if "env" in values and not isinstance(values["env"], dict):
         raise InputError(source, "env", f"{values['env']!r} must be a table of EnvConfig overrides")
-    lists = {k: values.pop(k) for k in ("worlds", "policies", "metrics", "env") if k in values}
+    lists = {k: values.pop(k) for k in ("worlds", "policies", "metrics", "mappers", "env") if k in values}
     cfg = overrides.apply(SessionConfig(), values, source)  # type-checks every scalar option
     return replace(cfg, **lists).validate(source)
 
@@ -362,7 +373,7 @@ class Session:
                 clock = engine.CompileClock()
                 t0 = time.perf_counter()
                 sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
-                                      _detectors(cfg, group), bar, clock)
+                                      _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers)
                 timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0}
                 timings.append(timing)
                 for run in group.runs:
@@ -429,17 +440,26 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
     curves, objects, paths = [], [], []
     for seed in range(len(rows)):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[seed], logs)
-        c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
-        curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed, **tags))
+        mapped = {}
+        if "oracle" in cfg.mappers:
+            mapped["oracle"] = log
+            k = jax.tree.map(lambda a: a[rows[seed]], sim.knowledge)
+            k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
+                                                                                "conf_any")})
+            write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
+        if "perceived" in cfg.mappers:
+            mapped["perceived"] = _perceived_log(env, sim.mappers[rows[seed]], len(times), cfg.decide_every,
+                                                 out / "maps" / f"{run.name}__seed{seed}__perceived", times[-1])
+        for mapper, mlog in mapped.items():
+            c = metrics.compute(mlog, env.truth, cfg.metrics)  # {name: (T,)}
+            curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
+                                               mapper=mapper, **tags))
+            final = jax.tree.map(lambda a: a[-1], mlog)
+            objects.append(results.object_frame(world, final, seed=seed, mapper=mapper, policy=policy,
+                                                detector=cfg.detector))
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
                                    "time_s": np.round(times[keep], 6), "x": poses[seed, keep, 0],
                                    "y": poses[seed, keep, 1], "yaw": poses[seed, keep, 2]}))
-        final = jax.tree.map(lambda a: a[-1], log)
-        objects.append(results.object_frame(world, final, seed=seed, policy=policy, detector=cfg.detector))
-        k = jax.tree.map(lambda a: a[rows[seed]], sim.knowledge)
-        k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
-                                                                            "conf_any")})
-        write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
     runs = out / "runs"
     results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{run.name}.objects.csv")
     results.write_atomic(runs / f"{run.name}.timing.json", json.dumps(
@@ -447,6 +467,22 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
         indent=2))
     results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{run.name}.trajectory.csv")
     results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
+
+
+def _perceived_log(env, mapper, steps: int, decide_every: int, stem: Path, time_s: float):
+    """The perceived mapper's ObjectLog (steps, N): the map of the frames taken before each
+    step (a frame counts from the step after it, as labels do); its final map is written to
+    ``stem``.ply / .json."""
+    from rosmeery_jax.map_eval import TOLERANCE
+    from rosmeery_jax.perceived import frame_logs
+    from rosmeery_jax.semantic_map import build_map, write_map
+
+    counted = np.maximum(np.arange(steps) - 1, 0) // decide_every  # frames counted at each step
+    per_frame = frame_logs(env.world, mapper, int(counted[-1]), TOLERANCE)
+    points, instance, label, conf = mapper.snapshot(int(counted[-1]))
+    names = [f"instance_{i}" for i in range(len(label))]
+    write_map(stem.parent, stem.name, *build_map(env.world, points, instance, names, label, conf, float(time_s)))
+    return type(per_frame)(*(a[counted] for a in per_frame))
 
 
 def merge(out: Path) -> None:

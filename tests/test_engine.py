@@ -26,7 +26,7 @@ BODIES = """
 <body name="fridge_1" pos="-1.5 1.4 0"><geom type="box" pos="0 0 0.8" size="0.3 0.3 0.8"/></body>
 """
 CATEGORIES = {"table_1": "desk", "chair_1": "chair", "fridge_1": "refrigerator"}
-KEY = ["world", "policy", "seed", "metric", "time_s"]
+KEY = ["world", "policy", "mapper", "seed", "metric", "time_s"]
 
 
 @pytest.fixture(scope="module")
@@ -49,13 +49,25 @@ def _rows(df, world, policy, seeds) -> pd.DataFrame:
 
 def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, tmp_path):
     """A world padded to a larger one, beside other worlds, policies and seeds, with the
-    detector's labels reaching semantic_nbv on the schedule: bitwise the same as alone."""
-    alone = _run(tmp_path / "alone", room, "semantic_nbv", 2, "--detector", "oracle")
-    mixed = _run(tmp_path / "mixed", f"{room},small_office", "random,semantic_nbv", 3, "--detector", "oracle")
+    detector's labels reaching semantic_nbv on the schedule: bitwise the same as alone, for
+    the built-in knowledge and the perceived mapper alike."""
+    both = ("--detector", "oracle", "--mapper", "oracle,perceived")
+    alone = _run(tmp_path / "alone", room, "semantic_nbv", 2, *both)
+    mixed = _run(tmp_path / "mixed", f"{room},small_office", "random,semantic_nbv", 3, *both)
     a, b = _rows(alone, "room", "semantic_nbv", 2), _rows(mixed, "room", "semantic_nbv", 2)
     assert len(a) and len(a) == len(b)
     assert (a.value.to_numpy() == b.value.to_numpy()).all()
     assert a.value[a.metric == "opi"].max() > 0  # labels arrived: the comparison has something to compare
+    assert set(a.mapper) == {"oracle", "perceived"}
+    final = a[(a.metric == "ori") & (a.time_s == a.time_s.max())].set_index(["mapper", "seed"]).value
+    assert (final["perceived"] > 0).all() and (final["perceived"] < final["oracle"]).all()
+    ev = tmp_path / "evaluated"  # the perceived map written at the end scores as its curve ends
+    ply = tmp_path / "alone" / "maps" / "room__semantic_nbv__seed0__perceived.ply"
+    assert main(["evaluate", "--world", room, "--map", str(ply), "--out", str(ev)]) == 0
+    summary = json.loads((ev / "summary.json").read_text())
+    last = a[(a.mapper == "perceived") & (a.seed == 0) & (a.time_s == a.time_s.max())].set_index("metric").value
+    for m in ("ori", "cori", "opi", "opi_strict"):
+        assert summary[m] == pytest.approx(last[m], abs=1e-6)
     ta, tb = (pd.read_csv(d / "runs" / "room__semantic_nbv.trajectory.csv") for d in (tmp_path / "alone",
                                                                                        tmp_path / "mixed"))
     tb = tb[tb.seed < 2].reset_index(drop=True)

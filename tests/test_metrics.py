@@ -248,14 +248,14 @@ def replay_dir(tmp_path_factory):
 
 def test_replay_writes_curves_with_a_user_metric(replay_dir):
     df = pd.read_csv(replay_dir / "metrics.csv")
-    assert list(df.columns) == ["world", "policy", "detector", "seed", "time_s", "metric", "value"]
+    assert list(df.columns) == ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
     assert set(df.metric) == {"ori", "cori", "opi", "half_ori"}
     assert set(df.policy) == {"replay"}
     ori = df[df.metric == "ori"].value.to_numpy()
     np.testing.assert_allclose(df[df.metric == "half_ori"].value.to_numpy(), 0.5 * ori)
     assert ori[-1] > 0.1 and np.all(np.diff(ori) >= 0)
     objects = pd.read_csv(replay_dir / "objects.csv")
-    assert list(objects.columns) == ["world", "policy", "detector", "seed", "object", "category", "ps_G", "ps",
+    assert list(objects.columns) == ["world", "policy", "detector", "mapper", "seed", "object", "category", "ps_G", "ps",
                                      "coverage", "label", "confidence", "P_G", "p"]
     assert len(objects) == 11 and (objects.ps <= objects.ps_G).all()
 

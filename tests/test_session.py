@@ -27,7 +27,7 @@ def session_dir(tmp_path_factory):
 
 def test_session_writes_the_results_folder(session_dir):
     df = results.load(session_dir)
-    assert list(df.columns) == ["world", "policy", "detector", "seed", "time_s", "metric", "value"]
+    assert list(df.columns) == ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
     assert set(df.seed) == {0, 1} and set(df.policy) == {"random"}
     assert set(df.metric) >= {"ori", "cori", "opi"}
     times = sorted(df.time_s.unique())

@@ -85,7 +85,7 @@ class YoloDetector:
                 keep = label >= 0
                 d, label = d[keep], label[keep]
                 obj = associate(d[:, :4], seg[i + j])
-                out.append((obj, label, d[:, 4].astype(np.float32)))
+                out.append((obj, label, d[:, 4].astype(np.float32), d[:, :4].astype(np.float32)))
         return out
 
 
@@ -116,20 +116,23 @@ class OracleDetector:
                 sib = self.siblings[label[k]]
                 label[k] = sib[rng.integers(len(sib))]
             keep = hit & (conf >= self.conf)
-            out.append((b[keep, 0].astype(np.int32), label[keep].astype(np.int32), conf[keep].astype(np.float32)))
+            out.append((b[keep, 0].astype(np.int32), label[keep].astype(np.int32), conf[keep].astype(np.float32),
+                        b[keep, 1:5].astype(np.float32)))
         return out
 
 
-def pad(per_frame: list[tuple], frames: int, max_det: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Detections of ``frames`` frames -> obj, label (frames, max_det) int32 (-1 = none) and
-    conf (frames, max_det), keeping each frame's most confident ``max_det``."""
+def pad(per_frame: list[tuple], frames: int, max_det: int) -> tuple[np.ndarray, ...]:
+    """Detections of ``frames`` frames -> obj, label (frames, max_det) int32 (-1 = none),
+    conf (frames, max_det) and box (frames, max_det, 4), keeping each frame's most confident
+    ``max_det``."""
     obj = np.full((frames, max_det), -1, np.int32)
     label = np.full((frames, max_det), -1, np.int32)
     conf = np.zeros((frames, max_det), np.float32)
-    for f, (o, lab, c) in enumerate(per_frame):
+    box = np.zeros((frames, max_det, 4), np.float32)
+    for f, (o, lab, c, b) in enumerate(per_frame):
         k = np.argsort(-c, kind="stable")[:max_det]
-        obj[f, :len(k)], label[f, :len(k)], conf[f, :len(k)] = o[k], lab[k], c[k]
-    return obj, label, conf
+        obj[f, :len(k)], label[f, :len(k)], conf[f, :len(k)], box[f, :len(k)] = o[k], lab[k], c[k], b[k]
+    return obj, label, conf, box
 
 
 def make_detector(name: str, world, conf: float, weights: str | None = None):

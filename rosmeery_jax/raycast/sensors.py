@@ -152,12 +152,20 @@ def depth_seg(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Arr
 
 
 def rgb(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """RGB image (Hr, Wr, 3) uint8 and labels (Hr, Wr) at the detector's resolution.
+    """RGB image (Hr, Wr, 3) uint8 and labels (Hr, Wr) at the detector's resolution."""
+    img, _, label = rgbd(rs, cfg, pose)
+    return img, label
+
+
+def rgbd(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """RGB (Hr, Wr, 3) uint8, depth (Hr, Wr) along the optical axis (0 where nothing is hit
+    in range, as depth cameras report a missing return) and labels (Hr, Wr), from one cast
+    at the RGB resolution ``rgb_width`` x ``rgb_height``.
 
     Lambert shading with a light at the camera plus ambient, a faint floor grid and a
     distance fade, so shapes read as they would in a plain rendered scene.
     """
-    o, _ = camera_pose(cfg, pose)
+    o, axis = camera_pose(cfg, pose)
     hit, d, rs = _camera_cast(rs, cfg, pose, cfg.rgb_width, cfg.rgb_height)
     base = jnp.where((hit.box >= 0)[..., None], rs.rgb[jnp.maximum(hit.box, 0)], rs.floor_rgb)
     p = o + hit.dist[..., None] * d
@@ -170,4 +178,6 @@ def rgb(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, ja
     sky = jnp.array([0.93, 0.93, 0.95])  # ceiling-less worlds: a flat bright background
     color = jnp.where((hit.label == NOTHING)[..., None], sky, color)
     img = jnp.clip(color * 255.0 + 0.5, 0, 255).astype(jnp.uint8)
-    return img.reshape(cfg.rgb_height, cfg.rgb_width, 3), hit.label.reshape(cfg.rgb_height, cfg.rgb_width)
+    depth = jnp.where(hit.label == NOTHING, 0.0, hit.dist * (d @ axis))
+    shape = (cfg.rgb_height, cfg.rgb_width)
+    return img.reshape(*shape, 3), depth.reshape(shape), hit.label.reshape(shape)

@@ -141,7 +141,7 @@ class Teleop:
 
         found = self.detector(img[None], lab[None].astype(np.int32), np.array([[0, self.frames]]))
         self.frames += 1
-        obj, label, conf = pad(found, 1, 32)
+        obj, label, conf, _ = pad(found, 1, 32)
         self.state = self._attach(self.state, jnp.asarray(obj[0]), jnp.asarray(label[0]), jnp.asarray(conf[0]))
 
     def stop(self) -> None:

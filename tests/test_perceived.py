@@ -1,0 +1,139 @@
+"""The perceived mapper: depth inside detector boxes, association by overlap, no ground truth."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import room_xml
+from rosmeery_jax import metrics
+from rosmeery_jax.detector.dataset import visible_boxes
+from rosmeery_jax.env import make
+from rosmeery_jax.knowledge import GroundTruthTable
+from rosmeery_jax.map_eval import read_map, score
+from rosmeery_jax.perceived import PerceivedMapper, frame_logs
+from rosmeery_jax.raycast.sensors import rgbd
+from rosmeery_jax.semantic_map import build_map, write_map
+
+# Apart: a chair (0.4 m cube) and a desk (0.6 m cube) 2 m apart; together: the same two
+# touching, side by side at the same distance from the camera.
+APART = """
+<body name="chair"><geom type="box" pos="-1 0 0.2" size="0.2 0.2 0.2"/></body>
+<body name="desk"><geom type="box" pos="1 0 0.3" size="0.3 0.3 0.3"/></body>
+"""
+TOGETHER = """
+<body name="chair"><geom type="box" pos="-0.2 0 0.2" size="0.2 0.2 0.2"/></body>
+<body name="desk"><geom type="box" pos="0.3 0.1 0.3" size="0.3 0.3 0.3"/></body>
+"""
+POSE = np.array([0.0, 1.6, -np.pi / 2], np.float32)  # looking down -y at both objects
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """{name: (env, render(pose) -> depth, labels)}, one compile each."""
+    out = {}
+    for name, bodies in (("apart", APART), ("together", TOGETHER)):
+        path = tmp_path_factory.mktemp(name) / "room.xml"
+        path.write_text(room_xml(bodies, {"chair": "chair", "desk": "desk"}, spawn=(0.0, 1.0, 0.0)))
+        env = make(str(path), camera__hfov=float(np.deg2rad(90)))
+        render = jax.jit(lambda pose, env=env: rgbd(env.rays, env.config.camera, pose)[1:])
+        out[name] = env, render
+    return out
+
+
+def _frame(scenes, name, pose=POSE):
+    env, render = scenes[name]
+    depth, label = (np.asarray(a) for a in render(jnp.asarray(pose)))
+    return env, depth, label
+
+
+def _ori(env, log):
+    t = env.world.truth
+    table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))
+    return {k: float(v) for k, v in metrics.compute(log, table).items()}
+
+
+def _tight(label):
+    b = visible_boxes(label, 40)  # rows object, x1, y1, x2, y2, pixels
+    return b[:, 0], b[:, 1:5].astype(np.float32)
+
+
+def test_tight_boxes_give_one_instance_per_object_and_points_only_on_objects(scenes, tmp_path):
+    env, depth, label = _frame(scenes, "apart")
+    obj, boxes = _tight(label)
+    assert list(obj) == [0, 1]  # both objects in view
+    m = PerceivedMapper(env.config.camera)
+    m.add(0, POSE, depth, boxes, np.array([0, 4]), np.array([0.8, 0.6], np.float32))  # chair, desk (indices)
+    categories = env.world.taxonomy.names
+    assert categories[0] == "chair" and categories[4] == "desk"
+    points, instance, _ = m.cloud()
+    assert m.instances == 2 and set(instance) == {0, 1}
+    assert points[:, 2].min() >= 0.03  # the floor is dropped
+    log = frame_logs(env.world, m, 1, 0.05)
+    assert list(log.ps[0]) == [0, 0]  # before the frame: nothing
+    assert (log.ps[1] > 0).all() and list(log.label[1]) == [0, 4]
+    np.testing.assert_allclose(log.conf_true[1], [0.8, 0.6])
+    sc = score(env.world, _as_map(tmp_path, env, m, 1))
+    assert sc.off_object == 0.0 and list(sc.matched) == [0, 1]
+
+
+def _as_map(tmp_path, env, m, frames):
+    points, instance, label, conf = m.snapshot(frames)
+    names = [f"instance_{i}" for i in range(len(label))]
+    ply, _ = write_map(tmp_path, "perceived", *build_map(env.world, points, instance, names, label, conf, 1.0))
+    return read_map(ply, env.world.taxonomy)
+
+
+def test_a_second_view_joins_the_same_instance_and_a_more_confident_label_replaces_the_first(scenes, tmp_path):
+    env, depth, label = _frame(scenes, "apart")
+    obj, boxes = _tight(label)
+    near = POSE + np.array([0.0, -0.3, 0.0], np.float32)
+    _, depth2, label2 = _frame(scenes, "apart", near)
+    obj2, boxes2 = _tight(label2)
+    m = PerceivedMapper(env.config.camera)
+    m.add(0, POSE, depth, boxes[:1], np.array([3]), np.array([0.5], np.float32))  # the chair, mislabelled
+    m.add(1, near, depth2, boxes2[:1], np.array([0]), np.array([0.9], np.float32))  # seen again, right label
+    assert m.instances == 1
+    log = frame_logs(env.world, m, 2, 0.05)
+    assert log.label[1][0] == 3 and log.conf_true[1][0] == 0.0  # after frame 0: wrong label, no cORI
+    assert log.label[2][0] == 0 and log.conf_true[2][0] == pytest.approx(0.9)
+    assert log.ps[2][0] >= log.ps[1][0] > 0  # the nearer view adds samples, never removes
+    assert _ori(env, jax.tree.map(lambda a: a[2], log))["cori"] > 0
+
+
+def test_one_box_over_two_touching_objects_merges_them_and_loses_the_smaller(scenes, tmp_path):
+    env, depth, label = _frame(scenes, "together")
+    obj, boxes = _tight(label)
+    assert list(obj) == [0, 1]
+    union = np.concatenate([boxes[:, :2].min(0), boxes[:, 2:].max(0)])[None]
+    merged = PerceivedMapper(env.config.camera)
+    merged.add(0, POSE, depth, union, np.array([4]), np.array([0.9], np.float32))
+    separate = PerceivedMapper(env.config.camera)
+    separate.add(0, POSE, depth, boxes, np.array([0, 4]), np.array([0.9, 0.9], np.float32))
+    lm, ls = (frame_logs(env.world, m, 1, 0.05) for m in (merged, separate))
+    assert merged.instances == 1 and separate.instances == 2
+    assert lm.ps[1][0] == 0 and lm.ps[1][1] == ls.ps[1][1] > 0  # the desk keeps its samples, the chair has none
+    assert _ori(env, jax.tree.map(lambda a: a[1], lm))["ori"] < _ori(env, jax.tree.map(lambda a: a[1], ls))["ori"]
+
+
+def test_padding_and_empty_boxes_add_nothing(scenes, tmp_path):
+    env, depth, _ = _frame(scenes, "apart")
+    m = PerceivedMapper(env.config.camera)
+    m.add(0, POSE, depth, np.zeros((3, 4), np.float32), np.array([-1, -1, 2]), np.zeros(3, np.float32))
+    assert m.instances == 0 and len(m.cloud()[0]) == 0
+    log = frame_logs(env.world, m, 1, 0.05)
+    assert log.ps.shape == (2, 2) and not log.ps.any() and (log.label == -1).all()
+
+
+def test_perceived_needs_a_detector(tmp_path, capsys):
+    from rosmeery_jax.cli import main
+
+    assert main(["run", "--worlds", "small_office", "--detector", "off", "--mapper", "perceived",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mappers" in err[0] and not (tmp_path / "o").exists()
+    assert main(["run", "--worlds", "small_office", "--detector", "oracle", "--mapper", "oracle,ideal",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "'ideal' is not a mapper" in capsys.readouterr().err
