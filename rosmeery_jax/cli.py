@@ -318,6 +318,18 @@ def _cmd_evaluate(args) -> int:
     return 0
 
 
+def _cmd_record(args) -> int:
+    from rosmeery_jax.record import RecordConfig, record
+
+    seeds = args.seeds if args.seed is None else [args.seed]
+    cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate)
+    folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
+                     progress=not args.quiet)
+    print(f"recorded {len(folders)} sequence(s) (TUM RGB-D layout, laser, odometry) in {args.out}/: "
+          + ", ".join(f.name for f in folders))
+    return 0
+
+
 def _cmd_plot(args) -> int:
     from rosmeery_jax import plots, results
 
@@ -402,6 +414,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("record", help="drive the robot with a policy and write what it saw: TUM RGB-D, laser, "
+                       "odometry (docs/record.md)")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--policy", default="frontier", metavar="P", help="default: frontier")
+    p.add_argument("--seeds", type=int, default=1, metavar="N", help="record seeds 0..N-1, batched (default 1)")
+    p.add_argument("--seed", type=int, metavar="S", help="record seed S only (instead of --seeds)")
+    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="simulated seconds (default 60)")
+    p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
+    p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    p.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="RGB-D frames per simulated second "
+                   "(a divisor of 10; default 5); laser, odometry and poses are written every 0.1 s")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_record)
 
     p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
     dsub = p.add_subparsers(dest="detector_command", required=True)

@@ -16,16 +16,13 @@ TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Sma
 POLICIES = ("frontier", "random", "semantic_nbv")
 
 
-def main(folder: str) -> None:
-    out = Path(folder)
-    df = pd.read_csv(out / "metrics.csv")
-    end = df.time_s.max()
-    final = df[np.isclose(df.time_s, end)]
+def table(final: pd.DataFrame) -> None:
+    """The README's table of final values (mean ± std over seeds; bold within one std of the best)."""
     print("| world | metric | frontier | random | semantic NBV |\n|---|---|---|---|---|")
     for w, title in TITLES.items():
         for m in ("ori", "cori", "opi"):
-            stats = final[(final.world == w) & (final.metric == m)].groupby("policy").value.agg(["mean", "std"])
-            stats["std"] = final[(final.world == w) & (final.metric == m)].groupby("policy").value.std(ddof=0)
+            part = final[(final.world == w) & (final.metric == m)].groupby("policy").value
+            stats = pd.DataFrame({"mean": part.mean(), "std": part.std(ddof=0)})
             best = stats["mean"].idxmax()
             cells = []
             for p in POLICIES:
@@ -33,6 +30,25 @@ def main(folder: str) -> None:
                 text = f"{mean:.2f} ± {std:.2f}"
                 cells.append(f"**{text}**" if mean >= stats.loc[best, "mean"] - stats.loc[best, "std"] else text)
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
+
+
+def main(folder: str) -> None:
+    out = Path(folder)
+    full = pd.read_csv(out / "metrics.csv")
+    if "mapper" not in full.columns:
+        full["mapper"] = "oracle"
+    end = full.time_s.max()
+    for mapper in sorted(full.mapper.unique()):
+        print(f"\nmapper: {mapper}")
+        part = full[full.mapper == mapper]
+        table(part[np.isclose(part.time_s, end)])
+    if {"oracle", "perceived"} <= set(full.mapper):
+        f = full[np.isclose(full.time_s, end) & (full.metric == "ori")]
+        ratio = f.pivot_table(index=["world", "policy"], columns="mapper", values="value", aggfunc="mean")
+        print("\nfinal ORI, perceived / oracle (mean over seeds):\n",
+              (ratio.perceived / ratio.oracle).round(2).unstack().to_string())
+    df = full[full.mapper == "oracle"]
+    final = df[np.isclose(df.time_s, end)]
     ori = df[df.metric == "ori"]
     print("\nORI gained over the last 120 s (mean over seeds):")
     for (w, p), g in ori.groupby(["world", "policy"]):

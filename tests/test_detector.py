@@ -117,9 +117,10 @@ def test_oracle_is_deterministic_and_within_the_confidence_model():
     oracle = OracleDetector(np.array([tax.index("chair"), tax.index("desk")]), tax, conf=0.2)
     ids = np.array([[0, 0], [0, 1], [1, 0]])
     a, b = oracle(None, seg, ids), oracle(None, seg, ids)
-    for (o1, l1, c1), (o2, l2, c2) in zip(a, b):
+    for (o1, l1, c1, b1), (o2, l2, c2, _) in zip(a, b):
         assert o1.tolist() == o2.tolist() and np.array_equal(c1, c2)
         assert set(o1.tolist()) <= {0}
+        assert all(box.tolist() == [10, 10, 50, 40] for box in b1)  # x1, y1, x2, y2 of the object's pixels
         assert np.all((c1 >= 0.2) & (c1 <= 0.99))
         assert all(lab == tax.index("chair") for lab in l1)  # s = 1: never a wrong label
 
