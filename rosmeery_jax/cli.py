@@ -187,6 +187,8 @@ def _print_summary(out: Path) -> None:
         if t["frames"]:
             print(f"detector: {t['frames']:,} frames in {t['detector_s']:.1f} s ({t['frames'] / t['detector_s']:,.0f} "
                   f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
+        if t.get("mapper_s"):
+            print(f"perceived mapper: {t['mapper_s']:.1f} s in the same worker thread")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
 

@@ -282,7 +282,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     pose0 = np.asarray(state.pose)
     for run in group.runs:
         run.host_policy.check_start(pose0[run.rows])
-    timing = {"envs": int(group.real.sum()), "padded_envs": b, "env_steps": 0, "frames": 0, "detector_s": 0.0,
+    timing = {"envs": int(group.real.sum()), "padded_envs": b, "env_steps": 0, "frames": 0, "detector_s": 0.0, "mapper_s": 0.0,
               "wait_s": 0.0}
     holder = {"labels": labels}
     pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
@@ -297,10 +297,12 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
             dets = _detect(group, detectors, shots, c * per_call)
             holder["labels"], per_frame = attach(data, blocks, holder["labels"], *(jnp.asarray(d) for d in dets[:3]))
             logs = _relabel(logs, per_frame, decide_every)
+            t1 = time.perf_counter()
             if mappers:
                 _perceive(mappers, c * per_call, poses, shots[2], dets, decide_every)
             with lock:
-                timing["detector_s"] += time.perf_counter() - t0
+                timing["detector_s"] += t1 - t0
+                timing["mapper_s"] += time.perf_counter() - t1
                 timing["frames"] += int(group.real.sum()) * per_call
         bar.update(per_call * decide_every * group.env.dt)
         done_steps = int(group.real.sum()) * (c + 1) * per_call * decide_every

@@ -11,7 +11,9 @@
   box of its observed points in the map frame: what the robot perceived, not the ground
   truth box) and ``predicates`` (the triples the robot declares from its labels).
 
-The map frame is the world frame (z up, metres): the robot is told its pose.
+The map frame is the world frame (z up, metres): the robot is told its pose. The perceived
+mapper's maps (:mod:`rosmeery_jax.perceived`) use the same format through :func:`build_map`:
+one vertex per claimed voxel, ``object_id`` an instance id named ``instance_<id>``.
 """
 
 from __future__ import annotations

@@ -7,7 +7,8 @@ seeds) is then written atomically (:func:`write_run`):
 
     OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
     OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
-    OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end
+    OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end (mapper "oracle";
+        ``__seed<k>__perceived`` for the perceived mapper's: rosmeery_jax.perceived)
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
     OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
     OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged once at the end
@@ -388,8 +389,9 @@ class Session:
 def _session_timing(groups: list[dict], t_start: float) -> dict:
     """This invocation's figures: every group summed, wall time from start to the merged
     files (set-up, compile, simulation, detection, writing)."""
-    total = {k: sum(g[k] for g in groups) for k in ("env_steps", "frames", "detector_s", "wait_s", "compile_s",
-                                                   "compiles", "xla_compiles", "cache_hits", "sim_s")}
+    keys = ("env_steps", "frames", "detector_s", "mapper_s", "wait_s", "compile_s", "compiles", "xla_compiles",
+            "cache_hits", "sim_s")
+    total = {k: sum(g.get(k, 0) for g in groups) for k in keys}
     wall = time.perf_counter() - t_start
     return {**total, "wall_s": wall, "env_steps_per_s": total["env_steps"] / wall,
             "sim_env_steps_per_s": total["env_steps"] / max(total["sim_s"], 1e-9), "groups": groups}
