@@ -159,7 +159,7 @@ def _cmd_run(args) -> int:
                       detector_period_s=args.detector_period_s, mappers=args.mapper)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
-    out = Session(cfg, progress=not args.quiet).run(resume=args.resume)
+    out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
     _print_summary(out)
     return 0
 
@@ -409,6 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "knowledge, ground-truth association) and/or perceived (depth inside detector boxes)")
     p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
+    p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a local "
+                   "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
+                   "[cluster] extra)")
     p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
                    "detector (progress granularity only; default 30)")
     p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "

@@ -87,7 +87,7 @@ def load(directory: str | Path) -> pd.DataFrame:
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as err:
         raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0][:120]})") from None
     if "mapper" not in df.columns:  # results written before mappers were a column
-        df.insert(METRIC_COLUMNS.index("mapper"), "mapper", "oracle")
+        df["mapper"] = "oracle"
     missing = [c for c in METRIC_COLUMNS if c not in df.columns]
     if missing:
         raise InputError(str(path), "columns", f"missing {', '.join(missing)}")

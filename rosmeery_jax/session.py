@@ -349,52 +349,77 @@ def _merged(old: dict, new: dict) -> dict:
 
 
 class Session:
-    def __init__(self, cfg: SessionConfig, progress: bool = True):
-        self.cfg, self.progress = cfg, progress
+    """``cluster``: None to simulate here, or a Ray address (rosmeery_jax.cluster) to send
+    each unfinished run to a worker; ``cache``: the workers' persistent compilation cache."""
+
+    def __init__(self, cfg: SessionConfig, progress: bool = True, cluster: str | None = None, cache: bool = True):
+        self.cfg, self.progress, self.cluster, self.cache = cfg, progress, cluster, cache
 
     def run(self, resume: bool = False) -> Path:
         """Run every unfinished (world, policy) pair in one batch per env configuration
-        (rosmeery_jax.engine), write each run's files, then the merged tables and plots."""
-        from rosmeery_jax import engine
-
+        (rosmeery_jax.engine), or one Ray task each, write each run's files, then the
+        merged tables and plots."""
         cfg = self.cfg
         out = Path(cfg.out)
+        if self.cluster:
+            from rosmeery_jax.cluster import require_ray
+
+            require_ray()  # before anything is written
         record = check_out(cfg, resume)
         results.write_atomic(out / "config.json", json.dumps({**record, "versions": _versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
                 if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
         t_start = time.perf_counter()
-        timings = []
-        if todo:
-            total = _decisions(cfg, 0.1)
-            groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
-                                         total * cfg.decide_every)
-            bar = _bar(len(groups) * cfg.duration, self.progress)
-            for group in groups:
-                clock = engine.CompileClock()
-                t0 = time.perf_counter()
-                sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
-                                      _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers)
-                timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0}
-                timings.append(timing)
-                for run in group.runs:
-                    write_run(cfg, group, run, out, sim, timing)
+        parts, extra = [], {}
+        if todo and self.cluster:
+            from rosmeery_jax.cluster import simulate_on_cluster
+
+            bar = _bar(len(todo) * cfg.duration, self.progress)
+            parts = simulate_on_cluster(cfg, todo, out, self.cluster, bar, self.cache)
             bar.close()
+            extra = {"cluster": self.cluster, "shards": len(parts)}
+        elif todo:
+            parts = self._simulate_here(todo, out)
         merge(out)
-        if timings:
-            results.write_atomic(out / "timing.json", json.dumps(_session_timing(timings, t_start), indent=2))
+        if parts:
+            timing = {**sum_timing(parts, t_start), **extra, "groups": [g for p in parts for g in p.get("groups", [p])]}
+            results.write_atomic(out / "timing.json", json.dumps(timing, indent=2))
         return out
 
+    def _simulate_here(self, todo: list[tuple[str, str]], out: Path) -> list[dict]:
+        """Simulate the runs in this process; returns each group's timing."""
+        from rosmeery_jax import engine
 
-def _session_timing(groups: list[dict], t_start: float) -> dict:
-    """This invocation's figures: every group summed, wall time from start to the merged
-    files (set-up, compile, simulation, detection, writing)."""
-    keys = ("env_steps", "frames", "detector_s", "mapper_s", "wait_s", "compile_s", "compiles", "xla_compiles",
-            "cache_hits", "sim_s")
-    total = {k: sum(g.get(k, 0) for g in groups) for k in keys}
+        cfg = self.cfg
+        total = _decisions(cfg, 0.1)
+        groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
+                                     total * cfg.decide_every)
+        bar = _bar(len(groups) * cfg.duration, self.progress)
+        timings = []
+        for group in groups:
+            clock = engine.CompileClock()
+            t0 = time.perf_counter()
+            sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
+                                  _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers)
+            timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0}
+            timings.append(timing)
+            for run in group.runs:
+                write_run(cfg, group, run, out, sim, timing)
+        bar.close()
+        return timings
+
+
+TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "wait_s", "compile_s", "compiles", "xla_compiles",
+               "cache_hits", "sim_s")
+
+
+def sum_timing(parts: list[dict], t_start: float) -> dict:
+    """This invocation's figures: the groups' (or cluster shards') times summed, and the wall
+    time from ``t_start`` to now (set-up, compile, simulation, detection, writing)."""
+    total = {k: sum(g.get(k, 0) for g in parts) for k in TIMING_KEYS}
     wall = time.perf_counter() - t_start
     return {**total, "wall_s": wall, "env_steps_per_s": total["env_steps"] / wall,
-            "sim_env_steps_per_s": total["env_steps"] / max(total["sim_s"], 1e-9), "groups": groups}
+            "sim_env_steps_per_s": total["env_steps"] / max(total["sim_s"], 1e-9)}
 
 
 def run_name(world: str, policy: str) -> str:

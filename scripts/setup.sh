@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Create (or update) the project's virtual environment in .venv and install the package
 # with its test and detector extras. Safe to run again: pip skips what is satisfied.
-# --test: also install Debian's Chromium for the teleop page's browser test.
+# --test: also the cluster extra (Ray, for the cluster tests) and Debian's Chromium for the
+# teleop page's browser test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -19,11 +20,13 @@ pick_python() {
 if [ ! -x .venv/bin/python ]; then
     "$(pick_python)" -m venv .venv
 fi
-stamp=.venv/.rosmeery-installed
+extras="test,detector"
+if [ "${1:-}" = "--test" ]; then extras="$extras,cluster"; fi
+stamp=".venv/.rosmeery-installed-${extras//,/-}"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     # torch pinned here too, so no resolver path can reach a newer, CUDA-laden build.
-    .venv/bin/python -m pip install --quiet -e ".[test,detector]" "torch==2.13.0"
+    .venv/bin/python -m pip install --quiet -e ".[$extras]" "torch==2.13.0"
     touch "$stamp"
 fi
 

@@ -1,0 +1,111 @@
+"""Sessions on a Ray cluster: a local two-worker cluster on loopback, results identical to a
+local run, a worker killed mid-run and nothing lost or duplicated."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from conftest import room_xml
+from rosmeery_jax.cli import main
+
+BODIES = """
+<body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
+<body name="desk_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.4" size="0.5 0.3 0.4"/></body>
+"""
+RAY = str(Path(sys.executable).with_name("ray"))
+
+
+def _session(worlds: str, out: Path, *extra: str) -> list[str]:
+    return ["run", "--worlds", worlds, "--policies", "frontier,random", "--seeds", "2", "--duration", "10",
+            "--detector", "off", "--quiet", "--out", str(out), *extra]
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    path = tmp_path_factory.mktemp("world") / "room.xml"
+    path.write_text(room_xml(BODIES, {"chair_1": "chair", "desk_1": "desk"}, spawn=(0.3, -0.4, 0.0), half=2.2))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A Ray head on 127.0.0.1 with 2 CPUs: at most two shards (worker processes) at once."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}  # the workers inherit the suite's JAX cache folder
+    subprocess.run([RAY, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
+                    "--include-dashboard=false", "--disable-usage-stats"], check=True, env=env, capture_output=True)
+    yield f"127.0.0.1:{port}"
+    import ray
+
+    ray.shutdown()
+    subprocess.run([RAY, "stop", "--force"], capture_output=True)
+
+
+@pytest.fixture(scope="module")
+def local(world, tmp_path_factory):
+    out = tmp_path_factory.mktemp("local") / "out"
+    assert main(_session(world, out)) == 0
+    return out
+
+
+def _same_results(a: Path, b: Path) -> None:
+    for table in ("metrics.csv", "objects.csv", "trajectories.csv"):
+        x, y = pd.read_csv(a / table), pd.read_csv(b / table)
+        assert not y.duplicated().any()
+        key = [c for c in x.columns if c != "value"]
+        pd.testing.assert_frame_equal(x.sort_values(key).reset_index(drop=True), y.sort_values(key).reset_index(drop=True))
+    maps = sorted(p.name for p in (a / "maps").iterdir())
+    assert maps == sorted(p.name for p in (b / "maps").iterdir()) and len(maps) == 2 * 2 * 2
+    for name in maps:
+        assert (a / "maps" / name).read_bytes() == (b / "maps" / name).read_bytes()
+
+
+def test_a_session_on_a_two_worker_cluster_equals_the_local_run(world, cluster, local, tmp_path):
+    out = tmp_path / "cluster"
+    assert main(_session(world, out, "--cluster", cluster)) == 0
+    _same_results(local, out)
+    import json
+
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["shards"] == 2 and timing["cluster"] == cluster and timing["env_steps"] == 2 * 2 * 100
+    assert main(_session(world, out, "--cluster", cluster, "--resume")) == 0  # nothing left to do
+    _same_results(local, out)
+
+
+def test_a_worker_killed_mid_run_is_retried_and_nothing_is_lost(world, cluster, local, tmp_path):
+    out = tmp_path / "killed"
+    cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--cluster", cluster)]
+    driver = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    victim = None
+    deadline = time.monotonic() + 120
+    while victim is None and time.monotonic() < deadline and driver.poll() is None:
+        ps = subprocess.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout
+        shards = [int(line.split()[0]) for line in ps.splitlines() if "ray::run_shard" in line]
+        if shards:
+            time.sleep(1.0)  # mid-run: the shard has started its session
+            victim = shards[0]
+            os.kill(victim, signal.SIGKILL)
+        time.sleep(0.2)
+    stdout, stderr = driver.communicate(timeout=600)
+    assert victim is not None, "no shard process seen to kill"
+    assert driver.returncode == 0, stderr.decode()[-2000:]
+    _same_results(local, out)
+
+
+def test_without_ray_the_flag_names_the_extra(world, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    out = tmp_path / "o"
+    assert main(_session(world, out, "--cluster", "auto")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'rosmeery-jax[cluster]'" in err[0] and not out.exists()
