@@ -47,10 +47,13 @@ def connect(address: str):
 
 
 def shard_config(cfg, world: str, policy: str, out: str):
-    """The session of one run: its world (an absolute path when it is a file, so workers
-    find it wherever they start) and policy, written to ``out``."""
-    w = str(Path(world).resolve()) if Path(world).is_file() else world
-    return replace(cfg, worlds=(w,), policies=(policy,), out=out)
+    """The session of one run (its world and policy), written to ``out``."""
+    return replace(cfg, worlds=(world,), policies=(policy,), out=out)
+
+
+def _absolute(world: str) -> str:
+    """A world file's absolute path (on the driver, so workers find it wherever they start)."""
+    return str(Path(world).resolve()) if Path(world).is_file() else world
 
 
 def run_shard(cfg, world: str, policy: str, cache: bool) -> tuple[dict[str, bytes], dict]:
@@ -79,7 +82,7 @@ def simulate_on_cluster(cfg, todo: list[tuple[str, str]], out: Path, address: st
 
     ray = connect(address)
     task = ray.remote(num_cpus=1, max_retries=RETRIES)(run_shard)
-    pending = {task.remote(cfg, w, p, cache): (w, p) for w, p in todo}
+    pending = {task.remote(cfg, _absolute(w), p, cache): (w, p) for w, p in todo}
     timings = []
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)
