@@ -12,6 +12,7 @@ the padding (rosmeery_jax.engine). Ray retries a shard whose worker dies (``RETR
 
 from __future__ import annotations
 
+import json
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -70,8 +71,6 @@ def run_shard(cfg, world: str, policy: str, cache: bool) -> tuple[dict[str, byte
 
 
 def _timing(path: Path) -> dict:
-    import json
-
     return json.loads(path.read_text()) if path.exists() else {}
 
 

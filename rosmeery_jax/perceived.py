@@ -76,8 +76,9 @@ class PerceivedMapper:
             keys, first = np.unique(self._keys(pts), return_index=True)
             if len(keys) < self.cfg.min_voxels:
                 continue
-            inst = self._associate(keys)
-            new = np.array([key not in self.owner for key in keys.tolist()], bool)
+            owners = np.array([self.owner.get(key, -1) for key in keys.tolist()], np.int64)
+            inst = self._associate(owners)
+            new = owners < 0
             self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
             if new.any():
                 self.points.append(pts[first[new]])
@@ -108,14 +109,14 @@ class PerceivedMapper:
         v = np.floor(pts / self.cfg.voxel).astype(np.int64) + (1 << 20)
         return (v[:, 0] << 42) | (v[:, 1] << 21) | v[:, 2]
 
-    def _associate(self, keys: np.ndarray) -> int:
-        """The instance a detection with voxels ``keys`` joins (step 3)."""
-        owners = np.array([self.owner.get(int(k), -1) for k in keys.tolist()], np.int64)
-        owners = owners[owners >= 0]
-        if len(owners):
-            ids, counts = np.unique(owners, return_counts=True)
+    def _associate(self, owners: np.ndarray) -> int:
+        """The instance a detection joins, from the owner of each of its voxels (-1 none)
+        (step 3)."""
+        held = owners[owners >= 0]
+        if len(held):
+            ids, counts = np.unique(held, return_counts=True)
             best = int(np.argmax(counts))
-            if counts[best] >= self.cfg.overlap * len(keys):
+            if counts[best] >= self.cfg.overlap * len(owners):
                 return int(ids[best])
         self.instances += 1
         return self.instances - 1
@@ -133,14 +134,22 @@ class PerceivedMapper:
         keep = frame < frames
         label = np.full(self.instances, -1, np.int32)
         conf = np.zeros(self.instances, np.float32)
-        for f, i, k, c in self.detections:
-            if f < frames and c > conf[i]:
-                label[i], conf[i] = k, c
+        events = self.label_events()
+        hold(label, conf, events[events[:, 0] < frames])
         return points[keep], instance[keep], label, conf
 
     def label_events(self) -> np.ndarray:
         """(E, 4) float64 rows (frame, instance, label, conf) per kept detection, in frame order."""
         return np.array(self.detections, np.float64).reshape(-1, 4)
+
+
+def hold(label: np.ndarray, conf: np.ndarray, events: np.ndarray) -> None:
+    """Fold label events (E, 4) (frame, instance, label, conf), in frame order, into each
+    instance's held label and confidence in place (step 4: the most confident so far; ties
+    keep the older)."""
+    for _, i, k, c in events:
+        if c > conf[int(i)]:
+            label[int(i)], conf[int(i)] = int(k), c
 
 
 def frame_logs(world, mapper: PerceivedMapper, frames: int, tolerance: float) -> ObjectLog:
@@ -175,9 +184,7 @@ def frame_logs(world, mapper: PerceivedMapper, frames: int, tolerance: float) ->
         if last is None or f - 1 in changed:  # frame f - 1 added points or detections
             add = key[when == f - 1]
             np.add.at(shared, (add // n_samples, sample_obj[add % n_samples]), 1)
-            for _, i, k, c in events[events[:, 0] == f - 1]:
-                if c > conf[int(i)]:  # step 4: the most confident so far; ties keep the older
-                    label[int(i)], conf[int(i)] = int(k), c
+            hold(label, conf, events[events[:, 0] == f - 1])
             last = score_shared(world, shared, label, conf)[0]
         logs.append(last)
     return ObjectLog(*(np.stack(a) for a in zip(*logs)))
