@@ -156,7 +156,7 @@ def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
-                      detector_period_s=args.detector_period_s, mappers=args.mapper)
+                      detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
     out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
@@ -412,6 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
+    p.add_argument("--devices", type=int, metavar="N", help="split each batch over N devices (GPUs, or N host "
+                   "devices made from the CPU's cores); results are the same (default 1)")
     p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
                    "detector (progress granularity only; default 30)")
     p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "

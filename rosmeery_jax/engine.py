@@ -16,6 +16,12 @@ whatever runs beside it. The block's policy is chosen with ``lax.switch`` on a p
 index, so only that policy's decision runs (a per-env index under ``vmap`` would run every
 policy for every env).
 
+**Several devices.** With ``devices`` N > 1 (GPUs, or host devices made from the CPU's
+cores) the blocks are split evenly over the devices (padding blocks make the count a
+multiple of N) and every device runs the one-device block program on its share, all at
+once (:class:`Replicas`). An SPMD program (``jax.shard_map``) was tried and dropped: XLA
+fuses a partitioned program differently, so a robot's numbers changed with N.
+
 **The detector overlaps the simulation.** Chunk k's frames are detected in a worker thread
 while chunk k + 1 simulates. The robot's knowledge receives the detections on a fixed
 simulated-time schedule, part of the experiment: the frames of detector period p (one RGB
@@ -33,11 +39,13 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rosmeery_jax import world_data as wd
 from rosmeery_jax.env import Env, EnvConfig, body_dimensions
@@ -77,6 +85,7 @@ class Group:
     real: np.ndarray
     blocks: np.ndarray
     runs: list[Run]
+    devices: int = 1
 
     @property
     def size(self) -> int:
@@ -84,8 +93,10 @@ class Group:
 
 
 def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: int,
-                 decide_every: int, total_steps: int) -> list[Group]:
-    """The groups of (world spec, policy spec) pairs; runs with no entries are left out."""
+                 decide_every: int, total_steps: int, devices: int = 1) -> list[Group]:
+    """The groups of (world spec, policy spec) pairs; runs with no entries are left out.
+    With ``devices`` > 1, padding blocks (copies of the last, no real env) make the number
+    of blocks a multiple of it."""
     from rosmeery_jax.overrides import flatten
     from rosmeery_jax.policies import make_policy, policy_class
     from rosmeery_jax.world import WorldConfig, load_world
@@ -122,18 +133,23 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
                 seed_ix += list(range(padded))
                 real += [True] * b + [False] * (padded - b)
                 blocks += [(q, w)] * (padded // BLOCK)
+        for _ in range((-len(blocks)) % devices if runs else 0):  # whole blocks per device
+            blocks.append(blocks[-1])
+            world_ix += [blocks[-1][1]] * BLOCK
+            seed_ix += list(range(BLOCK))
+            real += [False] * BLOCK
         if runs:
             groups.append(Group(config, envs[0], envs, wd.stack([e.data for e in envs]), policies,
                                 np.asarray(world_ix, np.int32), np.asarray(seed_ix, np.int32), np.asarray(real),
-                                np.asarray(blocks, np.int32), runs))
+                                np.asarray(blocks, np.int32), runs, devices))
     return groups
 
 
-def blocked(fn):
+def blocked(fn, devices: int = 1):
     """jit of ``fn(shared, block, *env_args)`` over B = k * BLOCK envs: ``shared`` goes to
     every env, ``block`` (k, ...) one row per block (the same for its envs, so not batched
     inside it), ``env_args`` (B, ...) one row per env. vmap over a block, ``lax.map`` over
-    blocks (module docstring)."""
+    blocks (module docstring); with ``devices`` > 1, as :class:`Replicas`."""
 
     def run(shared, block_arg, *env_args):
         blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), env_args)
@@ -141,7 +157,51 @@ def blocked(fn):
                           (block_arg, blocks))
         return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
 
-    return jax.jit(run)
+    return jax.jit(run) if devices == 1 else Replicas(jax.jit(run), devices)
+
+
+def shardings(devices: int) -> tuple[NamedSharding, NamedSharding]:
+    """(whole, split): a copy on each of the first ``devices`` devices, and the leading
+    (batch or block) axis split evenly over them."""
+    mesh = Mesh(np.asarray(jax.devices()[:devices]), ("d",))
+    return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("d"))
+
+
+class Replicas:
+    """A blocked function on N devices: each runs the one-device program on its share of
+    the blocks, all at once (JAX dispatches asynchronously). Called like the jitted function
+    with ``(shared, block_arg, *env_args)``; arguments are placed as global arrays (``shared``
+    whole on every device, the rest split over the leading axis) and results come back
+    split the same way, so one call's results feed the next without a copy. Follows jax's
+    ahead-of-time interface: ``lower(*args).compile()`` compiles every device's copy at once."""
+
+    def __init__(self, jitted, devices: int, executables: list | None = None):
+        self.jitted, self.devices, self.executables = jitted, devices, executables
+        self.whole, self.split = shardings(devices)
+
+    def _per_device(self, shared, block_arg, env_args) -> list[tuple]:
+        """Each device's arguments: its copy of ``shared``, its share of the rest."""
+        shared = jax.device_put(shared, self.whole)
+        rest = jax.device_put((block_arg, env_args), self.split)
+
+        def local(tree, device):
+            return jax.tree.map(lambda a: next(s.data for s in a.addressable_shards if s.device == device), tree)
+
+        return [(local(shared, d), local(rest[0], d), *local(rest[1], d)) for d in self.split.mesh.devices.flat]
+
+    def lower(self, shared, block_arg, *env_args):
+        def compile() -> Replicas:
+            with ThreadPoolExecutor(self.devices) as pool:  # XLA compiles without the GIL
+                return Replicas(self.jitted, self.devices, list(pool.map(lambda a: self.jitted.lower(*a).compile(), args)))
+
+        args = self._per_device(shared, block_arg, env_args)
+        return SimpleNamespace(compile=compile)
+
+    def __call__(self, shared, block_arg, *env_args):
+        calls = self.executables or [self.jitted] * self.devices
+        outs = [f(*args) for f, args in zip(calls, self._per_device(shared, block_arg, env_args))]
+        return jax.tree.map(lambda *parts: jax.make_array_from_single_device_arrays(
+            (sum(p.shape[0] for p in parts), *parts[0].shape[1:]), self.split, list(parts)), *outs)
 
 
 def _in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[Env, list]:
@@ -158,7 +218,7 @@ def reset_fn(group: Group):
         env, _ = _in_world(group, stacked, block)
         return env.reset(key)
 
-    return blocked(one)
+    return blocked(one, group.devices)
 
 
 def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, depth: bool = False):
@@ -205,7 +265,7 @@ def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, dep
         logs, poses = jax.tree.map(lambda a: a.reshape(decisions * decide_every, *a.shape[2:]), logs)
         return state, pstates, key, logs, poses, frames
 
-    return blocked(one)
+    return blocked(one, group.devices)
 
 
 def attach_frames(env: Env, knowledge, obj, label, conf):
@@ -230,7 +290,7 @@ def label_fn(group: Group):
 
         return jax.lax.scan(body, k, (obj, label, conf))
 
-    return blocked(one)
+    return blocked(one, group.devices)
 
 
 class Compiled(NamedTuple):
@@ -265,14 +325,17 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
     k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
     data, blocks = group.data, jnp.asarray(group.blocks)
+    if group.devices > 1:  # placed once: every call's arguments are then where they belong
+        whole, split = shardings(group.devices)
+        data, blocks = jax.device_put(data, whole), jax.device_put(blocks, split)
     frames = per_call if capture else 0
     empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1))[:3])
     xla_before = dict(CompileClock._counts)
     with clock:
         fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture, perceive),
                        label_fn(group) if capture else None,
-                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st)),
-                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st)))
+                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st), group.devices),
+                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st), group.devices))
         state = fns.reset(data, blocks, k_env)
         pstates = _init_policies(group, k_pol)
         chunk = fns.chunk.lower(data, blocks, state, pstates, k_run, empty).compile()

@@ -71,9 +71,12 @@ class SessionConfig:
     # "perceived" (depth inside detector boxes, no ground truth: rosmeery_jax.perceived)
     out: str = "results/session"
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
+    devices: int = 1  # split each batch over this many devices (speed only: results are the same)
 
     def validate(self, source: str = "config") -> "SessionConfig":
         """Every check that can be made before a run starts; one InputError naming ``source``."""
+        if self.devices > 1:
+            _host_devices(self.devices)  # before anything below starts JAX
         from rosmeery_jax.env import EnvConfig
 
         _check_values(self, source)
@@ -100,6 +103,13 @@ class SessionConfig:
                 raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
                                  "(or use --detector oracle / off)") from None
         _check_size(self, worlds, source)
+        if self.devices > 1:
+            import jax
+
+            if len(jax.devices()) < self.devices:
+                raise InputError(source, "devices", f"{self.devices} asked, {len(jax.devices())} "
+                                 f"{jax.devices()[0].platform} device(s) available (host devices are made "
+                                 "from the CPU's cores only if JAX has not started yet)")
         return self
 
 
@@ -119,12 +129,19 @@ class _as_source:
         return False
 
 
+def _host_devices(n: int) -> None:
+    """Let XLA make ``n`` devices of the CPU's cores, for ``devices`` on a machine without
+    accelerators. XLA reads the flag when JAX starts, so it does nothing once JAX has."""
+    if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={n}".strip()
+
+
 def _check_values(cfg: SessionConfig, source: str) -> None:
     if cfg.detector not in DETECTORS:
         raise InputError(source, "detector", f"{cfg.detector!r} is not available (available: {', '.join(DETECTORS)})")
     if not 0 <= cfg.conf_threshold <= 1:
         raise InputError(source, "conf_threshold", f"{cfg.conf_threshold!r} must be a number in [0, 1]")
-    for name in ("seeds", "decide_every"):
+    for name in ("seeds", "decide_every", "devices"):
         if getattr(cfg, name) < 1:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
     for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):
@@ -365,6 +382,9 @@ class Session:
             from rosmeery_jax.cluster import require_ray
 
             require_ray()  # before anything is written
+            if cfg.devices > 1:
+                raise InputError("command line", "--devices", "not with --cluster: each Ray worker runs its "
+                                 "shard on one device")
         record = check_out(cfg, resume)
         results.write_atomic(out / "config.json", json.dumps({**record, "versions": _versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
@@ -393,7 +413,7 @@ class Session:
         cfg = self.cfg
         total = _decisions(cfg, 0.1)
         groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
-                                     total * cfg.decide_every)
+                                     total * cfg.decide_every, cfg.devices)
         bar = _bar(len(groups) * cfg.duration, self.progress)
         timings = []
         for group in groups:
@@ -401,7 +421,8 @@ class Session:
             t0 = time.perf_counter()
             sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
                                   _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers)
-            timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0}
+            timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
+                      "devices": cfg.devices}
             timings.append(timing)
             for run in group.runs:
                 write_run(cfg, group, run, out, sim, timing)

@@ -16,6 +16,7 @@ import pytest
 
 from conftest import room_xml
 from rosmeery_jax.cli import main
+from rosmeery_jax.engine import BLOCK
 
 BODIES = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -109,3 +110,45 @@ def test_without_ray_the_flag_names_the_extra(world, tmp_path, capsys, monkeypat
     assert main(_session(world, out, "--cluster", "auto")) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pip install 'rosmeery-jax[cluster]'" in err[0] and not out.exists()
+
+
+def test_devices_split_the_batch_over_host_devices_and_change_nothing(world, local, tmp_path):
+    """Two host devices made from the CPU's cores (a fresh process: XLA reads the flag at start)."""
+    out = tmp_path / "devices"
+    cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--devices", "2")]
+    done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "XLA_FLAGS": ""}, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    _same_results(local, out)
+    import json
+
+    group = json.loads((out / "timing.json").read_text())["groups"][0]
+    assert group["devices"] == 2 and group["padded_envs"] == 2 * BLOCK
+
+
+def test_padding_blocks_give_each_device_a_whole_share(world):
+    from rosmeery_jax.engine import build_groups
+
+    for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
+        group = build_groups([(world, p) for p in policies], {}, False, 3, 10, 100, devices)[0]
+        assert len(group.blocks) == blocks and group.size == blocks * BLOCK
+        assert group.real.sum() == 3 * len(policies)  # padding envs are never real
+        assert [tuple(b) for b in group.blocks[:len(policies)]] == [(q, 0) for q in range(len(policies))]
+
+
+def test_more_devices_than_there_are_is_one_clear_line(world, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # restored afterwards: main may set it
+    out = tmp_path / "o"
+    assert main(_session(world, out, "--devices", "64")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "devices" in err[0] and "64 asked" in err[0] and not out.exists()
+
+
+def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp_path):
+    pytest.importorskip("ray")
+    from rosmeery_jax.errors import InputError
+    from rosmeery_jax.session import Session, SessionConfig
+
+    cfg = SessionConfig(worlds=(world,), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
+    with pytest.raises(InputError, match="--devices.*not with --cluster"):
+        Session(cfg, cluster="auto").run()
+    assert not (tmp_path / "o").exists()
