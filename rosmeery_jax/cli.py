@@ -332,6 +332,18 @@ def _cmd_record(args) -> int:
     return 0
 
 
+def _cmd_train(args) -> int:
+    from rosmeery_jax import ppo
+
+    cfg = ppo.load_config(args.config)
+    out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
+    curve = ppo.read_curve(out)
+    last = curve.iloc[-1]
+    print(f"trained {int(last.update)} updates ({int(last.env_steps):,} env-steps; last mean return "
+          f"{last['return']:.3f}) -> {out}/policy.msgpack (use it as --policies learned:{out}/policy.msgpack)")
+    return 0
+
+
 def _cmd_plot(args) -> int:
     from rosmeery_jax import plots, results
 
@@ -490,6 +502,16 @@ def build_parser() -> argparse.ArgumentParser:
     frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")
     frame.add_argument("--transform", metavar="FILE", help="a 4 x 4 map-to-world transform (JSON or text) to apply first")
     p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser("train", help="train the learned explorer with PPO (flax + optax) on a world bank")
+    p.add_argument("--config", metavar="FILE.toml", help="training options (default: the built-in defaults; "
+                   "experiments/learned/ppo.toml trains the shipped policy)")
+    p.add_argument("--out", default="results/train", metavar="DIR", help="checkpoints, curve.csv, curve.png and "
+                   "policy.msgpack (default results/train)")
+    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
     p.add_argument("dir", metavar="DIR")

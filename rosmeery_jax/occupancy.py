@@ -96,7 +96,7 @@ def update(logodds: jax.Array, geo: GridGeometry, cfg: MapConfig, origin_xy: jax
     # Cells strictly before the return are free; stop half a cell short so the hit cell stays hit.
     free = steps[None, :] < (reach[:, None] - 0.5 * geo.resolution)
     i, j = geo.cell(pts)
-    inside = _inside(geo, pts)
+    inside = in_extent(geo, pts)
     h, w = geo.shape
     drop = h * w  # out of range: scatter mode="drop" ignores it (a negative index would wrap)
     flat = jnp.where(free & inside, i * w + j, drop).ravel()
@@ -105,12 +105,13 @@ def update(logodds: jax.Array, geo: GridGeometry, cfg: MapConfig, origin_xy: jax
     returned = (labels != NOTHING) & (ranges <= cfg.max_range)
     end = origin_xy + ranges[:, None] * direction
     hi, hj = geo.cell(end)
-    hit_idx = jnp.where(returned & _inside(geo, end), hi * w + hj, drop)
+    hit_idx = jnp.where(returned & in_extent(geo, end), hi * w + hj, drop)
     lo = lo.at[hit_idx].add(cfg.hit, mode="drop")
     return jnp.clip(lo, -cfg.clamp, cfg.clamp).reshape(h, w)
 
 
-def _inside(geo: GridGeometry, xy: jax.Array) -> jax.Array:
+def in_extent(geo: GridGeometry, xy: jax.Array) -> jax.Array:
+    """(...,) bool: world points (..., 2) on the world's own cells."""
     r = geo.resolution
     return ((xy[..., 0] >= geo.origin[0]) & (xy[..., 0] < geo.origin[0] + geo.extent[1] * r)
             & (xy[..., 1] >= geo.origin[1]) & (xy[..., 1] < geo.origin[1] + geo.extent[0] * r))

@@ -48,16 +48,35 @@ def plot_curves(df: pd.DataFrame, world: str, metric: str, ax=None):
 
 def plot_results(df: pd.DataFrame, directory: str | Path) -> list[Path]:
     """Write ``<world>_<metric>.png`` for every world and metric in df into directory."""
-    import io
-
     out = []
     for world in sorted(df.world.unique()):
         for metric in sorted(df.metric.unique()):
             fig, ax = plt.subplots(figsize=(6, 3.6))
             plot_curves(df, world, metric, ax)
             fig.tight_layout()
-            buf = io.BytesIO()
-            fig.savefig(buf, format="png", dpi=110)
-            plt.close(fig)
-            out.append(write_atomic(Path(directory) / f"{world}_{metric}.png", buf.getvalue()))
+            out.append(_save(fig, Path(directory) / f"{world}_{metric}.png"))
     return out
+
+
+def learning_curve(curve: pd.DataFrame, path: str | Path) -> Path:
+    """A training run's curve (rosmeery_jax.ppo): the mean return of the episodes that
+    ended in each update, and the policy's entropy, against env-steps."""
+    fig, (ret, ent) = plt.subplots(1, 2, figsize=(9, 3.4))
+    ret.plot(curve.env_steps, curve["return"], color="C0")
+    ret.set_ylabel("episode return")
+    ent.plot(curve.env_steps, curve["entropy"], color="C1")
+    ent.set_ylabel("policy entropy")
+    for ax in (ret, ent):
+        ax.set_xlabel("env-steps")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def _save(fig, path: Path) -> Path:
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return write_atomic(path, buf.getvalue())

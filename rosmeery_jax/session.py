@@ -171,12 +171,16 @@ def _load_world(name: str):
 
 
 def _check_policy(spec: str, worlds) -> None:
-    from rosmeery_jax.policies import REPLAY_PREFIX, policy_class
+    from rosmeery_jax.policies import LearnedPolicy, REPLAY_PREFIX, policy_class
+    from rosmeery_jax.policies.learned import policy_file
     from rosmeery_jax.policies.replay import recordings_by_world
 
     from rosmeery_jax.env import EnvConfig
 
-    policy_class(spec)
+    if policy_class(spec) is LearnedPolicy:
+        from rosmeery_jax.ppo import load_policy
+
+        load_policy(policy_file(spec))  # one line naming the file if it is not a policy file
     if spec.startswith(REPLAY_PREFIX):
         recorded = recordings_by_world(spec)
         if not set(recorded) & {w.name for w in worlds}:
@@ -311,13 +315,16 @@ def _sha256(path: str | Path) -> str:
 
 
 def input_hashes(cfg: SessionConfig) -> dict:
-    """sha256 of every input file whose contents change results: worlds, recordings, weights."""
-    from rosmeery_jax.policies import REPLAY_PREFIX
+    """sha256 of every input file whose contents change results: worlds, recordings, learned
+    policies, weights."""
+    from rosmeery_jax.policies import LearnedPolicy, REPLAY_PREFIX, policy_class
+    from rosmeery_jax.policies.learned import policy_file
     from rosmeery_jax.policies.replay import replay_files
 
     out = {"worlds": {w.name: _sha256(w.path) for w in map(_load_world, cfg.worlds)},
            "recordings": {str(f): _sha256(f) for p in cfg.policies if p.startswith(REPLAY_PREFIX)
-                          for f in replay_files(p)}}
+                          for f in replay_files(p)},
+           "policies": {p: _sha256(policy_file(p)) for p in cfg.policies if policy_class(p) is LearnedPolicy}}
     if cfg.detector == "yolo":
         from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
 

@@ -8,8 +8,9 @@ every step. Between decisions the navigator keeps driving to the last target.
 
 Built in: ``random`` (the paper's random walker), ``frontier`` (biggest frontier, the
 paper's; ``frontier_nearest`` for the nearest), ``semantic_nbv`` (views around the objects
-the robot has labelled, scored by expected new surface per metre), and ``replay:FILES``
-(recorded human-driven sessions).
+the robot has labelled, scored by expected new surface per metre), ``learned`` (the PPO-
+trained explorer shipped in the package; ``learned:PATH`` for a policy file of
+``rosmeery train``) and ``replay:FILES`` (recorded human-driven sessions).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from __future__ import annotations
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
+from rosmeery_jax.policies import learned
+from rosmeery_jax.policies.learned import LearnedPolicy
 from rosmeery_jax.policies.random_walk import RandomPolicy
 from rosmeery_jax.policies.replay import PREFIX as REPLAY_PREFIX
 from rosmeery_jax.policies.replay import ReplayPolicy
@@ -27,6 +30,7 @@ POLICIES = {
     "frontier": lambda env, **kw: FrontierPolicy(env, choose="biggest", **kw),
     "frontier_nearest": lambda env, **kw: FrontierPolicy(env, choose="nearest", **kw),
     "semantic_nbv": lambda env, **kw: SemanticNBVPolicy(env, **kw),
+    "learned": lambda env, **kw: LearnedPolicy(env, **kw),
 }
 
 
@@ -34,14 +38,19 @@ def policy_class(spec: str) -> type[Policy]:
     """The class a policy entry builds (for its ``env_overrides`` before an env exists)."""
     if spec.startswith(REPLAY_PREFIX):
         return ReplayPolicy
+    if spec.startswith(learned.PREFIX):
+        return LearnedPolicy
     if spec not in POLICIES:
         raise InputError("config", "policies", f"unknown policy {spec!r} (built in: {', '.join(POLICIES)}, "
-                         f"{REPLAY_PREFIX}FILE[+FILE...])")
+                         f"{learned.PREFIX}FILE, {REPLAY_PREFIX}FILE[+FILE...])")
     return Policy
 
 
 def policy_label(spec: str) -> str:
-    """The name a policy entry has in results: ``replay:FILES`` -> ``replay``."""
+    """The name a policy entry has in results: ``replay:FILES`` -> ``replay``,
+    ``learned:PATH`` -> ``learned_<name>``."""
+    if spec.startswith(learned.PREFIX):
+        return learned.label(spec)
     return "replay" if spec.startswith(REPLAY_PREFIX) else spec
 
 
@@ -49,7 +58,9 @@ def make_policy(spec: str, env, decide_every: int = 10, total_steps: int = 0, **
     """A policy entry for ``env``; ``decide_every`` and ``total_steps`` serve ``replay:``."""
     if policy_class(spec) is ReplayPolicy:
         return ReplayPolicy(env, spec, decide_every, total_steps)
+    if policy_class(spec) is LearnedPolicy:
+        return LearnedPolicy(env, spec)
     return POLICIES[spec](env, **options)
 
 
-__all__ = ["POLICIES", "Policy", "make_policy", "policy_class", "policy_label"]
+__all__ = ["POLICIES", "LearnedPolicy", "Policy", "make_policy", "policy_class", "policy_label"]

