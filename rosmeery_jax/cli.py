@@ -339,8 +339,9 @@ def _cmd_train(args) -> int:
     out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
     curve = ppo.read_curve(out)
     last = curve.iloc[-1]
-    print(f"trained {int(last.update)} updates ({int(last.env_steps):,} env-steps; last mean return "
-          f"{last['return']:.3f}) -> {out}/policy.msgpack (use it as --policies learned:{out}/policy.msgpack)")
+    print(f"trained {int(last['update'])} updates ({int(last['env_steps']):,} env-steps; mean return of the last "
+          f"10 updates {curve['return'].tail(10).mean():.3f}) -> {out}/policy.msgpack (use it as --policies "
+          f"learned:{out}/policy.msgpack)")
     return 0
 
 

@@ -172,8 +172,9 @@ def init_runner(cfg: TrainConfig, env: ExplorationEnv) -> Runner:
     lr = (optax.linear_schedule(p.lr, 0.0, p.updates * steps_per_update) if p.anneal_lr else p.lr)
     tx = optax.chain(optax.clip_by_global_norm(p.max_grad_norm), optax.adam(lr, eps=1e-5))
     train = TrainState.create(apply_fn=net.apply, params=params, tx=tx)
-    train = train.replace(step=jnp.array(0, jnp.int32))  # as updates leave it: no second compile
-    return Runner(train, state, obs, key)
+    train = train.replace(step=jnp.array(0, jnp.int32))
+    # Committed to the device, as an update's results are: else the second update compiles again.
+    return jax.device_put(Runner(train, state, obs, key), jax.devices()[0])
 
 
 def make_update(cfg: TrainConfig, env: ExplorationEnv):
@@ -277,7 +278,7 @@ def _from_host(template, saved: dict):
             if a.shape != t.shape or a.dtype != t.dtype:
                 raise ValueError("the checkpoint does not match this configuration")
             out.append(jnp.asarray(a))
-    return jax.tree.unflatten(treedef, out)
+    return jax.device_put(jax.tree.unflatten(treedef, out), jax.devices()[0])
 
 
 def save_checkpoint(path: Path, runner: Runner, done: int, curve: list[dict]) -> None:

@@ -8,7 +8,8 @@ every step. Between decisions the navigator keeps driving to the last target.
 
 Built in: ``random`` (the paper's random walker), ``frontier`` (biggest frontier, the
 paper's; ``frontier_nearest`` for the nearest), ``semantic_nbv`` (views around the objects
-the robot has labelled, scored by expected new surface per metre), ``learned`` (the PPO-
+the robot has labelled, scored by expected new surface per metre), ``gradient_nbv`` (views
+refined by gradient ascent on expected soft coverage of the robot's own map), ``learned`` (the PPO-
 trained explorer shipped in the package; ``learned:PATH`` for a policy file of
 ``rosmeery train``) and ``replay:FILES`` (recorded human-driven sessions).
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
+from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
 from rosmeery_jax.policies import learned
 from rosmeery_jax.policies.learned import LearnedPolicy
 from rosmeery_jax.policies.random_walk import RandomPolicy
@@ -30,6 +32,7 @@ POLICIES = {
     "frontier": lambda env, **kw: FrontierPolicy(env, choose="biggest", **kw),
     "frontier_nearest": lambda env, **kw: FrontierPolicy(env, choose="nearest", **kw),
     "semantic_nbv": lambda env, **kw: SemanticNBVPolicy(env, **kw),
+    "gradient_nbv": lambda env, **kw: GradientNBVPolicy(env, **kw),
     "learned": lambda env, **kw: LearnedPolicy(env, **kw),
 }
 
