@@ -152,3 +152,122 @@ def test_bad_config_is_refused(worlds):
 
     with pytest.raises(ValueError, match="reward"):
         ExplorationEnv(world_bank(worlds[:1]), replace(CFG, reward="speed"))
+
+
+# --- PPO ---------------------------------------------------------------------------------
+
+
+def _train_config(worlds, **ppo):
+    from rosmeery_jax.ppo import PPOConfig, TrainConfig
+
+    base = dict(num_envs=4, num_steps=6, updates=4, update_epochs=2, minibatches=2, checkpoint_every=1,
+                anneal_lr=False)
+    return TrainConfig(worlds=tuple(worlds), ppo=PPOConfig(**{**base, **ppo}),
+                       rl=RLConfig(decide_every=5, episode_s=3.0, goal_grid=3, crop=16, fail_penalty=0.5))
+
+
+@pytest.fixture(scope="module")
+def trained(worlds, tmp_path_factory):
+    """An uninterrupted 4-update run (its policy file serves the session test)."""
+    from rosmeery_jax import ppo
+
+    out = tmp_path_factory.mktemp("train") / "whole"
+    ppo.train(_train_config(worlds), out, progress=False)
+    return out
+
+
+def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_path, monkeypatch):
+    from rosmeery_jax import ppo
+
+    out = tmp_path / "interrupted"
+    real = ppo.make_update
+
+    def interrupted(cfg, env):
+        update, calls = real(cfg, env), []
+
+        def once(runner):
+            calls.append(1)
+            if len(calls) == 3:
+                raise KeyboardInterrupt  # Ctrl-C during the third update: two are checkpointed
+            return update(runner)
+
+        return once
+
+    monkeypatch.setattr(ppo, "make_update", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        ppo.train(_train_config(worlds), out, progress=False)
+    assert len(ppo.read_curve(out)) == 2 and not (out / "policy.msgpack").exists()
+    monkeypatch.setattr(ppo, "make_update", real)
+    ppo.train(_train_config(worlds), out, resume=True, progress=False)
+    _, _, whole = ppo.load_policy(trained / "policy.msgpack")
+    _, _, resumed = ppo.load_policy(out / "policy.msgpack")
+    for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(resumed)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    keep = ["update", "env_steps", "return", "loss", "entropy"]
+    assert ppo.read_curve(out)[keep].equals(ppo.read_curve(trained)[keep])
+
+
+def test_resume_refuses_another_configuration(worlds, trained, tmp_path):
+    import shutil
+
+    from rosmeery_jax import ppo
+    from rosmeery_jax.errors import InputError
+
+    out = tmp_path / "copy"
+    shutil.copytree(trained, out)
+    with pytest.raises(InputError, match="already holds a training run"):
+        ppo.train(_train_config(worlds), out, progress=False)
+    with pytest.raises(InputError, match="ppo"):
+        ppo.train(_train_config(worlds, lr=1e-3), out, resume=True, progress=False)
+
+
+def test_a_short_training_run_raises_the_return(worlds, tmp_path):
+    """30 updates on the two rooms: the mean episode return of the last 8 updates beats the
+    first 8 (the policy learns to pick goal cells it can reach and that show new surface)."""
+    from rosmeery_jax import ppo
+
+    out = ppo.train(_train_config(worlds, updates=30, num_envs=8, lr=2e-3, checkpoint_every=30, ent_coef=0.0),
+                    tmp_path / "short", progress=False)
+    curve = ppo.read_curve(out)
+    first, last = curve["return"].head(8).mean(), curve["return"].tail(8).mean()
+    assert last > first + 0.2, (first, last)
+
+
+def test_the_learned_policy_runs_in_a_session(worlds, trained, tmp_path):
+    from rosmeery_jax.cli import main
+    from rosmeery_jax.results import load
+
+    out = tmp_path / "session"
+    spec = f"learned:{trained / 'policy.msgpack'}"
+    assert main(["run", "--worlds", worlds[0], "--policies", f"{spec},random", "--seeds", "2", "--duration", "5",
+                 "--detector", "off", "--quiet", "--out", str(out)]) == 0
+    df = load(out)
+    assert set(df.policy) == {"learned_whole", "random"} and df.value.notna().all()
+    assert "learned:" + str(trained / "policy.msgpack") in (out / "config.json").read_text()
+
+
+def test_a_bad_policy_file_is_one_line(worlds, tmp_path, capsys):
+    from rosmeery_jax.cli import main
+
+    bad = tmp_path / "policy.msgpack"
+    bad.write_bytes(b"not msgpack at all")
+    assert main(["run", "--worlds", worlds[0], "--policies", f"learned:{bad}", "--seeds", "1", "--duration", "2",
+                 "--detector", "off", "--quiet", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and "policy file" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_shipped_policy_loads():
+    from rosmeery_jax import ppo
+    from rosmeery_jax.policies.learned import SHIPPED
+
+    rl, _, params = ppo.load_policy(SHIPPED)
+    logits, value = ppo.ActorCritic(rl.actions).apply(params, _blank_obs(rl))
+    assert logits.shape == (rl.actions,) and value.shape == ()
+
+
+def _blank_obs(rl):
+    from rosmeery_jax.rl import Obs
+
+    return Obs(jnp.zeros((rl.crop, rl.crop, 4)), jnp.zeros(4))

@@ -8,8 +8,10 @@ robot's map shows occupied within ``object_radius`` of surface it has observed o
 it holds a label for (the laser saw something there, on or beside a known object), at
 ``point_height``. Its weight is what the robot believes is still unseen of it: one minus
 its *viewed* probability, which the policy state accumulates at every decision from the
-real depth frame (soft coverage, :func:`rosmeery_jax.coverage.observed_soft`), and zero
-where the camera has observed object surface in that cell.
+real depth frame (soft coverage, :func:`rosmeery_jax.coverage.observed_soft`, with a depth
+tolerance of 1.5 cells since a point stands at its cell's centre) and, when a view target
+is reached, from what that view was expected to show; zero where the camera has observed
+object surface in that cell.
 
 **Expected gain of a view** q = (x, y, yaw): the soft coverage of the belief points from q,
 weighted, with the depth the camera would see there *rendered from the robot's own map*: a
@@ -63,7 +65,9 @@ class GradientNBVPolicy(Policy):
         self.distance_cost, self.blocked_cost, self.min_gain = distance_cost, blocked_cost, min_gain
         cam = env.config.camera
         self.cam = cam
-        self.cov = CoverageConfig(soft=True, min_facing=-1.0, temperature=0.05)
+        # A belief point stands at a cell's centre, up to a cell from the surface it stands
+        # for: a depth tolerance of about a cell's diagonal, and no facing test (no normals).
+        self.cov = CoverageConfig(soft=True, min_facing=-1.0, temperature=0.05, abs_tol=1.5 * resolution)
         f = cam.focal(cam.width)
         self.column_angles = jnp.asarray(np.arctan((cam.width / 2 - (np.arange(cam.width) + 0.5)) / f), jnp.float32)
         steps = int(np.ceil(env.config.mapping.max_range / march))
@@ -161,7 +165,11 @@ class GradientNBVPolicy(Policy):
         opacity = self.opacity(state)
         table, held = self.belief(state)
         now = coverage.observed_soft(table, self.cov, self.cam, state.pose, state.depth)  # the real frame
-        viewed = 1.0 - (1.0 - ps.viewed) * (1.0 - now)
+        # A view reached counts as seen as predicted, so the same view is not chosen again.
+        arrived = needs_target(state) & ~ps.exploring
+        promised = jnp.where(arrived, coverage.observed_soft(table, self.cov, self.cam, ps.target,
+                                                             self.render(opacity, ps.target)), 0.0)
+        viewed = 1.0 - (1.0 - ps.viewed) * (1.0 - now) * (1.0 - promised)
         weight = held * (1.0 - viewed)
         centre = jnp.sum(table.points[:2] * weight, 1) / jnp.maximum(jnp.sum(weight), 1e-6)
         xy = centre + self.ring
