@@ -27,7 +27,9 @@ while chunk k + 1 simulates. The robot's knowledge receives the detections on a 
 simulated-time schedule, part of the experiment: the frames of detector period p (one RGB
 frame per decision) are folded in at the start of period p + 2, so a label reaches the
 policy one to two periods after its frame, whatever the chunking. The metrics' label
-fields are rebuilt afterwards without that lag: a frame counts from the step after it.
+fields are rebuilt afterwards without that lag: a frame counts from the step after it, so
+the run's last frame never counts, and the final labels (objects table, exported maps)
+are those of the last logged step.
 
 Shapes: B envs in a group (a multiple of BLOCK), T steps, N objects (padded), F frames per
 chunk, D detections per frame.
@@ -358,7 +360,12 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
         if capture:
             t0 = time.perf_counter()
             dets = _detect(group, detectors, shots, c * per_call)
-            holder["labels"], per_frame = attach(data, blocks, holder["labels"], *(jnp.asarray(d) for d in dets[:3]))
+            obj = dets[0]
+            if c == chunks - 1:  # the run's last frame counts from a step that never comes
+                obj = obj.copy()
+                obj[:, -1] = -1
+            holder["labels"], per_frame = attach(data, blocks, holder["labels"],
+                                                 *(jnp.asarray(d) for d in (obj, *dets[1:3])))
             logs = _relabel(logs, per_frame, decide_every)
             t1 = time.perf_counter()
             if mappers:
@@ -373,8 +380,8 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
         return logs, poses, dets
 
     started = time.perf_counter()
-    jobs = []
-    for c in range(total // per_call):
+    jobs, chunks = [], total // per_call
+    for c in range(chunks):
         pending = empty
         if capture and c >= 2:  # the detections of period c - 2 reach the robot now
             jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
