@@ -200,20 +200,20 @@ def observe(env: Env, state: State, crop_xy: jax.Array) -> Obs:
     i, j = env.grid.cell(xy)
     inside = occupancy.in_extent(env.grid, xy)
     occ = env.occupancy(state)[i, j]
-    surface, labelled = surface_maps(env, state)
+    k = env.labelled_knowledge(state)
+    surface, labelled = surface_maps(env, k)
     layers = [occ == occupancy.OCCUPIED, occ == occupancy.FREE, surface[i, j], labelled[i, j]]
     maps = jnp.stack([jnp.where(inside, a.astype(jnp.float32), 0.0) for a in layers], -1)
-    k = env.labelled_knowledge(state)
     observed = jnp.sum(k.seen.astype(jnp.float32)) / 1000.0
     feats = jnp.stack([c, s, gave_up(state).astype(jnp.float32), observed])
     return Obs(maps, feats)
 
 
-def surface_maps(env: Env, state: State) -> tuple[jax.Array, jax.Array]:
-    """(H, W) each on the robot's grid: observed object samples per cell, and those of
-    objects it holds a label for, divided by 10 and capped at 1. Only observed samples
-    count (a sample's position is what the depth camera measured)."""
-    k = env.labelled_knowledge(state)
+def surface_maps(env: Env, k) -> tuple[jax.Array, jax.Array]:
+    """(H, W) each on the robot's grid, from its labelled knowledge ``k``: observed object
+    samples per cell, and those of objects it holds a label for, divided by 10 and capped
+    at 1. Only observed samples count (a sample's position is what the depth camera
+    measured)."""
     table = env.sk.table
     seen = k.seen.astype(jnp.float32)
     held = seen * (k.label >= 0)[table.object]

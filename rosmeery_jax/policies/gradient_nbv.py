@@ -60,7 +60,7 @@ class GradientNBVPolicy(Policy):
         self.f = max(1, int(round(resolution / env.grid.resolution)))
         self.grow_object = max(1, int(round(object_radius / (env.grid.resolution * self.f))))
         self.grow_clear = max(1, int(round(clearance / env.grid.resolution)))
-        self.height, self.m, self.iterations = point_height, candidates, iterations
+        self.height, self.iterations = point_height, iterations
         self.ring_radius, self.lr = ring_radius, learning_rate
         self.distance_cost, self.blocked_cost, self.min_gain = distance_cost, blocked_cost, min_gain
         cam = env.config.camera
@@ -106,7 +106,7 @@ class GradientNBVPolicy(Policy):
         cells hold one (Hc * Wc,) float: weight them by ``1 - viewed``."""
         from rosmeery_jax.rl import surface_maps
 
-        surface, labelled = surface_maps(self.env, state)  # (H, W) observed / labelled object surface
+        surface, labelled = surface_maps(self.env, self.env.labelled_knowledge(state))  # (H, W) observed / labelled object surface
         near = grid.block_any(labelled > 0, self.f)
         for _ in range(self.grow_object):
             near = grid.grow(near)
