@@ -1,5 +1,5 @@
 """Explorers: the soft coverage and gradient_nbv's view model against finite differences;
-no policy reads hidden ground truth; gradient_nbv runs in a session."""
+no policy reads hidden ground truth (gradient_nbv's session test is in test_rl.py)."""
 
 from __future__ import annotations
 
@@ -148,15 +148,3 @@ def test_the_taint_check_catches_a_policy_that_reads_truth(midrun):
     real = cheat.decide(state, cheat.init(key), key)[0]
     other = cheat.bind(_taint(env, state)).decide(state, cheat.init(key), key)[0]
     assert not np.array_equal(np.asarray(real), np.asarray(other))
-
-
-def test_gradient_nbv_runs_in_a_session(room, tmp_path):
-    from rosmeery_jax.cli import main
-    from rosmeery_jax.results import load
-
-    out = tmp_path / "s"
-    assert main(["run", "--worlds", room, "--policies", "gradient_nbv", "--seeds", "2", "--duration", "8",
-                 "--detector", "oracle", "--quiet", "--out", str(out)]) == 0
-    df = load(out)
-    ori = df[(df.metric == "ori")].groupby("seed").value.max()
-    assert set(df.policy) == {"gradient_nbv"} and (ori > 0).all()

@@ -233,16 +233,19 @@ def test_a_short_training_run_raises_the_return(worlds, tmp_path):
     assert last > first + 0.2, (first, last)
 
 
-def test_the_learned_policy_runs_in_a_session(worlds, trained, tmp_path):
+def test_learned_and_gradient_nbv_run_in_a_session(worlds, trained, tmp_path):
+    """One session for both new policies (each compiles its own chunk: one session saves a set-up)."""
     from rosmeery_jax.cli import main
     from rosmeery_jax.results import load
 
     out = tmp_path / "session"
     spec = f"learned:{trained / 'policy.msgpack'}"
-    assert main(["run", "--worlds", worlds[0], "--policies", f"{spec},random", "--seeds", "2", "--duration", "5",
-                 "--detector", "off", "--quiet", "--out", str(out)]) == 0
+    assert main(["run", "--worlds", worlds[0], "--policies", f"{spec},gradient_nbv", "--seeds", "2",
+                 "--duration", "8", "--detector", "oracle", "--quiet", "--out", str(out)]) == 0
     df = load(out)
-    assert set(df.policy) == {"learned_whole", "random"} and df.value.notna().all()
+    assert set(df.policy) == {"learned_whole", "gradient_nbv"} and df.value.notna().all()
+    ori = df[df.metric == "ori"].groupby(["policy", "seed"]).value.max()
+    assert (ori > 0).all(), ori
     assert "learned:" + str(trained / "policy.msgpack") in (out / "config.json").read_text()
 
 

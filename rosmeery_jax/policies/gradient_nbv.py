@@ -3,10 +3,11 @@
 Everything it uses is the robot's own: its occupancy map, the object surface its camera
 has observed, the labels it holds, and its current depth frame. No ground truth.
 
-**Belief.** On a coarse grid (``resolution``), a *belief point* stands at every cell the
-robot's map shows occupied within ``object_radius`` of surface it has observed on an object
-it holds a label for (the laser saw something there, on or beside a known object), at
-``point_height``. Its weight is what the robot believes is still unseen of it: one minus
+**Belief.** On a coarse grid (``resolution``), a *belief point* stands at every cell within
+``object_radius`` of surface the robot has observed on an object it holds a label for, that
+its map shows occupied (the laser saw something there) or has not resolved at all (the
+object's unseen sides and back lie in space its sensors have not reached yet), at
+``point_height``. Cells the map shows free hold none. Its weight is what the robot believes is still unseen of it: one minus
 its *viewed* probability, which the policy state accumulates at every decision from the
 real depth frame (soft coverage, :func:`rosmeery_jax.coverage.observed_soft`, with a depth
 tolerance of 1.5 cells since a point stands at its cell's centre) and, when a view target
@@ -111,9 +112,10 @@ class GradientNBVPolicy(Policy):
         for _ in range(self.grow_object):
             near = grid.grow(near)
         seen_here = grid.block_any(surface > 0, self.f)
-        occupied = grid.block_any(self.env.occupancy(state) == occupancy.OCCUPIED, self.f)
+        occ = self.env.occupancy(state)
+        free = grid.block_any(occ == occupancy.FREE, self.f) & ~grid.block_any(occ == occupancy.OCCUPIED, self.f)
         xy = self.coarse.centers().reshape(-1, 2)
-        held = (occupied & near & ~seen_here & self.coarse.inside()).reshape(-1).astype(jnp.float32)
+        held = (~free & near & ~seen_here & self.coarse.inside()).reshape(-1).astype(jnp.float32)
         points = jnp.concatenate([xy.T, jnp.full((1, xy.shape[0]), self.height, jnp.float32)], 0)
         return SampleTable(points, jnp.zeros_like(points), jnp.zeros(xy.shape[0], jnp.int32), 1), held
 

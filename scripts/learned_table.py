@@ -1,0 +1,93 @@
+"""Print the README's learned-explorer table and its target checks from a results folder of
+``experiments/learned/evaluate.toml``, and draw the ORI curves into docs/learned/.
+
+    .venv/bin/python scripts/learned_table.py results/learned_eval [--figures docs/learned]
+
+ORI AUC is the time average of a run's ORI curve (``rosmeery_jax.metrics.summarize``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+
+from rosmeery_jax.metrics import summarize
+
+PAPER = ("kitchen", "laboratory", "small_office", "large_office")
+POLICIES = ("learned", "gradient_nbv", "frontier", "random", "semantic_nbv")
+
+
+def per_run(df: pd.DataFrame, metric: str = "ori") -> pd.DataFrame:
+    """One row per (world, policy, seed): final value and AUC of ``metric``."""
+    rows = []
+    for (w, p, s), g in df[(df.metric == metric) & (df.mapper == "oracle")].groupby(["world", "policy", "seed"]):
+        g = g.sort_values("time_s")
+        rows.append({"world": w, "policy": p, "seed": s, **summarize(g.time_s.to_numpy(), g.value.to_numpy())})
+    return pd.DataFrame(rows)
+
+
+def table(runs: pd.DataFrame, policies: list[str]) -> None:
+    """ORI AUC (and final ORI) mean ± std over seeds; bold within one std of the world's best AUC."""
+    print("| world | " + " | ".join(policies) + " |\n|---|" + "---|" * len(policies))
+    for w, g in runs.groupby("world", sort=False):
+        stats = g.groupby("policy").agg(auc=("auc", "mean"), sd=("auc", "std"), final=("final", "mean"))
+        best = stats.auc.idxmax()
+        cells = []
+        for p in policies:
+            text = f"{stats.auc[p]:.3f} ± {stats.sd[p]:.3f} ({stats.final[p]:.2f})"
+            cells.append(f"**{text}**" if stats.auc[p] >= stats.auc[best] - stats.sd[best] else text)
+        print(f"| {w} | " + " | ".join(cells) + " |")
+
+
+def targets(runs: pd.DataFrame) -> None:
+    auc = runs.groupby(["world", "policy"]).auc.mean().unstack()
+    for name, worlds in (("paper worlds", [w for w in PAPER if w in auc.index]),
+                         ("generated held-out worlds", [w for w in auc.index if w not in PAPER])):
+        if worlds:
+            print(f"\nmean ORI AUC over the {len(worlds)} {name}:\n" + auc.loc[worlds].mean().round(3).to_string())
+    paper = auc.loc[[w for w in PAPER if w in auc.index]]
+    if {"learned", "frontier", "random"} <= set(paper.columns):
+        m = paper.mean()
+        print(f"\nlearned vs frontier: {m.learned - m.frontier:+.3f}; vs random: {m.learned - m.random:+.3f} "
+              "(mean ORI AUC over the paper worlds)")
+    if {"gradient_nbv", "semantic_nbv"} <= set(paper.columns):
+        wins = (paper.gradient_nbv > paper.semantic_nbv)
+        print(f"gradient_nbv beats semantic_nbv on ORI AUC in {int(wins.sum())} of {len(paper)} paper worlds: "
+              + ", ".join(f"{w} {paper.gradient_nbv[w] - paper.semantic_nbv[w]:+.3f}" for w in paper.index))
+
+
+def figures(df: pd.DataFrame, directory: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    from rosmeery_jax.plots import _save, plot_curves
+
+    worlds = list(dict.fromkeys(df.world))
+    fig, axes = plt.subplots((len(worlds) + 1) // 2, 2, figsize=(12, 3.4 * ((len(worlds) + 1) // 2)), squeeze=False)
+    for ax, w in zip(axes.flat, worlds):
+        plot_curves(df[df.mapper == "oracle"], w, "ori", ax)
+    for ax in list(axes.flat)[len(worlds):]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    print(f"\nwrote {_save(fig, directory / 'ori.png')}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("folder", nargs="?", default="results/learned_eval")
+    ap.add_argument("--figures", default="", help="folder for ori.png (none when empty)")
+    args = ap.parse_args()
+    df = pd.read_csv(Path(args.folder) / "metrics.csv")
+    if "mapper" not in df.columns:
+        df["mapper"] = "oracle"
+    runs = per_run(df)
+    policies = [p for p in POLICIES if p in set(runs.policy)] + sorted(set(runs.policy) - set(POLICIES))
+    table(runs, policies)
+    targets(runs)
+    if args.figures:
+        figures(df, Path(args.figures))
+
+
+if __name__ == "__main__":
+    main()
