@@ -7,20 +7,23 @@ has observed, the labels it holds, and its current depth frame. No ground truth.
 ``object_radius`` of surface the robot has observed on an object it holds a label for, that
 its map shows occupied (the laser saw something there) or has not resolved at all (the
 object's unseen sides and back lie in space its sensors have not reached yet), at
-``point_height``. Cells the map shows free hold none. Its weight is what the robot believes is still unseen of it: one minus
-its *viewed* probability, which the policy state accumulates at every decision from the
-real depth frame (soft coverage, :func:`rosmeery_jax.coverage.observed_soft`, with a depth
+``point_height``. Cells the map shows free hold none. Its weight is what the robot believes
+is still unseen of it: one minus its *viewed* probability, the best (largest) probability
+of any view so far: at every decision from the real depth frame (soft coverage, :func:`rosmeery_jax.coverage.observed_soft`, with a depth
 tolerance of 1.5 cells since a point stands at its cell's centre) and, when a view target
 is reached, from what that view was expected to show; zero where the camera has observed
 object surface in that cell.
 
 **Expected gain of a view** q = (x, y, yaw): the soft coverage of the belief points from q,
 weighted, with the depth the camera would see there *rendered from the robot's own map*: a
-differentiable raycast per image column through the map's soft opacity (occupied cells
-opaque, free and unknown cells clear), as an expected first-hit depth.
+differentiable raycast per image column through the map's soft opacity (the share of each
+cell the map shows occupied; ``belief_opacity`` for an unresolved cell holding a belief
+point, since the robot believes an object is there; other cells clear), as an expected
+first-hit depth. Without that, a view would promise the far side of an object through its
+unresolved near side.
 
-**Refinement.** ``candidates`` views start on a ring of ``ring_radius`` around the belief's
-weighted centroid, facing it; ``iterations`` steps of Adam (optax, ``learning_rate``)
+**Refinement.** ``candidates`` views start ``ring_radius`` from belief points drawn by weight
+(each from its own direction of a ring), facing them; ``iterations`` steps of Adam (optax, ``learning_rate``)
 climb gain - ``distance_cost`` x travel - ``blocked_cost`` x opacity under the robot, by
 gradients through the coverage and the rendered depth. The best refined view, by gain per
 metre of travel (as ``semantic_nbv`` scores), on a cell the map shows free and clear,
@@ -56,7 +59,7 @@ class GradientNBVPolicy(Policy):
     def __init__(self, env, resolution: float = 0.2, object_radius: float = 0.6, point_height: float = 0.4,
                  candidates: int = 8, ring_radius: float = 1.5, iterations: int = 12, learning_rate: float = 0.08,
                  distance_cost: float = 0.02, blocked_cost: float = 5.0, min_gain: float = 1.0,
-                 clearance: float = 0.3, march: float = 0.15):
+                 clearance: float = 0.3, march: float = 0.15, belief_opacity: float = 0.5):
         super().__init__(env)
         self.f = max(1, int(round(resolution / env.grid.resolution)))
         self.grow_object = max(1, int(round(object_radius / (env.grid.resolution * self.f))))
@@ -64,6 +67,7 @@ class GradientNBVPolicy(Policy):
         self.height, self.iterations = point_height, iterations
         self.ring_radius, self.lr = ring_radius, learning_rate
         self.distance_cost, self.blocked_cost, self.min_gain = distance_cost, blocked_cost, min_gain
+        self.belief_opacity = belief_opacity
         cam = env.config.camera
         self.cam = cam
         # A belief point stands at a cell's centre, up to a cell from the surface it stands
@@ -164,18 +168,22 @@ class GradientNBVPolicy(Policy):
 
     def decide(self, state, ps: GradientNBVState, key):
         env = self.env
-        opacity = self.opacity(state)
         table, held = self.belief(state)
+        opacity = jnp.maximum(self.opacity(state), self.belief_opacity * held.reshape(self.shape))
         now = coverage.observed_soft(table, self.cov, self.cam, state.pose, state.depth)  # the real frame
         # A view reached counts as seen as predicted, so the same view is not chosen again.
         arrived = needs_target(state) & ~ps.exploring
         promised = jnp.where(arrived, coverage.observed_soft(table, self.cov, self.cam, ps.target,
                                                              self.render(opacity, ps.target)), 0.0)
-        viewed = 1.0 - (1.0 - ps.viewed) * (1.0 - now) * (1.0 - promised)
+        # The best view so far, not a noisy-or: frames from one pose are not independent
+        # evidence (a robot standing still would otherwise 'see' everything in time).
+        viewed = jnp.maximum(ps.viewed, jnp.maximum(now, promised))
         weight = held * (1.0 - viewed)
-        centre = jnp.sum(table.points[:2] * weight, 1) / jnp.maximum(jnp.sum(weight), 1e-6)
+        # Each start looks at a belief point drawn by weight, from its own ring direction.
+        pick = jax.random.categorical(key, jnp.log(weight + 1e-9), shape=(self.ring.shape[0],))
+        centre = table.points[:2, pick].T  # (M, 2)
         xy = centre + self.ring
-        face = jnp.arctan2(centre[1] - xy[:, 1], centre[0] - xy[:, 0])
+        face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])
         views, gains = self.refine(opacity, table, weight, state.pose, jnp.concatenate([xy, face[:, None]], 1))
         views = views.at[:, 2].set(grid.wrap_angle(views[:, 2]))
         occ = env.occupancy(state)
