@@ -8,11 +8,11 @@ has observed, the labels it holds, and its current depth frame. No ground truth.
 its map shows occupied (the laser saw something there) or has not resolved at all (the
 object's unseen sides and back lie in space its sensors have not reached yet), at
 ``point_height``. Cells the map shows free hold none. Its weight is what the robot believes
-is still unseen of it: one minus its *viewed* probability, the best (largest) probability
-of any view so far: at every decision from the real depth frame (soft coverage, :func:`rosmeery_jax.coverage.observed_soft`, with a depth
-tolerance of 1.5 cells since a point stands at its cell's centre) and, when a view target
-is reached, from what that view was expected to show; zero where the camera has observed
-object surface in that cell.
+is still unseen of it: one minus its *viewed* probability, the largest of any view so far:
+of the real depth frame at every decision (soft coverage,
+:func:`rosmeery_jax.coverage.observed_soft`, with a depth tolerance of 1.5 cells since a
+point stands at its cell's centre) and, when a view target is reached, of what that view
+was expected to show; zero where the camera has observed object surface in that cell.
 
 **Expected gain of a view** q = (x, y, yaw): the soft coverage of the belief points from q,
 weighted, with the depth the camera would see there *rendered from the robot's own map*: a
@@ -22,13 +22,13 @@ point, since the robot believes an object is there; other cells clear), as an ex
 first-hit depth. Without that, a view would promise the far side of an object through its
 unresolved near side.
 
-**Refinement.** ``candidates`` views start ``ring_radius`` from belief points drawn by weight
-(each from its own direction of a ring), facing them; ``iterations`` steps of Adam (optax, ``learning_rate``)
-climb gain - ``distance_cost`` x travel - ``blocked_cost`` x opacity under the robot, by
-gradients through the coverage and the rendered depth. The best refined view, by gain per
-metre of travel (as ``semantic_nbv`` scores), on a cell the map shows free and clear,
-becomes the navigator's target until it is reached or given up; with no view worth
-``min_gain`` samples it explores like ``frontier``.
+**Refinement.** ``candidates`` views start ``ring_radius`` from belief points drawn by
+weight (each from its own direction of a ring), facing them; ``iterations`` steps of Adam
+(optax, ``learning_rate``) climb gain - ``distance_cost`` x travel - ``blocked_cost`` x
+opacity under the robot, by gradients through the coverage and the rendered depth. The
+best refined view, by gain per metre of travel (as ``semantic_nbv`` scores), on a cell the
+map shows free and clear, becomes the navigator's target until it is reached or given up;
+with no view worth ``min_gain`` samples it explores like ``frontier``.
 """
 
 from __future__ import annotations
