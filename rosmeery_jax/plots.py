@@ -54,7 +54,7 @@ def plot_results(df: pd.DataFrame, directory: str | Path) -> list[Path]:
             fig, ax = plt.subplots(figsize=(6, 3.6))
             plot_curves(df, world, metric, ax)
             fig.tight_layout()
-            out.append(_save(fig, Path(directory) / f"{world}_{metric}.png"))
+            out.append(save_figure(fig, Path(directory) / f"{world}_{metric}.png"))
     return out
 
 
@@ -70,10 +70,11 @@ def learning_curve(curve: pd.DataFrame, path: str | Path) -> Path:
         ax.set_xlabel("env-steps")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    return _save(fig, Path(path))
+    return save_figure(fig, Path(path))
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
+    """Write ``fig`` as a PNG at ``path`` atomically and close it; returns ``path``."""
     import io
 
     buf = io.BytesIO()

@@ -61,7 +61,7 @@ def targets(runs: pd.DataFrame) -> None:
 def figures(df: pd.DataFrame, directory: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from rosmeery_jax.plots import _save, plot_curves
+    from rosmeery_jax.plots import plot_curves, save_figure
 
     worlds = list(dict.fromkeys(df.world))
     fig, axes = plt.subplots((len(worlds) + 1) // 2, 2, figsize=(12, 3.4 * ((len(worlds) + 1) // 2)), squeeze=False)
@@ -70,7 +70,7 @@ def figures(df: pd.DataFrame, directory: Path) -> None:
     for ax in list(axes.flat)[len(worlds):]:
         ax.set_visible(False)
     fig.tight_layout()
-    print(f"\nwrote {_save(fig, directory / 'ori.png')}")
+    print(f"\nwrote {save_figure(fig, directory / 'ori.png')}")
 
 
 def main() -> None:

@@ -234,7 +234,7 @@ def test_a_short_training_run_raises_the_return(worlds, tmp_path):
 
 
 def test_learned_and_gradient_nbv_run_in_a_session(worlds, trained, tmp_path):
-    """One session for both new policies (each compiles its own chunk: one session saves a set-up)."""
+    """Both new policies in one session (one set-up and compile for the two)."""
     from rosmeery_jax.cli import main
     from rosmeery_jax.results import load
 
