@@ -41,6 +41,7 @@ class BenchConfig:
     memory_batch: int = 1024
     seed: int = 0
     session_s: float = 20.0  # simulated seconds of the end-to-end default session (0 = skip)
+    devices: int = 0  # also time the reference batch split over this many devices (0 = every device)
 
 
 def random_targets(world, n: int, seed: int) -> np.ndarray:
@@ -81,20 +82,27 @@ def _rollout_fn(env, steps: int):
     return run
 
 
-def env_throughput(env, batch: int, cfg: BenchConfig) -> dict:
-    """Full-step env-steps/s and compile time at one batch size; also returns the final state."""
+def env_throughput(env, batch: int, cfg: BenchConfig, devices: int = 1) -> dict:
+    """Full-step env-steps/s and compile time at one batch size, the batch split evenly over
+    ``devices`` (each runs the one-device program on its share, as sessions do:
+    ``engine.Replicas``); also returns the final state."""
     import jax
     import jax.numpy as jnp
+
+    from rosmeery_jax.engine import Replicas
 
     keys = jax.random.split(jax.random.key(cfg.seed), batch)
     state = jax.jit(jax.vmap(env.reset))(keys)
     targets = jnp.asarray(random_targets(env.world, batch, cfg.seed))
-    run = _rollout_fn(env, cfg.steps)
+    run, lead = _rollout_fn(env, cfg.steps), ()
+    if devices > 1:  # Replicas' signature: (shared, one row per device's block, *per-env arguments)
+        run = Replicas(jax.jit(lambda shared, block, s, t, run=run: run(s, t)), devices)
+        lead = (None, jnp.zeros(devices))
     t = time.perf_counter()
-    compiled = run.lower(state, targets).compile()
+    compiled = run.lower(*lead, state, targets).compile()
     compile_s = time.perf_counter() - t
-    state = jax.block_until_ready(compiled(state, targets))  # warm: robots on their way
-    _, times, state = _timed(compiled, state, targets, repeats=cfg.repeats)
+    state = jax.block_until_ready(compiled(*lead, state, targets))  # warm: robots on their way
+    _, times, state = _timed(compiled, *lead, state, targets, repeats=cfg.repeats)
     return {"batch": batch, "env_steps_per_s": batch * cfg.steps / statistics.median(times),
             "compile_s": compile_s, "state": state}
 
@@ -371,6 +379,14 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
     result["speedup_vs_mujoco_c"] = round(ours / peer["env_steps_per_s"], 2)
     result["speedup_full_step_vs_mujoco_c"] = round(ref_rate / peer["env_steps_per_s"], 2)
     result["reference_batch"] = cfg.reference_batch
+    n = min(cfg.devices or len(jax.devices()), len(jax.devices()))
+    if n > 1 and cfg.reference_batch % n == 0:  # every core busy, as the peer's threads keep them
+        progress(f"full and platform step at batch {cfg.reference_batch} split over {n} devices ...")
+        full_n = env_throughput(env, cfg.reference_batch, cfg, n)["env_steps_per_s"]
+        platform_n = env_throughput(platform_env, cfg.reference_batch, cfg, n)["env_steps_per_s"]
+        result["devices"] = {"devices": n, "env_steps_per_s": round(full_n, 1),
+                             "platform_env_steps_per_s": round(platform_n, 1),
+                             "speedup_vs_mujoco_c": round(platform_n / peer["env_steps_per_s"], 2)}
     progress(f"detector at batch {cfg.reference_batch} ...")
     result["detector"] = detector_bench(env, ref_state, env_rate=ref_rate)
     result["peak_memory_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 2)
@@ -405,6 +421,10 @@ def format_table(r: dict) -> str:
               f"{r['platform_env_steps_per_s']:,.0f} env-steps/s",
               f"speedup vs MuJoCo C: {r['speedup_vs_mujoco_c']:.2f}x (full step with coverage: "
               f"{r['speedup_full_step_vs_mujoco_c']:.2f}x)",
+              *([f"split over {r['devices']['devices']} devices (every core busy, like the peer's threads): full "
+                 f"step {r['devices']['env_steps_per_s']:,.0f} env-steps/s, without coverage "
+                 f"{r['devices']['platform_env_steps_per_s']:,.0f}, {r['devices']['speedup_vs_mujoco_c']:.2f}x the peer"]
+                if "devices" in r else []),
               f"equal work (our physics + laser + camera on the peer's poses): "
               f"{r['equal_work_env_steps_per_s']:,.0f} env-steps/s, {r['equal_work_ratio']:.2f}x the peer",
               f"peak memory (this process): {r['peak_memory_gb']:.2f} GB"]

@@ -105,11 +105,15 @@ def _int_list(text: str) -> tuple[int, ...]:
 
 def _cmd_bench(args) -> int:
     from rosmeery_jax.bench import BenchConfig, format_table, run_bench
+    from rosmeery_jax.session import cores, host_devices
     from rosmeery_jax.world import load_world
 
+    if args.devices < 0:
+        raise InputError("command line", "--devices", f"{args.devices} must be >= 0 (0: one per core)")
+    host_devices(args.devices or cores())  # before JAX starts
     load_world(args.world)  # a bad name fails here, in one line, before any compile
     cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,
-                      memory_batch=args.memory_batch, session_s=args.session_s)
+                      memory_batch=args.memory_batch, session_s=args.session_s, devices=args.devices)
     quiet = (lambda msg: print(msg, file=sys.stderr)) if args.json else print
     result = run_bench(cfg, progress=quiet)
     print(json.dumps(result, indent=2) if args.json else format_table(result))
@@ -395,6 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also measure peak memory at this batch in a child process (0: skip)")
     p.add_argument("--session-s", type=float, default=20.0, metavar="S",
                    help="also time a default session of S simulated seconds end to end (0: skip)")
+    p.add_argument("--devices", type=int, default=0, metavar="N", help="also time the reference batch split "
+                   "over N devices (default 0: one host device per core)")
     p.add_argument("--json", action="store_true", help="print one JSON object (progress goes to stderr)")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_bench)
@@ -426,7 +432,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
     p.add_argument("--devices", type=int, metavar="N", help="split each batch over N devices (GPUs, or N host "
-                   "devices made from the CPU's cores); results are the same (default 1)")
+                   "devices made from the CPU's cores); results are the same (default 0: every device, "
+                   "one host device per core on a CPU, at most one per block)")
     p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
                    "detector (progress granularity only; default 30)")
     p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "

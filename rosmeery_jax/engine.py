@@ -95,10 +95,11 @@ class Group:
 
 
 def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: int,
-                 decide_every: int, total_steps: int, devices: int = 1) -> list[Group]:
+                 decide_every: int, total_steps: int, devices: int = 0) -> list[Group]:
     """The groups of (world spec, policy spec) pairs; runs with no entries are left out.
-    With ``devices`` > 1, padding blocks (copies of the last, no real env) make the number
-    of blocks a multiple of it."""
+    ``devices`` 0 uses every device JAX has, or one per block when there are fewer blocks;
+    with more than one, padding blocks (copies of the last, no real env) make the number of
+    blocks a multiple of it."""
     from rosmeery_jax.overrides import flatten
     from rosmeery_jax.policies import make_policy, policy_class
     from rosmeery_jax.world import WorldConfig, load_world
@@ -135,7 +136,8 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
                 seed_ix += list(range(padded))
                 real += [True] * b + [False] * (padded - b)
                 blocks += [(q, w)] * (padded // BLOCK)
-        for _ in range((-len(blocks)) % devices if runs else 0):  # whole blocks per device
+        used = devices or max(1, min(len(jax.devices()), len(blocks)))  # auto: no device without a real block
+        for _ in range((-len(blocks)) % used if runs else 0):  # whole blocks per device
             blocks.append(blocks[-1])
             world_ix += [blocks[-1][1]] * BLOCK
             seed_ix += list(range(BLOCK))
@@ -143,7 +145,7 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
         if runs:
             groups.append(Group(config, envs[0], envs, wd.stack([e.data for e in envs]), policies,
                                 np.asarray(world_ix, np.int32), np.asarray(seed_ix, np.int32), np.asarray(real),
-                                np.asarray(blocks, np.int32), runs, devices))
+                                np.asarray(blocks, np.int32), runs, used))
     return groups
 
 

@@ -71,12 +71,13 @@ class SessionConfig:
     # "perceived" (depth inside detector boxes, no ground truth: rosmeery_jax.perceived)
     out: str = "results/session"
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
-    devices: int = 1  # split each batch over this many devices (speed only: results are the same)
+    devices: int = 0  # split each batch over this many devices (speed only: results are the same);
+    # 0 = every device JAX has (on a CPU, one host device per core), at most one per block
 
     def validate(self, source: str = "config") -> "SessionConfig":
         """Every check that can be made before a run starts; one InputError naming ``source``."""
-        if self.devices > 1:
-            _host_devices(self.devices)  # before anything below starts JAX
+        if self.devices != 1:
+            host_devices(self.devices or cores())  # before anything below starts JAX
         from rosmeery_jax.env import EnvConfig
 
         _check_values(self, source)
@@ -129,7 +130,12 @@ class _as_source:
         return False
 
 
-def _host_devices(n: int) -> None:
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def host_devices(n: int) -> None:
     """Let XLA make ``n`` devices of the CPU's cores, for ``devices`` on a machine without
     accelerators. XLA reads the flag when JAX starts, so it does nothing once JAX has."""
     if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
@@ -141,9 +147,11 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
         raise InputError(source, "detector", f"{cfg.detector!r} is not available (available: {', '.join(DETECTORS)})")
     if not 0 <= cfg.conf_threshold <= 1:
         raise InputError(source, "conf_threshold", f"{cfg.conf_threshold!r} must be a number in [0, 1]")
-    for name in ("seeds", "decide_every", "devices"):
+    for name in ("seeds", "decide_every"):
         if getattr(cfg, name) < 1:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
+    if cfg.devices < 0:
+        raise InputError(source, "devices", f"{cfg.devices!r} must be a whole number >= 0 (0: every device)")
     for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):
         if not getattr(cfg, name) > 0:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
@@ -429,7 +437,7 @@ class Session:
             sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
                                   _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
-                      "devices": cfg.devices}
+                      "devices": group.devices}
             timings.append(timing)
             for run in group.runs:
                 write_run(cfg, group, run, out, sim, timing)
