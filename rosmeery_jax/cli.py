@@ -432,8 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
     p.add_argument("--devices", type=int, metavar="N", help="split each batch over N devices (GPUs, or N host "
-                   "devices made from the CPU's cores); results are the same (default 0: every device, "
-                   "one host device per core on a CPU, at most one per block)")
+                   "devices made from the CPU's cores); results are the same (default 0: every device; on a "
+                   "CPU one host device per core, less one for torch with --detector yolo; at most one "
+                   "per block)")
     p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
                    "detector (progress granularity only; default 30)")
     p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "

@@ -72,12 +72,15 @@ class SessionConfig:
     out: str = "results/session"
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
-    # 0 = every device JAX has (on a CPU, one host device per core), at most one per block
+    # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
+    # the YOLO detector runs), at most one per block
 
     def validate(self, source: str = "config") -> "SessionConfig":
         """Every check that can be made before a run starts; one InputError naming ``source``."""
         if self.devices != 1:
-            host_devices(self.devices or cores())  # before anything below starts JAX
+            # Before anything below starts JAX. With YOLO, torch needs a core of its own: on the
+            # 2-core machine two host devices beside it made the paper session slower (docs/cluster.md).
+            host_devices(self.devices or max(1, cores() - (self.detector == "yolo")))
         from rosmeery_jax.env import EnvConfig
 
         _check_values(self, source)

@@ -135,6 +135,20 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
         assert [tuple(b) for b in group.blocks[:len(policies)]] == [(q, 0) for q in range(len(policies))]
 
 
+def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(world, monkeypatch):
+    import jax
+
+    from rosmeery_jax.engine import build_groups
+
+    monkeypatch.setattr(jax, "devices", lambda *a: ["d0", "d1", "d2"])  # only counted
+    # (policies, seeds) -> (devices used, blocks): seeds <= 5 fill one block per run
+    for policies, seeds, used, blocks in ((["frontier"], 3, 1, 1), (["frontier", "random"], 3, 2, 2),
+                                          (["frontier", "random"], 7, 3, 6)):
+        group = build_groups([(world, p) for p in policies], {}, False, seeds, 10, 100)[0]
+        assert (group.devices, len(group.blocks)) == (used, blocks)
+        assert group.real.sum() == seeds * len(policies)
+
+
 def test_more_devices_than_there_are_is_one_clear_line(world, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # restored afterwards: main may set it
     out = tmp_path / "o"

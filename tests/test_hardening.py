@@ -74,6 +74,7 @@ def test_the_reset_key_sets_the_start_heading_bitwise():
     ("[env]\ncamera__cul = 3\n", "camera__cul"),
     ("[env]\ncamera = {cull = 'many'}\n", "camera__cull"),
     ("seeds = true\n", "seeds"),
+    ("devices = -1\n", "devices"),
     ("worlds = 5\n", "worlds"),
     ("worlds = []\n", "worlds"),
     ("metrics = []\n", "metrics"),

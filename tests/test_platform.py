@@ -107,6 +107,15 @@ def _rollout(mode, steps):
     return jax.jit(run)
 
 
+def test_materialized_changes_no_value():
+    from rosmeery_jax.raycast.sensors import materialized
+
+    x = jnp.array([0.0, -0.0, 8.0, 1e-30, -3e38, np.finfo(np.float32).min, np.inf, 7.5], jnp.float32)
+    np.testing.assert_array_equal(np.asarray(jax.jit(materialized)(x)), np.asarray(x))
+    assert materialized(x.reshape(2, 4)).shape == (2, 4)
+    assert materialized(jnp.array([-np.inf]))[0] == np.finfo(np.float32).min  # the one value it moves
+
+
 def test_robot_stays_out_of_solids_for_10000_random_steps():
     env = _env("velocity")
     b, t = 16, 625
