@@ -77,13 +77,13 @@ class SessionConfig:
 
     def validate(self, source: str = "config") -> "SessionConfig":
         """Every check that can be made before a run starts; one InputError naming ``source``."""
+        _check_values(self, source)
         if self.devices != 1:
             # Before anything below starts JAX. With YOLO, torch needs a core of its own: on the
             # 2-core machine two host devices beside it made the paper session slower (docs/cluster.md).
             host_devices(self.devices or max(1, cores() - (self.detector == "yolo")))
         from rosmeery_jax.env import EnvConfig
 
-        _check_values(self, source)
         for name, values in (("worlds", self.worlds), ("policies", self.policies), ("metrics", self.metrics),
                          ("mappers", self.mappers)):
             if not values:
