@@ -30,6 +30,7 @@ import math
 import os
 import platform as _platform  # the standard library
 import subprocess
+import sys
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from importlib import metadata
@@ -140,7 +141,13 @@ def cores() -> int:
 
 def host_devices(n: int) -> None:
     """Let XLA make ``n`` devices of the CPU's cores, for ``devices`` on a machine without
-    accelerators. XLA reads the flag when JAX starts, so it does nothing once JAX has."""
+    accelerators. XLA reads the flag when JAX starts, so once JAX has started (a notebook,
+    a test run) the environment is left as it is: child processes would inherit it."""
+    if "jax" in sys.modules:
+        from jax._src import xla_bridge  # JAX has no public way to ask whether it has started
+
+        if xla_bridge.backends_are_initialized():
+            return
     if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={n}".strip()
 
