@@ -422,10 +422,9 @@ def format_table(r: dict) -> str:
               f"{r['platform_env_steps_per_s']:,.0f} env-steps/s",
               f"speedup vs MuJoCo C: {r['speedup_vs_mujoco_c']:.2f}x (full step with coverage: "
               f"{r['speedup_full_step_vs_mujoco_c']:.2f}x)",
-              *([f"split over {r['devices']['devices']} devices (every core busy, like the peer's threads): full "
-                 f"step {r['devices']['env_steps_per_s']:,.0f} env-steps/s, without coverage "
-                 f"{r['devices']['platform_env_steps_per_s']:,.0f}, {r['devices']['speedup_vs_mujoco_c']:.2f}x the peer"]
-                if "devices" in r else []),
+              *([f"split over {dv['devices']} devices (every core busy, like the peer's threads): full step "
+                 f"{dv['env_steps_per_s']:,.0f} env-steps/s, without coverage {dv['platform_env_steps_per_s']:,.0f}, "
+                 f"{dv['speedup_vs_mujoco_c']:.2f}x the peer"] if (dv := r.get("devices")) else []),
               f"equal work (our physics + laser + camera on the peer's poses): "
               f"{r['equal_work_env_steps_per_s']:,.0f} env-steps/s, {r['equal_work_ratio']:.2f}x the peer",
               f"peak memory (this process): {r['peak_memory_gb']:.2f} GB"]

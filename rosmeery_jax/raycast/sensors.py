@@ -161,7 +161,8 @@ def materialized(x: jax.Array) -> jax.Array:
     re-test ran once per sample instead of once per pixel: coverage cost 14 ms per B=64
     step inside the fused step against 4 ms alone. A reduction is never fused into a
     consumer, so a max against the lowest finite float (which changes no value but -inf;
-    depths are >= 0) ends the fusion here. ``lax.optimization_barrier`` does not: XLA's CPU pipeline removes it first."""
+    depths are >= 0) ends the fusion here. ``lax.optimization_barrier`` does not: XLA's CPU
+    pipeline removes it first."""
     lowest = jnp.full_like(x, jnp.finfo(x.dtype).min)
     return jnp.max(jnp.stack([x, lowest], -1), -1)
 
