@@ -10,6 +10,17 @@ import pytest
 # One persistent compilation cache for the whole suite (and across CI runs on one machine).
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".jax_cache"))
 
+# The slowest files first (cold-cache minutes on 2 cores, most of them compiling), so the two
+# xdist workers (pyproject: a file per worker at a time) finish together rather than one
+# waiting for the other's last long file. Within a file the order is unchanged.
+SLOWEST_FIRST = ("test_rl", "test_cluster", "test_hardening", "test_engine", "test_session", "test_teleop",
+                 "test_platform", "test_procedural")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))
+
 
 def room_xml(bodies: str, categories: dict[str, str], spawn=(0.0, 0.0, 0.0), half: float = 2.0,
              walls: bool = True, extra_custom: str = "") -> str:

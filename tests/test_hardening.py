@@ -193,7 +193,9 @@ def test_frontier_nearest_leaves_the_spawn_in_every_seed(tmp_path):
 
 def test_kill_9_then_resume_gives_the_files_of_an_uninterrupted_run(tmp_path):
     args = ["--worlds", "small_office", "--policies", "random,frontier", "--seeds", "2", "--duration", "6",
-            "--detector", "off", "--metrics", "ori", "--quiet"]
+            "--detector", "off", "--metrics", "ori", "--quiet", "--devices", "1"]
+    # One device everywhere: the killed child process then loads the parent's compiled
+    # function from the persistent cache (auto would give it two host devices, a new compile).
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert main(["run", *args, "--out", str(whole)]) == 0
     # A session writes its runs one after another once the batch is simulated: this one is
