@@ -20,7 +20,10 @@ from rosmeery_jax.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.errors import InputError
 
-RUN = ["run", "--worlds", "small_office", "--policies", "random", "--duration", "4", "--detector", "off", "--quiet"]
+# One session setting for the module's sessions (the kill-9 test's included), so they share
+# one compiled function through the persistent cache; one device, as a child process gets.
+RUN = ["run", "--worlds", "small_office", "--policies", "random,frontier", "--duration", "4", "--detector", "off",
+       "--quiet", "--devices", "1"]
 
 
 def _one_line_error(capsys, *needles) -> str:
@@ -171,7 +174,7 @@ def test_two_replay_entries_are_refused(tmp_path, capsys):
 # --- results independent of batch-mates ---
 
 def test_a_seed_does_not_depend_on_its_batch_mates(two_seeds, tmp_path):
-    nine = tmp_path / "nine"  # two blocks of envs instead of one
+    nine = tmp_path / "nine"  # two blocks of envs per policy instead of one
     assert main([*RUN, "--seeds", "9", "--metrics", "ori,opi", "--out", str(nine)]) == 0
     for table in ("metrics.csv", "trajectories.csv"):
         a = pd.read_csv(two_seeds / table)
@@ -192,10 +195,7 @@ def test_frontier_nearest_leaves_the_spawn_in_every_seed(tmp_path):
 # --- interrupted sessions ---
 
 def test_kill_9_then_resume_gives_the_files_of_an_uninterrupted_run(tmp_path):
-    args = ["--worlds", "small_office", "--policies", "random,frontier", "--seeds", "2", "--duration", "6",
-            "--detector", "off", "--metrics", "ori", "--quiet", "--devices", "1"]
-    # One device everywhere: the killed child process then loads the parent's compiled
-    # function from the persistent cache (auto would give it two host devices, a new compile).
+    args = [*RUN[1:], "--seeds", "2", "--metrics", "ori"]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert main(["run", *args, "--out", str(whole)]) == 0
     # A session writes its runs one after another once the batch is simulated: this one is
