@@ -146,8 +146,8 @@ class Platform:
     def init(self, pose: jax.Array) -> mjx.Data:
         """MJX data with the robot at ``pose`` (3,), at rest. Derived fields (contacts,
         positions of bodies) stay empty: ``mjx.step`` recomputes all of them from qpos, qvel,
-        ctrl and the warm start before it integrates, so a forward pass here changes no
-        trajectory and only compiled MJX's whole pipeline a second time (~5 s per reset)."""
+        ctrl and the warm start before it integrates, so a forward pass here would change no
+        trajectory and only compile MJX's whole pipeline a second time (~5 s per reset)."""
         d = mjx.make_data(self.model)
         return d.replace(qpos=jnp.concatenate([pose[:2] - self.spawn_xy, pose[2:3]]))
 
