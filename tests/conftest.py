@@ -9,6 +9,11 @@ import pytest
 
 # One persistent compilation cache for the whole suite (and across CI runs on one machine).
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".jax_cache"))
+# One host device per test process: a session's default (one per core) would compile a copy of
+# its program per device, twice the compiling beside the other xdist worker. Results do not
+# depend on the device count; test_cluster checks two devices in a process of its own.
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=1".strip()
 
 # The slowest files first (cold-cache minutes on 2 cores, most of them compiling), so the two
 # xdist workers (pyproject: a file per worker at a time) finish together rather than one

@@ -158,17 +158,20 @@ def test_bad_config_is_refused(worlds):
 
 
 def _train_config(worlds, **ppo):
+    """30 updates of 8 envs on the two rooms, a checkpoint after every update. One training
+    run (the ``trained`` fixture) serves the learning, resume and session tests: a compile of
+    the update is most of a run's time."""
     from rosmeery_jax.ppo import PPOConfig, TrainConfig
 
-    base = dict(num_envs=4, num_steps=6, updates=4, update_epochs=2, minibatches=2, checkpoint_every=1,
-                anneal_lr=False)
+    base = dict(num_envs=8, num_steps=6, updates=30, update_epochs=2, minibatches=2, checkpoint_every=1,
+                anneal_lr=False, lr=2e-3, ent_coef=0.0)
     return TrainConfig(worlds=tuple(worlds), ppo=PPOConfig(**{**base, **ppo}),
                        rl=RLConfig(decide_every=5, episode_s=3.0, goal_grid=3, crop=16, fail_penalty=0.5))
 
 
 @pytest.fixture(scope="module")
 def trained(worlds, tmp_path_factory):
-    """An uninterrupted 4-update run (its policy file serves the session test)."""
+    """An uninterrupted run (its policy file serves the session test)."""
     from rosmeery_jax import ppo
 
     out = tmp_path_factory.mktemp("train") / "whole"
@@ -221,14 +224,13 @@ def test_resume_refuses_another_configuration(worlds, trained, tmp_path):
         ppo.train(_train_config(worlds, lr=1e-3), out, resume=True, progress=False)
 
 
-def test_a_short_training_run_raises_the_return(worlds, tmp_path):
+def test_a_short_training_run_raises_the_return(trained):
     """30 updates on the two rooms: the mean episode return of the last 8 updates beats the
     first 8 (the policy learns to pick goal cells it can reach and that show new surface)."""
     from rosmeery_jax import ppo
 
-    out = ppo.train(_train_config(worlds, updates=30, num_envs=8, lr=2e-3, checkpoint_every=30, ent_coef=0.0),
-                    tmp_path / "short", progress=False)
-    curve = ppo.read_curve(out)
+    curve = ppo.read_curve(trained)
+    assert list(curve["update"]) == list(range(1, 31))
     first, last = curve["return"].head(8).mean(), curve["return"].tail(8).mean()
     assert last > first + 0.2, (first, last)
 
