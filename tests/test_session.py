@@ -15,7 +15,9 @@ from rosmeery_jax.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
 
-_ARGS = ["--worlds", "small_office", "--seeds", "2", "--duration", "4", "--quiet"]
+# Detector off: the YOLO session has its own test (test_detector); this setting is also
+# test_hardening's, so a program one compiles the other can load from the persistent cache.
+_ARGS = ["--worlds", "small_office", "--seeds", "2", "--detector", "off", "--duration", "4", "--quiet"]
 
 
 @pytest.fixture(scope="module")
