@@ -20,10 +20,10 @@ from rosmeery_jax.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.errors import InputError
 
-# One session setting for the module's sessions (the kill-9 test's included), so they share
-# one compiled function through the persistent cache; one device, as a child process gets.
+# One session setting for the module's sessions (the kill-9 test's child included: it inherits
+# conftest's one host device), so they share one compiled function through the persistent cache.
 RUN = ["run", "--worlds", "small_office", "--policies", "random,frontier", "--duration", "4", "--detector", "off",
-       "--quiet", "--devices", "1"]
+       "--quiet"]
 
 
 def _one_line_error(capsys, *needles) -> str:
