@@ -157,6 +157,37 @@ def test_navigation_reaches_free_target_and_reports_unreachable():
     assert np.abs(p[-1] - p[-10]).max() < 1e-3
 
 
+def test_navigation_sweep_is_the_eight_neighbour_bellman_update():
+    """The sweep takes each cell's neighbour minimum before adding the cell's own step cost;
+    that must equal the plain update min over the 8 neighbours of (neighbour + step), bitwise."""
+    from rosmeery_jax.navigation import BIG
+
+    nav = _env("target").navigator
+    hc, wc = nav.coarse_shape
+    rng = np.random.default_rng(0)
+    field = rng.uniform(0, 300, (hc, wc)).astype(np.float32)
+    field[rng.random((hc, wc)) < 0.3] = BIG
+    blocked = rng.random((hc, wc)) < 0.1
+    cost = (1.0 + 4.0 * (rng.random((hc, wc)) < 0.2)).astype(np.float32)
+    goal = (hc // 2, wc // 3)
+    got = np.asarray(jax.jit(lambda f: nav.sweep(f, jnp.asarray(blocked), jnp.asarray(cost), goal))(field))
+
+    want = field
+    for _ in range(nav.cfg.sweeps):
+        p = np.pad(want, 1, constant_values=BIG)
+        best = np.full_like(want, BIG)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                if di or dj:
+                    step = cost * np.float32(1.41421356 if di and dj else 1.0)
+                    best = np.minimum(best, p[1 + di:1 + di + hc, 1 + dj:1 + dj + wc] + step)
+        outside = ~np.asarray(nav.coarse.inside())
+        want = np.where(blocked | outside, np.float32(BIG), np.minimum(best, np.float32(BIG)))
+        want[goal] = 0.0
+    assert got.dtype == np.float32 and np.array_equal(got, want)
+    assert (got < BIG).sum() > 0.5 * hc * wc  # the case is not vacuous: most cells are reached
+
+
 def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
     env = _env("velocity")
     final, _ = _rollout("velocity", 30)(jax.random.split(jax.random.PRNGKey(0), 1), jnp.tile(jnp.array([[0.0, 1.0]]), (30, 1, 1)))
