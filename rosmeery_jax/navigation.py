@@ -94,16 +94,19 @@ class Navigator:
     def sweep(self, field, blocked, cost, goal_ij):
         """Bellman sweeps over the 8-neighbourhood (diagonals cost sqrt 2); cells beyond the
         world's extent (session padding) stay unreachable, as cells off the grid are."""
+        hc, wc = self.coarse_shape
         blocked = blocked | ~self.coarse.inside()
 
         def one(field, _):
-            p = jnp.pad(field, 1, constant_values=BIG)
-            # The step cost is the cell's own, so min(neighbour + c) = min(neighbours) + c, and
-            # exactly so (rounding is monotonic): two adds per cell instead of eight.
-            side = jnp.minimum(jnp.minimum(p[:-2, 1:-1], p[2:, 1:-1]), jnp.minimum(p[1:-1, :-2], p[1:-1, 2:]))
-            pairs = jnp.minimum(p[:, :-2], p[:, 2:])  # (hc + 2, wc): left and right neighbours
-            corner = jnp.minimum(pairs[:-2], pairs[2:])
-            best = jnp.minimum(side + cost, corner + cost * 1.41421356)
+            pad = jnp.pad(field, 1, constant_values=BIG)
+            best = jnp.full_like(field, BIG)
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    if di == 0 and dj == 0:
+                        continue
+                    step = cost * (1.41421356 if di and dj else 1.0)
+                    nb = jax.lax.dynamic_slice(pad, (1 + di, 1 + dj), (hc, wc))
+                    best = jnp.minimum(best, nb + step)
             best = jnp.where(blocked, BIG, jnp.minimum(best, BIG))
             return best.at[goal_ij].set(0.0), None
 
