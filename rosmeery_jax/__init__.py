@@ -13,4 +13,8 @@ def __getattr__(name: str):
         from rosmeery_jax.env import make
 
         return make
+    if name == "jit":
+        from rosmeery_jax.xla import jit
+
+        return jit
     raise AttributeError(f"module 'rosmeery_jax' has no attribute {name!r}")

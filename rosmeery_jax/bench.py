@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rosmeery_jax import grid
+from rosmeery_jax import grid, xla
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ def _timed(fn, *args, repeats: int) -> tuple[float, list[float], object]:
 def _rollout_fn(env, steps: int):
     import jax
 
-    @jax.jit
+    @xla.jit
     def run(state, targets):
         def body(s, _):
             return jax.vmap(env.step)(s, targets), None
@@ -92,11 +92,11 @@ def env_throughput(env, batch: int, cfg: BenchConfig, devices: int = 1) -> dict:
     from rosmeery_jax.engine import Replicas
 
     keys = jax.random.split(jax.random.key(cfg.seed), batch)
-    state = jax.jit(jax.vmap(env.reset))(keys)
+    state = xla.jit(jax.vmap(env.reset))(keys)
     targets = jnp.asarray(random_targets(env.world, batch, cfg.seed))
     run, lead = _rollout_fn(env, cfg.steps), ()
     if devices > 1:  # Replicas' signature: (shared, one row per device's block, *per-env arguments)
-        run = Replicas(jax.jit(lambda shared, block, s, t, run=run: run(s, t)), devices)
+        run = Replicas(xla.jit(lambda shared, block, s, t, run=run: run(s, t)), devices)
         lead = (None, jnp.zeros(devices))
     t = time.perf_counter()
     compiled = run.lower(*lead, state, targets).compile()
@@ -133,10 +133,10 @@ def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
     def update_map(lo, p, r, lab):
         return occupancy.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
 
-    fns = {"navigation": jax.jit(jax.vmap(navigate)), "physics": jax.jit(jax.vmap(physics)),
-           "laser": jax.jit(jax.vmap(lambda p: laser(env.rays, c.laser, p))), "mapping": jax.jit(jax.vmap(update_map)),
-           "camera": jax.jit(jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))),
-           "coverage": jax.jit(jax.vmap(env.sk.observe))}
+    fns = {"navigation": xla.jit(jax.vmap(navigate)), "physics": xla.jit(jax.vmap(physics)),
+           "laser": xla.jit(jax.vmap(lambda p: laser(env.rays, c.laser, p))), "mapping": xla.jit(jax.vmap(update_map)),
+           "camera": xla.jit(jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))),
+           "coverage": xla.jit(jax.vmap(env.sk.observe))}
     times: dict[str, list] = {}
 
     def timed(name, *args):
@@ -170,8 +170,8 @@ def cull_error(env, poses) -> float:
     from rosmeery_jax.raycast.sensors import depth_seg
 
     full = replace(env.config.camera, cull=0)
-    _, a = jax.jit(jax.vmap(lambda p: depth_seg(env.rays, env.config.camera, p)))(poses)
-    _, b = jax.jit(jax.vmap(lambda p: depth_seg(env.rays, full, p)))(poses)
+    _, a = xla.jit(jax.vmap(lambda p: depth_seg(env.rays, env.config.camera, p)))(poses)
+    _, b = xla.jit(jax.vmap(lambda p: depth_seg(env.rays, full, p)))(poses)
     return float(np.mean(np.asarray(a) != np.asarray(b)))
 
 
@@ -249,7 +249,7 @@ def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.nd
 
     c = env.config
 
-    @jax.jit
+    @xla.jit
     def run(d, ctrl, poses):
         def body(d, xs):
             u, p = xs  # u (B, 3) world-frame velocity (x, y, yaw); p (B, 3) the peer's pose
@@ -262,7 +262,7 @@ def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.nd
         return jax.lax.scan(body, d, (jnp.swapaxes(ctrl, 0, 1), jnp.swapaxes(poses, 0, 1)))
 
     keys = jax.random.split(jax.random.key(cfg.seed), batch)
-    state = jax.jit(jax.vmap(env.reset))(keys)
+    state = xla.jit(jax.vmap(env.reset))(keys)
     args = (state.physics, jnp.asarray(ctrl, jnp.float32), jnp.asarray(poses, jnp.float32))
     _, times, _ = _timed(run, *args, repeats=cfg.repeats)
     return batch * cfg.steps / statistics.median(times)
@@ -296,10 +296,10 @@ def session_rate(world_names=None, duration: float = 20.0, detector: str = "yolo
 def memory_probe(world: str, batch: int, steps: int) -> float:
     """Peak resident memory (GB) of a child process that runs ``steps`` env-steps at ``batch``."""
     code = (
-        "import resource, jax, jax.numpy as jnp;"
+        "import resource, jax, jax.numpy as jnp, rosmeery_jax;"
         "from rosmeery_jax.env import make; from rosmeery_jax.bench import random_targets, _rollout_fn;"
         f"env = make({world!r}); keys = jax.random.split(jax.random.key(0), {batch});"
-        "s = jax.jit(jax.vmap(env.reset))(keys);"
+        "s = rosmeery_jax.jit(jax.vmap(env.reset))(keys);"
         f"t = jnp.asarray(random_targets(env.world, {batch}, 0));"
         f"jax.block_until_ready(_rollout_fn(env, {steps})(s, t));"
         "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
@@ -321,7 +321,7 @@ def detector_bench(env, state, decide_every: int = 10, env_rate: float | None = 
         return {"skipped": "torch is not installed"}
     if not DEFAULT_WEIGHTS.is_file():
         return {"skipped": f"no weights at {DEFAULT_WEIGHTS}"}
-    render = jax.jit(jax.vmap(env.camera_rgb))
+    render = xla.jit(jax.vmap(env.camera_rgb))
     first, times, (img, lab) = _timed(render, state, repeats=repeats)
     img, lab = np.asarray(img), np.asarray(lab)
     det = YoloDetector(env.world.taxonomy.names)

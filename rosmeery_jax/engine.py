@@ -50,6 +50,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rosmeery_jax import world_data as wd
+from rosmeery_jax import xla
 from rosmeery_jax.env import Env, EnvConfig, body_dimensions
 from rosmeery_jax.knowledge import ObjectLog
 
@@ -161,7 +162,7 @@ def blocked(fn, devices: int = 1):
                           (block_arg, blocks))
         return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
 
-    return jax.jit(run) if devices == 1 else Replicas(jax.jit(run), devices)
+    return xla.jit(run) if devices == 1 else Replicas(xla.jit(run), devices)
 
 
 def shardings(devices: int) -> tuple[NamedSharding, NamedSharding]:

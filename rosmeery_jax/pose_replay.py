@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax import metrics
+from rosmeery_jax import metrics, xla
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.raycast.sensors import depth_seg
 
@@ -80,7 +80,7 @@ def _observer(env):
         labelled = env.sk.label_observed(k) if env.config.labels == "observed" else k
         return labelled, env.sk.log(labelled)
 
-    return jax.jit(lambda init, poses: jax.lax.scan(observe, init, poses))
+    return xla.jit(lambda init, poses: jax.lax.scan(observe, init, poses))
 
 
 def curves(env, result: Replay, names=metrics.DEFAULT_METRICS) -> dict[str, np.ndarray]:

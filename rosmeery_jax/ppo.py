@@ -34,7 +34,7 @@ import optax
 from flax import serialization
 from flax.training.train_state import TrainState
 
-from rosmeery_jax import results
+from rosmeery_jax import results, xla
 from rosmeery_jax.errors import InputError, read_toml
 from rosmeery_jax.rl import ExplorationEnv, Obs, RLConfig
 
@@ -164,7 +164,7 @@ def init_runner(cfg: TrainConfig, env: ExplorationEnv) -> Runner:
     p = cfg.ppo
     key = jax.random.key(p.seed)
     key, k_net, k_env = jax.random.split(key, 3)
-    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    reset = xla.jit(jax.vmap(env.reset, in_axes=(0, None)))
     obs, state = reset(jax.random.split(k_env, p.num_envs), env.default_params())
     net = ActorCritic(env.num_actions)
     params = net.init(k_net, jax.tree.map(lambda a: a[0], obs))
@@ -233,7 +233,7 @@ def make_update(cfg: TrainConfig, env: ExplorationEnv):
         train, losses = jax.lax.scan(minibatch, train, mini)
         return (train, traj, adv, target, key), losses
 
-    @jax.jit
+    @xla.jit
     def update(runner: Runner):
         runner, traj = jax.lax.scan(rollout, runner, None, length=p.num_steps)
         _, last_value = runner.train.apply_fn(runner.train.params, runner.obs)

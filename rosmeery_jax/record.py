@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from rosmeery_jax import xla
 from rosmeery_jax.errors import InputError
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 
@@ -133,7 +134,7 @@ def optical_poses(camera: CameraConfig, poses: np.ndarray) -> np.ndarray:
 
 def _render_fn(env, camera: CameraConfig):
     """jit: poses (F, 3) -> RGB (F, H, W, 3), depth (F, H, W), labels (F, H, W)."""
-    return jax.jit(jax.vmap(lambda pose: rgbd(env.rays, camera, pose)))
+    return xla.jit(jax.vmap(lambda pose: rgbd(env.rays, camera, pose)))
 
 
 def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, folder: Path, info: dict) -> None:
@@ -189,7 +190,7 @@ def _write_table(path: Path, header: str, lines: list[str]) -> None:
 
 def _write_laser(env, folder: Path, times: np.ndarray, poses: np.ndarray) -> None:
     cfg = env.config.laser
-    ranges, _ = jax.jit(jax.vmap(lambda p: laser(env.rays, cfg, p)))(jnp.asarray(poses))
+    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.rays, cfg, p)))(jnp.asarray(poses))
     angles = laser_dirs(cfg)
     header = (f"laser ranges (m), {cfg.beams} beams from {angles[0]:.6f} to {angles[-1]:.6f} rad "
               f"(increment {angles[1] - angles[0]:.6f}) in the robot frame, {cfg.height} m above the floor at the "

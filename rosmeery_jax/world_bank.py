@@ -3,7 +3,7 @@ compiled function steps any of them (training on many procedural scenes, sweeps 
 held-out ones). The session engine does the same for a session's worlds.
 
     bank = world_bank(["procedural:office:0-15"])
-    step = jax.jit(jax.vmap(lambda i, s, a: bank.env_at(i).step(s, a)))   # W worlds, one compile
+    step = rosmeery_jax.jit(jax.vmap(lambda i, s, a: bank.env_at(i).step(s, a)))   # W worlds, one compile
 
 ``bank.env_at(i)`` is the env in world ``i`` (``i`` may be traced: inside jit it is a
 gather). Indices follow ``bank.names``.

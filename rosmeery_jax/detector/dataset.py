@@ -81,6 +81,7 @@ def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, 
     import jax
     import jax.numpy as jnp
 
+    from rosmeery_jax import xla
     from rosmeery_jax.raycast.kernel import ray_scene
     from rosmeery_jax.raycast.sensors import CameraConfig, rgb
 
@@ -90,7 +91,7 @@ def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, 
     if rgb_scale is None:
         rgb_scale = np.ones((len(poses), g + 1, 3), np.float32)
 
-    @jax.jit
+    @xla.jit
     def render(pose, scale):
         def one(p, s):
             scene = rs._replace(rgb=jnp.clip(rs.rgb * s[:g], 0, 1), floor_rgb=jnp.clip(rs.floor_rgb * s[g], 0, 1))

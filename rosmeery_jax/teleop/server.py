@@ -57,7 +57,7 @@ class Teleop:
                  metric_names=None, view: str = "blind"):
         import jax
 
-        from rosmeery_jax import metrics
+        from rosmeery_jax import metrics, xla
         from rosmeery_jax.env import make
 
         self.overrides = {"action_mode": "velocity", "start_yaw": "spawn",
@@ -71,12 +71,12 @@ class Teleop:
             from rosmeery_jax.detector.detections import make_detector
 
             self.detector = make_detector(detector, env.world, conf_threshold, weights)
-        self._step = jax.jit(env.step)
-        self._log = jax.jit(env.log)
-        self._rgb = jax.jit(env.camera_rgb)
-        self._attach = jax.jit(env.attach)
-        self._occ = jax.jit(env.occupancy)
-        self.state = jax.jit(env.reset)(jax.random.key(seed))
+        self._step = xla.jit(env.step)
+        self._log = xla.jit(env.log)
+        self._rgb = xla.jit(env.camera_rgb)
+        self._attach = xla.jit(env.attach)
+        self._occ = xla.jit(env.occupancy)
+        self.state = xla.jit(env.reset)(jax.random.key(seed))
         # Compile the step now (its result is discarded) so the page opens on a live robot.
         jax.block_until_ready(self._step(self.state, jax.numpy.zeros(2, jax.numpy.float32)))
         self.recorder = None
