@@ -69,10 +69,10 @@ def _timed(fn, *args, repeats: int) -> tuple[float, list[float], object]:
     return first, times, out
 
 
-def _rollout_fn(env, steps: int):
+def _rollout(env, steps: int):
+    """(state (B, ...), targets (B, 3)) -> state after ``steps`` full steps (not jitted)."""
     import jax
 
-    @xla.jit
     def run(state, targets):
         def body(s, _):
             return jax.vmap(env.step)(s, targets), None
@@ -80,6 +80,10 @@ def _rollout_fn(env, steps: int):
         return jax.lax.scan(body, state, None, length=steps)[0]
 
     return run
+
+
+def _rollout_fn(env, steps: int):
+    return xla.jit(_rollout(env, steps))
 
 
 def env_throughput(env, batch: int, cfg: BenchConfig, devices: int = 1) -> dict:
@@ -96,7 +100,8 @@ def env_throughput(env, batch: int, cfg: BenchConfig, devices: int = 1) -> dict:
     targets = jnp.asarray(random_targets(env.world, batch, cfg.seed))
     run, lead = _rollout_fn(env, cfg.steps), ()
     if devices > 1:  # Replicas' signature: (shared, one row per device's block, *per-env arguments)
-        run = Replicas(xla.jit(lambda shared, block, s, t, run=run: run(s, t)), devices)
+        plain = _rollout(env, cfg.steps)
+        run = Replicas(xla.jit(lambda shared, block, s, t: plain(s, t)), devices)
         lead = (None, jnp.zeros(devices))
     t = time.perf_counter()
     compiled = run.lower(*lead, state, targets).compile()
