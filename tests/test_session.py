@@ -152,8 +152,11 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
         known.append(known_cells(state))
         done.append(bool(pstate.done[0]))
         poses.append(np.asarray(state.pose[0]))
-    # (a boundary cell may flip between free and occupied, so the known area is what grows)
-    assert free[1] > 2 * free[0] and all(b >= a for a, b in zip(known, known[1:]))
+    # The known area is what grows: a cell at the edge of what the laser sees may flip
+    # between free and occupied, or back to unknown (a hit after one miss leaves its
+    # log-odds inside the threshold), so it may lose a few cells between checks.
+    assert free[1] > 2 * free[0] and known[-1] > known[1]
+    assert all(b >= 0.99 * a for a, b in zip(known, known[1:])), known
     assert done[-1] and not done[0]  # explored, then no frontier left
     # It has mapped most of what is reachable, and once done it stays put.
     assert free[-1] >= 0.8 * env.world.free_space.reachable.sum()
