@@ -38,11 +38,12 @@ def per_seed(folder: Path, metrics: list[str]) -> pd.DataFrame:
 
 
 def compare(a: pd.DataFrame, b: pd.DataFrame) -> pd.DataFrame:
-    rows = []
+    """One row per key present in both ``per_seed`` tables and per figure (final, auc)."""
+    rows, after = [], b.set_index(KEYS).sort_index()
     for key, ga in a.groupby(KEYS):
-        gb = b.set_index(KEYS).loc[[key]] if key in b.set_index(KEYS).index else None
-        if gb is None:
+        if key not in after.index:
             continue
+        gb = after.loc[[key]]
         for what in ("final", "auc"):
             x, y = ga[what].to_numpy(), gb[what].to_numpy()
             pooled = np.sqrt((x.var() + y.var()) / 2)

@@ -285,3 +285,33 @@ def test_bad_pose_file_is_one_line_naming_file_and_field(tmp_path, capsys, text,
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(path) in err and field in err
     assert not (tmp_path / "o").exists()
+
+
+def test_compare_sessions_finals_aucs_and_noise_flags(tmp_path):
+    """scripts/compare_sessions.py on two hand-made folders: 2 seeds, curves over 0..2 s."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("compare_sessions", Path(__file__).parents[1] / "scripts" /
+                                                  "compare_sessions.py")
+    cs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cs)
+
+    def folder(name, curves):  # curves: {(policy, seed): [v at 0, 1, 2 s]}
+        rows = [("kitchen", p, "yolo", "oracle", seed, float(t), "ori", v)
+                for (p, seed), vals in curves.items() for t, v in enumerate(vals)]
+        (tmp_path / name).mkdir()
+        pd.DataFrame(rows, columns=["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
+                     ).to_csv(tmp_path / name / "metrics.csv", index=False)
+        return cs.per_seed(tmp_path / name, ["ori"])
+
+    a = folder("a", {("random", 0): [0, 0.4, 0.6], ("random", 1): [0, 0.4, 0.8], ("frontier", 0): [0, 1, 1]})
+    b = folder("b", {("random", 0): [0, 0.4, 0.6], ("random", 1): [0, 0.4, 0.8], ("frontier", 0): [0, 0.5, 0.5],
+                     ("frontier", 1): [0, 0.5, 0.5]})
+    seed1 = a[(a.policy == "random") & (a.seed == 1)].iloc[0]
+    assert seed1.final == 0.8 and abs(seed1.auc - (0.2 + 0.6) / 2) < 1e-12  # trapezoids over 2 s
+    t = cs.compare(a, b).set_index(["policy", "figure"])
+    assert len(t) == 4  # both policies, final and AUC; nothing only one side has
+    assert not t.loc[("random", "final"), "beyond_1std"] and t.loc[("random", "final"), "p"] == 1.0
+    assert t.loc[("frontier", "final"), "diff"] == -0.5 and t.loc[("frontier", "final"), "beyond_1std"]
+    assert t.loc[("frontier", "auc"), "diff"] == -0.375  # AUC 0.75 -> 0.375
