@@ -180,8 +180,9 @@ def test_navigation_reaches_free_target_and_reports_unreachable():
 
 
 def test_navigation_sweep_is_the_eight_neighbour_bellman_update():
-    """The sweep takes each cell's neighbour minimum before adding the cell's own step cost;
-    that must equal the plain update min over the 8 neighbours of (neighbour + step), bitwise."""
+    """Each sweep is the Bellman update over the 8-neighbourhood, bitwise: a cell's new
+    cost-to-go is min over neighbours of (neighbour + its own step cost, x sqrt 2 on
+    diagonals); blocked cells and cells off the world's extent stay BIG; the goal is 0."""
     from rosmeery_jax.navigation import BIG
 
     nav = _env("target").navigator
