@@ -130,7 +130,7 @@ def _rollout(mode, steps):
 
 
 def test_materialized_changes_no_value():
-    from rosmeery_jax.raycast.sensors import materialized
+    from rosmeery_jax.raycast.kernel import materialized
 
     x = jnp.array([0.0, -0.0, 8.0, 1e-30, -3e38, np.finfo(np.float32).min, np.inf, 7.5], jnp.float32)
     np.testing.assert_array_equal(np.asarray(jax.jit(materialized)(x)), np.asarray(x))
@@ -232,3 +232,26 @@ def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
     free = occ == occupancy.FREE
     # (beyond one cell: a beam may graze through the 1 cm gap left between a desk and a wall)
     assert free.sum() > 200 and not (free & ndimage.binary_erosion(solid, iterations=2)).any()
+
+
+def test_hit_normals_labels_and_distances_by_hand():
+    """One box turned 30 degrees (centre (2, 0, 0.5), half 0.5) and the floor: the face a ray
+    enters gives the normal, turned with the box; the floor's is +z; a miss has none."""
+    from rosmeery_jax.raycast.kernel import RayScene
+    from rosmeery_jax.world.scene import FLOOR, NOTHING
+
+    yaw = np.pi / 6
+    far = np.full((15, 3), 1e6)
+    rs = RayScene(jnp.asarray(np.vstack([[2.0, 0.0, 0.5], far]), jnp.float32), jnp.full((16, 3), 0.5, jnp.float32),
+                  jnp.asarray([np.cos(yaw)] + [1.0] * 15, jnp.float32), jnp.asarray([np.sin(yaw)] + [0.0] * 15, jnp.float32),
+                  jnp.asarray([7] + [NOTHING] * 15, jnp.int32), jnp.zeros((16, 3), jnp.float32), jnp.zeros(3, jnp.float32))
+    origins = jnp.asarray([[0.0, 0.0, 0.5], [2.0, 0.0, 3.0], [0.0, 3.0, 0.5], [0.0, 0.0, 0.5]], jnp.float32)
+    dirs = jnp.asarray([[[1.0, 0.0, 0.0]], [[0.0, 0.0, -1.0]], [[0.0, 0.0, -1.0]], [[-1.0, 0.0, 0.0]]], jnp.float32)
+    hit = jax.jit(lambda o, d: cast(rs, o, d, 8.0))(origins, dirs)
+    c, s = np.cos(yaw), np.sin(yaw)
+    t0 = (2.0 * c - 0.5) / c  # local x of the origin is -2 cos(yaw); the ray's local x speed is cos(yaw)
+    np.testing.assert_allclose(np.asarray(hit.dist[:, 0]), [t0, 2.0, 0.5, 8.0], rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(hit.label[:, 0]), [7, 7, FLOOR, NOTHING])
+    np.testing.assert_array_equal(np.asarray(hit.box[:, 0]), [0, 0, -1, -1])
+    np.testing.assert_allclose(np.asarray(hit.normal[:, 0]), [[-c, -s, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0],
+                                                              [0.0, 0.0, 0.0]], atol=1e-6)

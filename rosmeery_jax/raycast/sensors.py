@@ -15,7 +15,7 @@ import numpy as np
 
 from rosmeery_jax import grid
 
-from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns, index_bits
+from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns, index_bits, materialized
 from rosmeery_jax.world.scene import NOTHING
 
 
@@ -149,22 +149,6 @@ def depth_seg(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Arr
     hit, d, _ = _camera_cast(rs, cfg, pose, cfg.width, cfg.height)
     depth = materialized(jnp.where(hit.label == NOTHING, cfg.max_range, hit.dist * (d @ axis)))
     return depth.reshape(cfg.height, cfg.width), hit.label.reshape(cfg.height, cfg.width)
-
-
-def materialized(x: jax.Array) -> jax.Array:
-    """``x`` (float), computed once into memory before its consumers read it.
-
-    XLA fuses cheap elementwise producers into their consumers, gathers included. The
-    depth image ends in the exact re-test of each pixel's winning box (gathers of box
-    parameters and a slab test); fused into the coverage test, which reads one pixel per
-    ground-truth sample (35,000 samples against 3,072 pixels in the Large Office), that
-    re-test ran once per sample instead of once per pixel: coverage cost 14 ms per B=64
-    step inside the fused step against 4 ms alone. A reduction is never fused into a
-    consumer, so a max against the lowest finite float (which changes no value but -inf;
-    depths are >= 0) ends the fusion here. ``lax.optimization_barrier`` does not: XLA's CPU
-    pipeline removes it first."""
-    lowest = jnp.full_like(x, jnp.finfo(x.dtype).min)
-    return jnp.max(jnp.stack([x, lowest], -1), -1)
 
 
 def rgb(rs: RayScene, cfg: CameraConfig, pose: jax.Array) -> tuple[jax.Array, jax.Array]:
