@@ -25,7 +25,13 @@ def block_any(mask: jax.Array, f: int) -> jax.Array:
     h, w = mask.shape
     hc, wc = -(-h // f), -(-w // f)
     m = jnp.pad(mask, ((0, hc * f - h), (0, wc * f - w)))
-    return m.reshape(hc, f, wc, f).any(axis=(1, 3))
+    # The OR of f * f strided slices: a reshape and ``any`` is XLA's CPU reduce, 2.7x slower
+    # here (the navigation cost map: 1.36 against 0.50 ms per B=64 step, Large Office).
+    out = m[::f, ::f]
+    for a in range(f):
+        for b in range(f):
+            out = out | m[a::f, b::f] if a or b else out
+    return out
 
 
 def grow(mask: jax.Array, diagonal: bool = True) -> jax.Array:

@@ -9,6 +9,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import ndimage
 
 from rosmeery_jax import occupancy
@@ -209,6 +211,22 @@ def test_navigation_sweep_is_the_eight_neighbour_bellman_update():
         want[goal] = 0.0
     assert got.dtype == np.float32 and np.array_equal(got, want)
     assert (got < BIG).sum() > 0.5 * hc * wc  # the case is not vacuous: most cells are reached
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 13), st.integers(1, 13), st.integers(1, 4), st.integers(0, 2 ** 31 - 1))
+def test_block_any_and_grow_match_a_plain_reference(h, w, f, seed):
+    """block_any: an f x f block is True when any of its cells is (the grid padded with False
+    to whole blocks); grow: the 3 x 3 dilation (scipy's), cells off the grid counting as False."""
+    from rosmeery_jax import grid
+
+    mask = np.random.default_rng(seed).random((h, w)) < 0.15
+    hc, wc = -(-h // f), -(-w // f)
+    padded = np.zeros((hc * f, wc * f), bool)
+    padded[:h, :w] = mask
+    want = np.array([[padded[i * f:(i + 1) * f, j * f:(j + 1) * f].any() for j in range(wc)] for i in range(hc)])
+    assert np.array_equal(np.asarray(grid.block_any(jnp.asarray(mask), f)), want.reshape(hc, wc))
+    assert np.array_equal(np.asarray(grid.grow(jnp.asarray(mask))), ndimage.binary_dilation(mask, np.ones((3, 3), bool)))
 
 
 def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
