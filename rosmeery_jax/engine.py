@@ -449,21 +449,33 @@ def _no_detections(b: int, frames: int) -> tuple[np.ndarray, ...]:
 
 def _detect(group: Group, detectors: dict, shots, first_frame: int):
     """Run each world's detector on its real envs' frames. Returns obj, label, conf
-    (B, F, D) and box (B, F, D, 4); padding envs get none."""
+    (B, F, D) and box (B, F, D, 4); padding envs get none. Worlds whose detectors share a
+    ``network`` (the YOLO weights) share one pass over all their frames: the last batch of
+    each world alone would be mostly padding."""
     from rosmeery_jax.detector.detections import pad
 
     rgb, seg = (np.asarray(a) for a in shots[:2])  # (B, F, H, W, 3), (B, F, H, W)
     b, f = rgb.shape[:2]
     obj, label, conf, box = _no_detections(b, f)
-    for w, detector in detectors.items():
-        rows = np.flatnonzero(group.real & (group.world == w))
-        if not len(rows):
+    rows = {w: r for w in detectors if len(r := np.flatnonzero(group.real & (group.world == w)))}
+    images = {w: rgb[r].reshape(-1, *rgb.shape[2:]) for w, r in rows.items()}
+    frames = {w: seg[r].reshape(-1, *seg.shape[2:]).astype(np.int32) for w, r in rows.items()}
+    passes: dict = {}  # a shared network, or the world alone -> its worlds
+    for w in rows:
+        passes.setdefault(getattr(detectors[w], "network", None) or w, []).append(w)
+    found = {}
+    for worlds in passes.values():
+        if len(worlds) == 1:
+            w, r = worlds[0], rows[worlds[0]]
+            ids = np.stack(np.meshgrid(group.seed[r], first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
+            found[w] = detectors[w](images[w], frames[w], ids)
             continue
-        ids = np.stack(np.meshgrid(group.seed[rows], first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
-        found = detector(rgb[rows].reshape(-1, *rgb.shape[2:]), seg[rows].reshape(-1, *seg.shape[2:]).astype(np.int32),
-                         ids)
-        for i, r in enumerate(rows):
-            obj[r], label[r], conf[r], box[r] = pad(found[i * f:(i + 1) * f], f, MAX_DET)
+        raw = detectors[worlds[0]].raw(np.concatenate([images[w] for w in worlds]))
+        for w, start in zip(worlds, np.cumsum([0] + [len(images[w]) for w in worlds])):
+            found[w] = detectors[w].finish(raw[start:start + len(images[w])], frames[w])
+    for w, r in rows.items():
+        for i, row in enumerate(r):
+            obj[row], label[row], conf[row], box[row] = pad(found[w][i * f:(i + 1) * f], f, MAX_DET)
     return obj, label, conf, box
 
 

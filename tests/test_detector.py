@@ -191,3 +191,66 @@ def test_session_with_a_detector_scores_confidences_and_labels(tmp_path, detecto
         has_wrong = bool(((g.label != g.category) & g.label.notna()).any())
         # OPI counts any declared predicate; OPI-strict only true ones, so a wrong label shows.
         assert (final.loc[seed, "opi_strict"] < final.loc[seed, "opi"] - 1e-9) == has_wrong
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.is_file(), reason="shipped weights missing")
+def test_yolo_detections_do_not_depend_on_batch_mates_or_place_in_the_batch():
+    """The session batches frames of several worlds and envs together: a frame's detections
+    must be the same whatever frames share its batch and wherever it sits in it."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.detector.detections import make_detector
+    from rosmeery_jax.env import make
+    from rosmeery_jax.raycast.sensors import rgbd
+
+    env = make("small_office")
+    poses = jnp.asarray(random_targets(env.world, 70, 4))
+    img, _, seg = (np.asarray(a) for a in jax.jit(jax.vmap(lambda p: rgbd(env.rays, env.config.camera, p)))(poses))
+    det = make_detector("yolo", env.world, 0.25)
+    alone = det.raw(img)
+    assert sum(len(d) for d in alone) > 20  # not vacuous: the frames hold detections
+    order = np.random.default_rng(0).permutation(len(img))
+    mixed = det.raw(img[order])  # other batch-mates, other places, a second partial batch
+    assert all(np.array_equal(mixed[i], alone[j]) for i, j in enumerate(order))
+    assert all(np.array_equal(a, b) for a, b in zip(det.raw(img[:5]), alone[:5]))
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(det(img, seg), det.finish(alone, seg)))
+
+
+def test_detect_runs_one_pass_per_shared_network_and_returns_each_row_its_frames():
+    from types import SimpleNamespace
+
+    from rosmeery_jax import engine
+
+    class Net:
+        """Raw detections encode the frame (its first pixel); finish tags them with the world."""
+
+        calls = 0
+
+        def __init__(self, world, network):
+            self.world, self.network = world, network
+
+        def raw(self, images):
+            Net.calls += 1
+            return [np.array([[0, 0, 1, 1, 0.9, im[0, 0, 0]]], np.float32) for im in images]
+
+        def finish(self, raw, seg):
+            return [(np.array([self.world], np.int32), d[:, 5].astype(np.int32), d[:, 4], d[:, :4]) for d in raw]
+
+        def __call__(self, images, seg, ids):
+            return self.finish(self.raw(images), seg)
+
+    b, f = 6, 3
+    group = SimpleNamespace(real=np.array([1, 1, 0, 1, 1, 1], bool), world=np.array([0, 0, 0, 1, 1, 2]),
+                            seed=np.arange(b))
+    rgb = np.zeros((b, f, 4, 4, 3), np.uint8)
+    rgb[..., 0, 0, 0] = (np.arange(b)[:, None] * 10 + np.arange(f)).astype(np.uint8)
+    dets = {0: Net(0, "yolo"), 1: Net(1, "yolo"), 2: Net(2, None)}
+    obj, label, conf, box = engine._detect(group, dets, (rgb, np.zeros((b, f, 4, 4), np.int16)), 0)
+    assert Net.calls == 2  # worlds 0 and 1 share one pass; world 2 has its own
+    for r in range(b):
+        if group.real[r]:
+            assert (obj[r, :, 0] == group.world[r]).all() and (label[r, :, 0] == r * 10 + np.arange(f)).all()
+        else:
+            assert (obj[r] == -1).all()  # a padding env gets no detections

@@ -48,6 +48,11 @@ def associate(boxes: np.ndarray, seg: np.ndarray) -> np.ndarray:
 
 
 class YoloDetector:
+    """The torch YOLO-v5 on a world's frames. A call is the network pass (:meth:`raw`), then
+    per frame the world's class mapping and the association (:meth:`finish`). Detectors with
+    the same ``network`` (weights, threshold, batch) give the same raw detections, so a session
+    runs one pass over every world's frames (fewer padded batches) and finishes per world."""
+
     name = "yolo"
 
     def __init__(self, categories: tuple[str, ...], weights: str | Path | None = None, conf: float = 0.25,
@@ -63,8 +68,13 @@ class YoloDetector:
         index = {c: i for i, c in enumerate(categories)}
         self.class_map = np.array([index.get(n, -1) for n in self.model.names], np.int32)
         self.conf, self.batch = conf, batch
+        self.network = (str(self.path.resolve()), conf, batch)
 
     def __call__(self, images: np.ndarray, seg: np.ndarray, frame_ids=None) -> list[tuple]:
+        return self.finish(self.raw(images), seg)
+
+    def raw(self, images: np.ndarray) -> list[np.ndarray]:
+        """The network's detections per frame (k, 6): x1, y1, x2, y2, confidence, class."""
         import torch
 
         out = []
@@ -73,19 +83,24 @@ class YoloDetector:
         for i in range(0, len(images), self.batch):
             part = images[i:i + self.batch]
             # Always a full batch (zero frames pad the last one): torch's numerics depend on
-            # the batch size, and a frame's detections must not depend on its batch-mates.
+            # the batch size; with it fixed, a frame's detections do not depend on its
+            # batch-mates or its place in the batch (tests/test_detector.py).
             full = np.zeros((self.batch, *part.shape[1:]), np.uint8)
             full[:len(part)] = part
             x = torch.from_numpy(full).permute(0, 3, 1, 2).float() / 255
             if ph or pw:  # pad to whole strides with the official grey
                 x = torch.nn.functional.pad(x, (0, pw, 0, ph), value=114 / 255)
-            for j, d in enumerate(self.model.detect(x, conf=self.conf)[:len(part)]):
-                d = d.numpy()
-                label = self.class_map[d[:, 5].astype(int)]
-                keep = label >= 0
-                d, label = d[keep], label[keep]
-                obj = associate(d[:, :4], seg[i + j])
-                out.append((obj, label, d[:, 4].astype(np.float32), d[:, :4].astype(np.float32)))
+            out += [d.numpy() for d in self.model.detect(x, conf=self.conf)[:len(part)]]
+        return out
+
+    def finish(self, raw: list[np.ndarray], seg: np.ndarray) -> list[tuple]:
+        """This world's (obj, label, conf, box) per frame from :meth:`raw`'s detections."""
+        out = []
+        for d, s in zip(raw, seg):
+            label = self.class_map[d[:, 5].astype(int)]
+            keep = label >= 0
+            d, label = d[keep], label[keep]
+            out.append((associate(d[:, :4], s), label, d[:, 4].astype(np.float32), d[:, :4].astype(np.float32)))
         return out
 
 
