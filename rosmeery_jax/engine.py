@@ -226,14 +226,19 @@ def reset_fn(group: Group):
     return blocked(one, group.devices)
 
 
-def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, depth: bool = False):
+def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, depth: bool = False,
+             log_every: int = 1):
     """One env per call of the returned function (blocked): fold the pending detections
     (F, D) into the knowledge, then ``decisions`` policy decisions, each followed by
-    ``decide_every`` env steps. Returns state, policy states, key, logs (steps, N), poses
-    (steps, 3) and, with ``capture``, the frame after each decision: RGB (F, Hr, Wr, 3)
-    uint8 and labels (F, Hr, Wr) int16 (F = decisions), with ``depth`` also its depth
-    (F, Hr, Wr) float32; else None."""
+    ``decide_every`` env steps. Returns state, policy states, key, logs (steps / log_every,
+    N) after every ``log_every``-th step (a divisor of ``decide_every``), poses (steps, 3)
+    and, with ``capture``, the frame after each decision: RGB (F, Hr, Wr, 3) uint8 and labels
+    (F, Hr, Wr) int16 (F = decisions), with ``depth`` also its depth (F, Hr, Wr) float32;
+    else None."""
     per_step = group.policies[0].per_step
+    if decide_every % log_every:
+        raise ValueError(f"log_every {log_every} must divide decide_every {decide_every}")
+    spans = decide_every // log_every  # logged spans per decision
 
     def one(stacked, block, state, pstates, key, pending):
         env, policies = _in_world(group, stacked, block)
@@ -257,18 +262,25 @@ def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, dep
 
             def step(s, a):
                 s = env.step(s, a if per_step else action)
-                return s, (env.log(s), s.pose)
+                return s, s.pose
 
-            s, logs = jax.lax.scan(step, s, action if per_step else None, length=decide_every)
+            def span(s, a):  # log_every steps, then the log: the per-object log took 7 % of a
+                # paper session's step when taken every step, and metrics are written every sample_s
+                s, poses = jax.lax.scan(step, s, a, length=log_every)
+                return s, (env.log(s), poses)
+
+            actions = jax.tree.map(lambda a: a.reshape(spans, log_every, *a.shape[1:]), action) if per_step else None
+            s, logged = jax.lax.scan(span, s, actions, length=spans)
             frame = None
             if capture:
                 img, dep, lab = env.camera_rgbd(s)
                 frame = (img, lab.astype(jnp.int16)) + ((dep,) if depth else ())
-            return (s, pss, k), (logs, frame)
+            return (s, pss, k), (logged, frame)
 
-        (state, pstates, key), (logs, frames) = jax.lax.scan(decide, (state, pstates, key), None, length=decisions)
-        logs, poses = jax.tree.map(lambda a: a.reshape(decisions * decide_every, *a.shape[2:]), logs)
-        return state, pstates, key, logs, poses, frames
+        (state, pstates, key), ((logs, poses), frames) = jax.lax.scan(decide, (state, pstates, key), None,
+                                                                      length=decisions)
+        logs = jax.tree.map(lambda a: a.reshape(decisions * spans, *a.shape[2:]), logs)
+        return state, pstates, key, logs, poses.reshape(decisions * decide_every, 3), frames
 
     return blocked(one, group.devices)
 
@@ -307,21 +319,24 @@ class Compiled(NamedTuple):
 
 
 class Simulation(NamedTuple):
-    """A group's results, real envs only, in row order. logs: ObjectLog (B, T + 1, N);
-    poses (B, T + 1, 3); knowledge: the final labelled knowledge (batched); timing;
-    mappers: one PerceivedMapper per env fed every detector frame, or None."""
+    """A group's results, real envs only, in row order. logs: ObjectLog (B, T / log_every +
+    1, N), at steps 0, log_every, 2 log_every, ...; poses (B, T + 1, 3) at every step;
+    knowledge: the final labelled knowledge (batched); timing; mappers: one PerceivedMapper
+    per env fed every detector frame, or None."""
 
     logs: ObjectLog
     poses: np.ndarray
     knowledge: Any
     timing: dict
     mappers: list | None = None
+    log_every: int = 1
 
 
 def simulate(group: Group, total: int, per_call: int, decide_every: int, detectors: dict | None, bar,
-             clock: "CompileClock", perceive: bool = False) -> Simulation:
-    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call; with
-    ``perceive`` (needs detectors), also feed a perceived mapper per env."""
+             clock: "CompileClock", perceive: bool = False, log_every: int = 1) -> Simulation:
+    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call, logging
+    every ``log_every`` steps (a divisor of ``decide_every``); with ``perceive`` (needs
+    detectors), also feed a perceived mapper per env."""
     from rosmeery_jax.perceived import PerceivedMapper
 
     b = group.size
@@ -337,7 +352,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1))[:3])
     xla_before = dict(CompileClock._counts)
     with clock:
-        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture, perceive),
+        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture, perceive, log_every),
                        label_fn(group) if capture else None,
                        blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st), group.devices),
                        blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st), group.devices))
@@ -369,7 +384,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
                 obj[:, -1] = -1
             holder["labels"], per_frame = attach(data, blocks, holder["labels"],
                                                  *(jnp.asarray(d) for d in (obj, *dets[1:3])))
-            logs = _relabel(logs, per_frame, decide_every)
+            logs = _relabel(logs, per_frame, decide_every, log_every)
             t1 = time.perf_counter()
             if mappers:
                 _perceive(mappers, c * per_call, poses, shots[2], dets, decide_every)
@@ -411,7 +426,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
     keep = group.real
     return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
                       jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing,
-                      [m for m in mappers if m is not None] if mappers else None)
+                      [m for m in mappers if m is not None] if mappers else None, log_every)
 
 
 def _perceive(mappers: list, first_frame: int, poses: np.ndarray, depth, dets, decide_every: int) -> None:
@@ -479,11 +494,13 @@ def _detect(group: Group, detectors: dict, shots, first_frame: int):
     return obj, label, conf, box
 
 
-def _relabel(logs: ObjectLog, per_frame, decide_every: int) -> ObjectLog:
-    """Rewrite the chunk's label fields (B, n, N) from the step after each frame on: a frame
-    taken at the end of decision f counts from decision f + 1 (before the chunk's first
-    frame, the labels the previous chunk ended with)."""
-    frame_of_step = np.arange(logs.ps.shape[1]) // decide_every - 1
+def _relabel(logs: ObjectLog, per_frame, decide_every: int, log_every: int = 1) -> ObjectLog:
+    """Rewrite the chunk's label fields (B, n, N), one row after every ``log_every``-th
+    step, from the step after each frame on: a frame taken at the end of decision f counts
+    from decision f + 1 (before the chunk's first frame, the labels the previous chunk
+    ended with)."""
+    step = (np.arange(logs.ps.shape[1]) + 1) * log_every - 1  # each row's step in the chunk, from 0
+    frame_of_step = step // decide_every - 1
     take = frame_of_step >= 0
     updates = {}
     for name, values in zip(LABEL_FIELDS, per_frame):

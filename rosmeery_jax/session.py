@@ -233,13 +233,14 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     session is one batch: every world x policy x seed, each policy padded to whole blocks)."""
     from rosmeery_jax.engine import BLOCK
 
-    steps = cfg.duration / 0.1  # floats: a huge duration must give a huge estimate, not an overflow
+    steps = cfg.duration / 0.1 / log_every(cfg)  # logged steps; floats: a huge duration must give
+    # a huge estimate, not an overflow
     per_policy = -(-cfg.seeds // BLOCK) * BLOCK * len(worlds)
     batch = float(per_policy * len(cfg.policies))
     need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
     need_device = batch * DEVICE_BYTES_PER_ENV
     have = _memory_bytes()
-    for what, need in (("the per-step logs", need_host), ("the batch's device state", need_device)):
+    for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
         if need > 0.8 * have:
             raise InputError(source, "seeds" if what.startswith("the batch") else "duration",
                              f"{cfg.seeds} seeds x {len(worlds)} worlds x {len(cfg.policies)} policies x "
@@ -445,7 +446,7 @@ class Session:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
             sim = engine.simulate(group, total, _per_call(cfg, total), cfg.decide_every,
-                                  _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers)
+                                  _detectors(cfg, group), bar, clock, "perceived" in cfg.mappers, log_every(cfg))
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}
             timings.append(timing)
@@ -483,6 +484,12 @@ def _per_call(cfg: SessionConfig, total: int) -> int:
     return max(d for d in range(1, min(want, total) + 1) if total % d == 0)
 
 
+def log_every(cfg: SessionConfig) -> int:
+    """Steps between the engine's per-object logs: every step the metrics are written at
+    (``sample_s``) and every decision's last step (policies' frames) fall on one."""
+    return math.gcd(max(1, int(round(cfg.sample_s / 0.1))), cfg.decide_every)
+
+
 def _detectors(cfg: SessionConfig, group) -> dict | None:
     """{world index: detector} for the group's worlds, or None with the detector off."""
     if cfg.detector == "off":
@@ -506,8 +513,9 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
     rows = np.searchsorted(np.flatnonzero(group.real), run.rows)
     logs = jax.tree.map(lambda a: a[rows][..., :n], sim.logs)
     poses = sim.poses[rows]
-    times = np.arange(logs.ps.shape[1]) * env.dt
-    every = max(1, int(round(cfg.sample_s / env.dt)))
+    step = np.arange(logs.ps.shape[1]) * sim.log_every  # each log row's step
+    times = step * env.dt
+    every = max(1, int(round(cfg.sample_s / env.dt))) // sim.log_every
     keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
@@ -521,7 +529,7 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
                                                                                 "conf_any")})
             write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
         if "perceived" in cfg.mappers:
-            mapped["perceived"] = _perceived_log(env, sim.mappers[rows[seed]], len(times), cfg.decide_every,
+            mapped["perceived"] = _perceived_log(env, sim.mappers[rows[seed]], step, cfg.decide_every,
                                                  out / "maps" / f"{run.name}__seed{seed}__perceived", times[-1])
         for mapper, mlog in mapped.items():
             c = metrics.compute(mlog, env.truth, cfg.metrics)  # {name: (T,)}
@@ -531,8 +539,8 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
             objects.append(results.object_frame(world, final, seed=seed, mapper=mapper, policy=policy,
                                                 detector=cfg.detector))
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
-                                   "time_s": np.round(times[keep], 6), "x": poses[seed, keep, 0],
-                                   "y": poses[seed, keep, 1], "yaw": poses[seed, keep, 2]}))
+                                   "time_s": np.round(times[keep], 6), "x": poses[seed, step[keep], 0],
+                                   "y": poses[seed, step[keep], 1], "yaw": poses[seed, step[keep], 2]}))
     runs = out / "runs"
     results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{run.name}.objects.csv")
     results.write_atomic(runs / f"{run.name}.timing.json", json.dumps(
@@ -542,15 +550,15 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
     results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
 
 
-def _perceived_log(env, mapper, steps: int, decide_every: int, stem: Path, time_s: float):
-    """The perceived mapper's ObjectLog (steps, N): the map of the frames taken before each
-    step (a frame counts from the step after it, as labels do); its final map is written to
-    ``stem``.ply / .json."""
+def _perceived_log(env, mapper, steps: np.ndarray, decide_every: int, stem: Path, time_s: float):
+    """The perceived mapper's ObjectLog (T, N) at ``steps`` (T,): the map of the frames
+    taken before each step (a frame counts from the step after it, as labels do); its final
+    map is written to ``stem``.ply / .json."""
     from rosmeery_jax.map_eval import TOLERANCE
     from rosmeery_jax.perceived import frame_logs
     from rosmeery_jax.semantic_map import build_map, write_map
 
-    counted = np.maximum(np.arange(steps) - 1, 0) // decide_every  # frames counted at each step
+    counted = np.maximum(steps - 1, 0) // decide_every  # frames counted at each step
     per_frame = frame_logs(env.world, mapper, int(counted[-1]), TOLERANCE)
     points, instance, label, conf = mapper.snapshot(int(counted[-1]))
     names = [f"instance_{i}" for i in range(len(label))]

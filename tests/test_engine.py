@@ -112,6 +112,9 @@ def test_relabel_counts_a_frame_from_the_step_after_it():
     out = engine._relabel(logs, per_frame, 3)
     assert out.label[0, :, 0].tolist() == [0, 0, 0, 1, 1, 1]  # frame 1 of this chunk lands in the next
     assert out.ps[0].sum() == 0  # coverage untouched
+    # Logged once per decision (after steps 3 and 6): frame 0 counts from step 4, so row 2 has it.
+    rows = ObjectLog(*(np.zeros((1, 2, n), np.float32) for _ in range(6)))
+    assert engine._relabel(rows, per_frame, 3, log_every=3).label[0, :, 0].tolist() == [0, 1]
 
 
 def test_compilation_cache_folder(monkeypatch, tmp_path):
