@@ -93,21 +93,20 @@ class Navigator:
 
     def sweep(self, field, blocked, cost, goal_ij):
         """Bellman sweeps over the 8-neighbourhood (diagonals cost sqrt 2); cells beyond the
-        world's extent (session padding) stay unreachable, as cells off the grid are.
-
-        A cell's step cost is the same to all its orthogonal neighbours, and to all its
-        diagonal ones, so the minimum is taken over the neighbours first and the cost added
-        once: min(a + c, b + c) == min(a, b) + c exactly, float addition being monotone.
-        The diagonal minimum reuses the left / right one of the rows above and below."""
+        world's extent (session padding) stay unreachable, as cells off the grid are."""
+        hc, wc = self.coarse_shape
         blocked = blocked | ~self.coarse.inside()
-        diagonal_cost = cost * 1.41421356
 
         def one(field, _):
             pad = jnp.pad(field, 1, constant_values=BIG)
-            sides = jnp.minimum(pad[:, :-2], pad[:, 2:])  # (Hc + 2, Wc): left / right
-            orthogonal = jnp.minimum(sides[1:-1], jnp.minimum(pad[:-2, 1:-1], pad[2:, 1:-1]))
-            diagonal = jnp.minimum(sides[:-2], sides[2:])
-            best = jnp.minimum(orthogonal + cost, diagonal + diagonal_cost)
+            best = jnp.full_like(field, BIG)
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    if di == 0 and dj == 0:
+                        continue
+                    step = cost * (1.41421356 if di and dj else 1.0)
+                    nb = jax.lax.dynamic_slice(pad, (1 + di, 1 + dj), (hc, wc))
+                    best = jnp.minimum(best, nb + step)
             best = jnp.where(blocked, BIG, jnp.minimum(best, BIG))
             return best.at[goal_ij].set(0.0), None
 
