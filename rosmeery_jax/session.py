@@ -485,8 +485,9 @@ def _per_call(cfg: SessionConfig, total: int) -> int:
 
 
 def log_every(cfg: SessionConfig) -> int:
-    """Steps between the engine's per-object logs: every step the metrics are written at
-    (``sample_s``) and every decision's last step (policies' frames) fall on one."""
+    """Steps between the engine's per-object logs: a divisor of ``sample_s`` in steps (the
+    rows metrics.csv keeps) and of ``decide_every`` (the chunk function logs within each
+    decision's steps)."""
     return math.gcd(max(1, int(round(cfg.sample_s / 0.1))), cfg.decide_every)
 
 
