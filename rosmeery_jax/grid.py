@@ -8,6 +8,8 @@ A grid of H x W cells with lower-left corner ``origin`` (x, y) and square cells 
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -27,11 +29,7 @@ def block_any(mask: jax.Array, f: int) -> jax.Array:
     m = jnp.pad(mask, ((0, hc * f - h), (0, wc * f - w)))
     # The OR of f * f strided slices: a reshape and ``any`` is XLA's CPU reduce, 2.7x slower
     # here (the navigation cost map: 1.36 against 0.50 ms per B=64 step, Large Office).
-    out = m[::f, ::f]
-    for a in range(f):
-        for b in range(f):
-            out = out | m[a::f, b::f] if a or b else out
-    return out
+    return functools.reduce(jnp.logical_or, [m[a::f, b::f] for a in range(f) for b in range(f)])
 
 
 def grow(mask: jax.Array, diagonal: bool = True) -> jax.Array:
