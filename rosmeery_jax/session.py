@@ -488,7 +488,12 @@ def log_every(cfg: SessionConfig) -> int:
     """Steps between the engine's per-object logs: a divisor of ``sample_s`` in steps (the
     rows metrics.csv keeps) and of ``decide_every`` (the chunk function logs within each
     decision's steps)."""
-    return math.gcd(max(1, int(round(cfg.sample_s / 0.1))), cfg.decide_every)
+    return math.gcd(_sample_steps(cfg), cfg.decide_every)
+
+
+def _sample_steps(cfg: SessionConfig) -> int:
+    """Control steps between the rows of metrics.csv (the control period is fixed at 0.1 s)."""
+    return max(1, int(round(cfg.sample_s / 0.1)))
 
 
 def _detectors(cfg: SessionConfig, group) -> dict | None:
@@ -516,7 +521,7 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
     poses = sim.poses[rows]
     step = np.arange(logs.ps.shape[1]) * sim.log_every  # each log row's step
     times = step * env.dt
-    every = max(1, int(round(cfg.sample_s / env.dt))) // sim.log_every
+    every = _sample_steps(cfg) // sim.log_every
     keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
