@@ -18,6 +18,7 @@ new simulation. Shapes: N objects, S samples, C categories; all functions act on
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import NamedTuple
 
 import jax
@@ -67,11 +68,13 @@ class GroundTruthTable(NamedTuple):
     category: np.ndarray
 
 
+@lru_cache(maxsize=64)
 def predicate_tables(taxonomy, categories: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(C,) predicates declared per label, and (N, C) how many of those are true of each object.
 
     The agent labelling n as k declares taxonomy.predicates(n, k); with the category ->
     macro -> root chain, the i-th of them is true when k's and n's chains agree at level i.
+    Cached (read-only arrays): a perceived map is scored once per frame with the same tables.
     """
     names = taxonomy.names
     declared = np.array([len(taxonomy.predicates("_", k)) for k in names], np.int32)
@@ -80,6 +83,7 @@ def predicate_tables(taxonomy, categories: tuple[str, ...]) -> tuple[np.ndarray,
         truth = set(p[1:] for p in taxonomy.predicates("_", cat))
         for c, k in enumerate(names):
             correct[n, c] = sum(p[1:] in truth for p in taxonomy.predicates("_", k))
+    declared.flags.writeable = correct.flags.writeable = False
     return declared, correct
 
 

@@ -38,6 +38,9 @@ class Taxonomy:
     source: str
     categories: Mapping[str, Category]
 
+    def __hash__(self) -> int:  # the mapping proxy is not hashable; its items are
+        return hash((self.source, tuple(self.categories.items())))
+
     @property
     def names(self) -> tuple[str, ...]:
         """Category names in file order; index = class id used by the detector."""

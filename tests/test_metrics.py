@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
+from types import MappingProxyType
 
 import jax
 import jax.numpy as jnp
@@ -145,6 +147,23 @@ def test_predicates_from_labels_count_correct_levels():
     assert correct[0, tax.index("couch")] == 2  # same macro (seating) and root
     assert correct[0, tax.index("desk")] == 1  # same root (furniture) only
     assert correct[1, tax.index("chair")] == 0
+
+
+def test_predicate_tables_are_cached_per_taxonomy_content(tmp_path):
+    """The tables are cached (a perceived map is scored once per frame), so the cache key
+    must be the taxonomy's content: the same file with one macro changed gets its own
+    tables, and the shared arrays cannot be edited in place."""
+    path = tmp_path / "tax.toml"
+    path.write_text("[roots]\nroot = 'x'\n[macros]\nm1 = 'root'\nm2 = 'root'\n"
+                    "[categories.a]\nmacro = 'm1'\n[categories.b]\nmacro = 'm1'\n")
+    same = load_taxonomy(path)
+    apart = dataclasses.replace(same, categories=MappingProxyType(
+        {**same.categories, "b": dataclasses.replace(same["b"], macro="m2")}))
+    assert predicate_tables(same, ("a",))[1].tolist() == [[3, 2]]  # b shares a's macro and root
+    assert predicate_tables(apart, ("a",))[1].tolist() == [[3, 1]]  # the root only
+    assert predicate_tables(same, ("a",))[1] is predicate_tables(load_taxonomy(path), ("a",))[1]
+    with pytest.raises(ValueError):
+        predicate_tables(same, ("a",))[1][0, 0] = 0
 
 
 def test_unknown_metric_is_one_clear_error():
