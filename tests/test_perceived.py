@@ -6,6 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import room_xml
 from rosmeery_jax import metrics
@@ -13,7 +15,7 @@ from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
 from rosmeery_jax.knowledge import GroundTruthTable
 from rosmeery_jax.map_eval import read_map, score
-from rosmeery_jax.perceived import PerceivedMapper, frame_logs
+from rosmeery_jax.perceived import PerceivedMapper, _median, frame_logs
 from rosmeery_jax.raycast.sensors import rgbd
 from rosmeery_jax.semantic_map import build_map, write_map
 
@@ -137,3 +139,13 @@ def test_perceived_needs_a_detector(tmp_path, capsys):
     assert main(["run", "--worlds", "small_office", "--detector", "oracle", "--mapper", "oracle,ideal",
                  "--out", str(tmp_path / "o")]) == 2
     assert "'ideal' is not a mapper" in capsys.readouterr().err
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(float(np.float32(0.01)), 20.0, width=32), min_size=1, max_size=40))
+def test_the_depth_median_is_numpys_bitwise(values):
+    """The mapper's band filter uses its own median (np.median's overhead was a tenth of the
+    mapper's time); it must equal np.median to the bit, odd and even counts alike."""
+    v = np.array(values, np.float32)
+    ours, ref = _median(v), np.median(v)
+    assert ours.dtype == ref.dtype and ours.tobytes() == ref.tobytes()
