@@ -17,8 +17,10 @@ Built in:
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -89,9 +91,18 @@ def resolve(names) -> tuple[str, ...]:
 
 
 def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:
-    """{metric name: (..., T) float64 numpy curve} for the chosen metrics."""
-    log = ObjectLog(*(jnp.asarray(a) for a in log))
-    return {n: np.asarray(REGISTRY[n](log, truth), np.float64) for n in resolve(names)}
+    """{metric name: (..., T) float64 numpy curve} for the chosen metrics, in one compiled
+    call per shape (op by op, a session paid a compile of every operation for every world)."""
+    log = ObjectLog(*(np.asarray(a) for a in log))
+    truth = GroundTruthTable(*(np.asarray(a) for a in truth))
+    names = resolve(names)
+    curves = _curves(log, truth, names)  # a jitted dict comes back in sorted key order
+    return {n: np.asarray(curves[n], np.float64) for n in names}
+
+
+@partial(jax.jit, static_argnums=2)
+def _curves(log: ObjectLog, truth: GroundTruthTable, names: tuple[str, ...]) -> dict:
+    return {n: REGISTRY[n](log, truth) for n in names}
 
 
 def summarize(times: np.ndarray, curve: np.ndarray) -> dict[str, float]:
