@@ -56,7 +56,7 @@ class YoloDetector:
     name = "yolo"
 
     def __init__(self, categories: tuple[str, ...], weights: str | Path | None = None, conf: float = 0.25,
-                 batch: int = 64, threads: int | None = None):
+                 batch: int = 32, threads: int | None = None):
         import torch
 
         from rosmeery_jax.detector import checkpoint
