@@ -433,7 +433,7 @@ def simulate(group: Group, total: int, per_call: int, decide_every: int, detecto
 def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: tuple, empty):
     """A function (state, pstates) -> the compiled chunk function. On one device the compile
     starts now, in a thread, from the arguments' shapes: XLA compiles without the GIL, so
-    the reset and the small helpers compile and run meanwhile (2-5 s less of a cold start).
+    the reset and the small helpers compile and run meanwhile (1-2 s less of a cold start).
     On more, each device's copy compiles at the call (:class:`Replicas`, in parallel)."""
     k_env, k_pol, k_run = keys
     if group.devices > 1:
