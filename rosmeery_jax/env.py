@@ -31,7 +31,7 @@ from rosmeery_jax.navigation import IDLE, NavConfig, Navigator, NavState
 from rosmeery_jax.robot import Platform, RobotConfig, robot_model
 from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, depth_seg, laser, laser_dirs, rgb, rgbd
 from rosmeery_jax.world import World, WorldConfig, load_world
-from rosmeery_jax.world_data import Sizes, WorldData, physics_model, truth_table, world_data
+from rosmeery_jax.world_data import Sizes, WorldData, near_physics_model, physics_model, truth_table, world_data
 
 
 @dataclass(frozen=True)
@@ -52,6 +52,10 @@ class EnvConfig:
         """Override fields at any depth as ``section__sub__field=value`` (type-checked; an
         unknown or badly typed key is one error naming ``source`` and the key)."""
         cfg = overrides_.apply(self, overrides, source)
+        near, pairs = cfg.robot.near_proxies, cfg.robot.max_pairs
+        if near < 0 or 0 < near < pairs:
+            raise InputError(source, "robot__near_proxies", f"{near} must be 0 (every proxy) or at least "
+                             f"robot__max_pairs ({pairs})")
         for name, value, allowed in (("start_yaw", cfg.start_yaw, ("spawn", "random")),
                                      ("labels", cfg.labels, ("observed", "detections")),
                                      ("action_mode", cfg.action_mode, ("velocity", "target"))):
@@ -94,6 +98,7 @@ class Env:
         self.sizes = sizes or Sizes.of(world, config.robot)
         self.truth = truth_table(world)
         self.model = physics_model(world, config.robot, self.sizes)  # a constant in compiled code
+        self.near_model = near_physics_model(world, config.robot, self.sizes)  # likewise
         self.beam_angles = jnp.asarray(laser_dirs(config.laser))
         self.dt = config.robot.control_dt
         self._bind(world_data(world, config.robot, self.sizes, self.model))
@@ -101,7 +106,7 @@ class Env:
     def _bind(self, data: WorldData) -> None:
         c, r = self.config, self.config.robot
         self.data = data
-        self.platform = Platform(r, self.model.replace(**data.physics), data.spawn[:2])
+        self.platform = Platform(r, self.model.replace(**data.physics), data.spawn[:2], self.near_model)
         self.rays, self.grid = data.rays, data.grid
         self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate)
         self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)

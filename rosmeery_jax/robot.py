@@ -52,6 +52,9 @@ class RobotConfig:
     # (2 substeps, a 5 cm skin and 2 / 3 iterations cost a third of the physics time with no
     # penetration, but moved the paper evaluation beyond seed noise: docs/performance.md)
     max_pairs: int = 6  # robot-box pairs MJX collides per substep, nearest first
+    near_proxies: int = 16  # proxies MJX sees in one control step: the nearest at its start
+    # (0: all). They always held every substep's max_pairs nearest (docs/performance.md),
+    # and MJX's per-substep work grows with the proxies it holds
     max_piece: float = 1.0  # collision proxies are split into pieces no longer than this
     max_force: float = 60.0  # N per axis: 6 m/s^2 for the 10 kg base, and it keeps
     # contact forces (hence soft-contact penetration) to millimetres when pushing a wall
@@ -84,8 +87,22 @@ def robot_model(world: World, cfg: RobotConfig, proxies: int | None = None) -> m
     boxes = proxy_boxes(world, cfg)
     if proxies is not None and proxies < len(boxes):
         raise ValueError(f"{world.name}: {len(boxes)} collision proxies, more than the {proxies} padded to")
-    boxes += [(np.array([FAR + 2 * k, FAR, PROXY_HALF_HEIGHT]), np.array([0.5, 0.5, PROXY_HALF_HEIGHT]), 0.0)
-              for k in range((proxies or len(boxes)) - len(boxes))]
+    return _model(boxes + _far_boxes((proxies or len(boxes)) - len(boxes)), world.spawn, cfg)
+
+
+def near_model(world: World, cfg: RobotConfig, slots: int) -> mujoco.MjModel:
+    """The physics model's structure with ``slots`` proxies, which :class:`Platform` fills
+    with the nearest of the world's proxies every control step (the static proxies share
+    every field but their geometry)."""
+    return _model(_far_boxes(slots), world.spawn, cfg)
+
+
+def _far_boxes(n: int) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    return [(np.array([FAR + 2 * k, FAR, PROXY_HALF_HEIGHT]), np.array([0.5, 0.5, PROXY_HALF_HEIGHT]), 0.0)
+            for k in range(n)]
+
+
+def _model(boxes, spawn, cfg: RobotConfig) -> mujoco.MjModel:
     spec = mujoco.MjSpec()
     spec.modelname = "rosmeery_physics"
     spec.compiler.degree = False
@@ -97,7 +114,7 @@ def robot_model(world: World, cfg: RobotConfig, proxies: int | None = None) -> m
         spec.worldbody.add_geom(
             type=mujoco.mjtGeom.mjGEOM_BOX, pos=center.tolist(), size=half.tolist(),
             quat=[np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)], contype=0, conaffinity=1, material="static")
-    sx, sy, syaw = (float(v) for v in world.spawn)
+    sx, sy, syaw = (float(v) for v in spawn)
     body = spec.worldbody.add_body(name="robot", pos=[sx, sy, PROXY_HALF_HEIGHT])
     body.add_joint(name="x", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
     body.add_joint(name="y", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 1, 0])
@@ -135,35 +152,57 @@ def _pieces(center, half, yaw, max_len):
             yield np.array([center[0] + c * lx - s * ly, center[1] + s * lx + c * ly, center[2]]), ph
 
 
+# The proxies' per-geom fields (every other geom field is the same for all of them); the
+# robot's sphere is the model's last geom.
+PROXY_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_aabb", "geom_rbound")
+
+
 class Platform:
     """MJX physics; all methods pure and vmappable over envs. The world enters as data: the
     MJX model and the spawn position (the robot pose (x, y, yaw) is world frame; ``qpos``
-    holds offsets from the spawn)."""
+    holds offsets from the spawn). With ``near`` (the model's structure with fewer proxy
+    slots: :func:`near_model`), each control step fills the slots with the proxies nearest
+    to the robot and steps that model; without it, the whole model."""
 
-    def __init__(self, cfg: RobotConfig, model: mjx.Model, spawn_xy: jax.Array):
-        self.cfg, self.model, self.spawn_xy = cfg, model, spawn_xy
+    def __init__(self, cfg: RobotConfig, model: mjx.Model, spawn_xy: jax.Array, near: mjx.Model | None = None):
+        self.cfg, self.model, self.spawn_xy, self.near = cfg, model, spawn_xy, near
 
     def init(self, pose: jax.Array) -> mjx.Data:
         """MJX data with the robot at ``pose`` (3,), at rest. Derived fields (contacts,
         positions of bodies) stay empty: ``mjx.step`` recomputes all of them from qpos, qvel,
         ctrl and the warm start before it integrates, so a forward pass here would change no
         trajectory and only compile MJX's whole pipeline a second time (~5 s per reset)."""
-        d = mjx.make_data(self.model)
+        d = mjx.make_data(self.model if self.near is None else self.near)
         return d.replace(qpos=jnp.concatenate([pose[:2] - self.spawn_xy, pose[2:3]]))
 
     def pose(self, d: mjx.Data) -> jax.Array:
         """(3,) world x, y, yaw."""
         return jnp.concatenate([d.qpos[:2] + self.spawn_xy, d.qpos[2:3]])
 
+    def nearby(self, pose: jax.Array) -> mjx.Model:
+        """The model holding only the proxies nearest to ``pose`` (3,), ranked as MJX ranks
+        pairs (centre distance less bounding radius; the sphere rides at the proxies' mid-
+        height, so the distance is planar) and kept in their order in the model: MJX's own
+        choice of the ``max_pairs`` nearest per substep, ties broken by order, is then the
+        one it makes on the whole model while those lie among the slots."""
+        if self.near is None:
+            return self.model
+        m, n = self.model, self.model.ngeom - 1
+        dist = jnp.linalg.norm(m.geom_pos[:n, :2] - pose[:2], axis=-1) - m.geom_rbound[:n]
+        keep = jnp.append(jnp.sort(jax.lax.top_k(-dist, self.near.ngeom - 1)[1]), n)
+        return self.near.replace(body_pos=m.body_pos, body_quat=m.body_quat, qpos0=m.qpos0,
+                                 **{f: getattr(m, f)[keep] for f in PROXY_FIELDS})
+
     def step(self, d: mjx.Data, cmd: jax.Array) -> mjx.Data:
         """Advance one control period under velocity command cmd = (v, w), clipped to limits."""
         v = jnp.clip(cmd[0], -self.cfg.max_speed, self.cfg.max_speed)
         w = jnp.clip(cmd[1], -self.cfg.max_turn_rate, self.cfg.max_turn_rate)
+        model = self.nearby(self.pose(d))
 
         def sub(d, _):
             yaw = d.qpos[2]
             ctrl = jnp.stack([v * jnp.cos(yaw), v * jnp.sin(yaw), w])
-            return mjx.step(self.model, d.replace(ctrl=ctrl)), None
+            return mjx.step(model, d.replace(ctrl=ctrl)), None
 
         d, _ = jax.lax.scan(sub, d, None, length=self.cfg.substeps)
         return d

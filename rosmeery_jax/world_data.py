@@ -27,7 +27,7 @@ from rosmeery_jax.knowledge import GroundTruthTable, predicate_tables
 from rosmeery_jax.mjx import mjx
 from rosmeery_jax.occupancy import GridGeometry
 from rosmeery_jax.raycast.kernel import CHUNK, RayScene, ray_scene
-from rosmeery_jax.robot import RobotConfig, proxy_boxes, robot_model
+from rosmeery_jax.robot import RobotConfig, near_model, proxy_boxes, robot_model
 from rosmeery_jax.world import World
 
 NEVER = 2.0 ** 30  # ps_G of a padding object: no observed share ever names it
@@ -123,7 +123,19 @@ def physics_model(world: World, robot: RobotConfig, sizes: Sizes) -> mjx.Model:
     fields that differ between worlds of one structure get one value, so any world's model
     can stand for the others with ``PHYSICS_FIELDS`` swapped in: ``geom_sameframe`` (0 = no
     shortcut, always correct) and ``geom_rbound_hfield`` (read only for height fields)."""
-    model = mjx.put_model(robot_model(world, robot, sizes.proxies))
+    return _put(robot_model(world, robot, sizes.proxies))
+
+
+def near_physics_model(world: World, robot: RobotConfig, sizes: Sizes) -> mjx.Model | None:
+    """The structure :class:`~rosmeery_jax.robot.Platform` fills with the nearest
+    ``robot.near_proxies`` proxies each control step; None when that is every proxy."""
+    if robot.near_proxies == 0 or robot.near_proxies >= sizes.proxies:
+        return None
+    return _put(near_model(world, robot, robot.near_proxies))
+
+
+def _put(model) -> mjx.Model:
+    model = mjx.put_model(model)
     impl = model._impl.replace(geom_rbound_hfield=np.zeros_like(model._impl.geom_rbound_hfield))
     return model.replace(geom_sameframe=np.zeros_like(model.geom_sameframe), _impl=impl)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
@@ -153,6 +154,47 @@ def test_robot_stays_out_of_solids_for_10000_random_steps():
     assert np.isfinite(poses).all()
     assert penetration(env.world, env.config.robot, poses).max() < 0.005
     assert np.abs(poses[-1, :, :2] - poses[0, :, :2]).max() > 0.5, "robots moved"
+
+
+def test_nearest_proxies_step_as_the_whole_model():
+    """MJX holds only the 16 proxies nearest at each control step's start: bitwise the same
+    physics as the whole model while robots drive into walls and furniture."""
+    near, whole = make("small_office"), make("small_office", robot__near_proxies=0)
+    assert near.near_model is not None and near.near_model.ngeom == 17 and whole.near_model is None
+    b, t = 16, 200
+    cmds = jax.random.uniform(jax.random.PRNGKey(3), (t // 10, b, 2), minval=jnp.array([-0.3, -3.0]),
+                              maxval=jnp.array([1.0, 3.0]))
+    actions = jnp.repeat(cmds, 10, axis=0)  # held for 1 s, so robots build speed and hit things
+
+    def poses(env):
+        keys = jax.random.split(jax.random.PRNGKey(2), b)
+
+        def run(d, actions):
+            def body(d, a):
+                d = jax.vmap(env.platform.step)(d, a)
+                return d, jax.vmap(env.platform.pose)(d)
+
+            return jax.lax.scan(body, d, actions)[1]
+
+        return np.asarray(jax.jit(run)(jax.vmap(env.reset)(keys).physics, actions))
+
+    a = poses(near)
+    np.testing.assert_array_equal(a, poses(whole))
+    touching = replace(near.config.robot, radius=near.config.robot.radius + near.config.robot.skin + 0.005)
+    assert (penetration(near.world, touching, a) > 0).sum() > 100, "robots were in contact with solids"
+    # Which proxies: the 16 smallest centre distances less bounding radius, in model order.
+    m, pos = near.model, np.asarray(near.model.geom_pos)
+    for xy in ([2.0, 1.5], [0.5, 3.0]):  # no tie at the 16th
+        order = np.argsort(np.linalg.norm(pos[:-1, :2] - xy, axis=1) - np.asarray(m.geom_rbound)[:-1])
+        kept = np.asarray(near.platform.nearby(jnp.array(xy + [0.3])).geom_pos)
+        np.testing.assert_array_equal(kept, pos[np.append(np.sort(order[:16]), m.ngeom - 1)])
+
+
+def test_too_few_nearest_proxies_is_refused():
+    from rosmeery_jax.errors import InputError
+
+    with pytest.raises(InputError, match="robot__near_proxies.*at least robot__max_pairs"):
+        make("small_office", robot__near_proxies=4)
 
 
 def test_same_key_same_trajectory_and_no_recompile():
