@@ -139,7 +139,7 @@ def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
         return occupancy.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
 
     fns = {"navigation": xla.jit(jax.vmap(navigate)), "physics": xla.jit(jax.vmap(physics)),
-           "laser": xla.jit(jax.vmap(lambda p: laser(env.rays, c.laser, p))), "mapping": xla.jit(jax.vmap(update_map)),
+           "laser": xla.jit(jax.vmap(lambda p: laser(env.laser_rays, c.laser, p))), "mapping": xla.jit(jax.vmap(update_map)),
            "camera": xla.jit(jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))),
            "coverage": xla.jit(jax.vmap(env.sk.observe))}
     times: dict[str, list] = {}
@@ -259,7 +259,7 @@ def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.nd
         def body(d, xs):
             u, p = xs  # u (B, 3) world-frame velocity (x, y, yaw); p (B, 3) the peer's pose
             d = jax.vmap(lambda d, u: env.platform.step(d, jnp.stack([jnp.hypot(u[0], u[1]), u[2]])))(d, u)
-            ranges = jax.vmap(lambda p: laser(env.rays, c.laser, p))(p)
+            ranges = jax.vmap(lambda p: laser(env.laser_rays, c.laser, p))(p)
             depth = jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))(p)
             return d, (ranges, depth)
 

@@ -116,7 +116,7 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
     for config, members in by_config.items():
         specs = list(dict.fromkeys(w for w, _ in members))
         worlds = [load_world(w, body_dimensions(config, WorldConfig())) for w in specs]
-        sizes = wd.Sizes.union([wd.Sizes.of(w, config.robot) for w in worlds])
+        sizes = wd.Sizes.union([wd.Sizes.of(w, config) for w in worlds])
         envs = [Env(w, config, sizes) for w in worlds]
         policy_specs = list(dict.fromkeys(p for _, p in members))
         policies = [make_policy(p, envs[0], decide_every, total_steps) for p in policy_specs]

@@ -95,19 +95,19 @@ class Env:
 
     def __init__(self, world: World, config: EnvConfig, sizes: Sizes | None = None):
         self.world, self.config = world, config
-        self.sizes = sizes or Sizes.of(world, config.robot)
+        self.sizes = sizes or Sizes.of(world, config)
         self.truth = truth_table(world)
         self.model = physics_model(world, config.robot, self.sizes)  # a constant in compiled code
         self.near_model = near_physics_model(world, config.robot, self.sizes)  # likewise
         self.beam_angles = jnp.asarray(laser_dirs(config.laser))
         self.dt = config.robot.control_dt
-        self._bind(world_data(world, config.robot, self.sizes, self.model))
+        self._bind(world_data(world, config, self.sizes, self.model))
 
     def _bind(self, data: WorldData) -> None:
         c, r = self.config, self.config.robot
         self.data = data
         self.platform = Platform(r, self.model.replace(**data.physics), data.spawn[:2], self.near_model)
-        self.rays, self.grid = data.rays, data.grid
+        self.rays, self.laser_rays, self.grid = data.rays, data.laser_rays, data.grid
         self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate)
         self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)
 
@@ -150,7 +150,7 @@ class Env:
         return self._sense(state)
 
     def _sense(self, state: State) -> State:
-        ranges, labels = laser(self.rays, self.config.laser, state.pose)
+        ranges, labels = laser(self.laser_rays, self.config.laser, state.pose)
         logodds = occupancy.update(state.logodds, self.grid, self.config.mapping, state.pose[:2],
                                  state.pose[2] + self.beam_angles, ranges, labels)
         depth, seg = depth_seg(self.rays, self.config.camera, state.pose)

@@ -190,7 +190,7 @@ def _write_table(path: Path, header: str, lines: list[str]) -> None:
 
 def _write_laser(env, folder: Path, times: np.ndarray, poses: np.ndarray) -> None:
     cfg = env.config.laser
-    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.rays, cfg, p)))(jnp.asarray(poses))
+    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.laser_rays, cfg, p)))(jnp.asarray(poses))
     angles = laser_dirs(cfg)
     header = (f"laser ranges (m), {cfg.beams} beams from {angles[0]:.6f} to {angles[-1]:.6f} rad "
               f"(increment {angles[1] - angles[0]:.6f}) in the robot frame, {cfg.height} m above the floor at the "

@@ -44,8 +44,8 @@ def world_bank(names, config: EnvConfig | None = None) -> WorldBank:
     if not names:
         raise ValueError("a world bank needs at least one world")
     worlds = tuple(load_world(n, body_dimensions(config, WorldConfig())) for n in names)
-    sizes = wd.Sizes.union([wd.Sizes.of(w, config.robot) for w in worlds])
+    sizes = wd.Sizes.union([wd.Sizes.of(w, config) for w in worlds])
     env = Env(worlds[0], config, sizes)
-    data = [env.data] + [wd.world_data(w, config.robot, sizes) for w in worlds[1:]]
+    data = [env.data] + [wd.world_data(w, config, sizes) for w in worlds[1:]]
     return WorldBank(names, worlds, env, wd.stack(data))
 

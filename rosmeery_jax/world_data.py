@@ -6,7 +6,8 @@ to its one compiled chunk function as an argument; each env gathers its own worl
 never changes a result (tests/test_engine.py runs a world alone and beside a larger one):
 
 - raycast boxes: far away, never hit (the camera keeps the nearest ``cull`` boxes in view,
-  and the packed key's index bits are fixed, so padding changes neither choice);
+  and the packed key's index bits are fixed, so padding changes neither choice); the laser
+  casts only against the boxes that cross its plane, in their order in the scene;
 - collision proxies: inert boxes far away, never among the nearest pairs MJX keeps;
 - grid rows and columns beyond the world's extent: never written, read as off the map;
 - samples: far away on the last object, never observed; objects: no samples, never named;
@@ -26,7 +27,7 @@ from rosmeery_jax.coverage import SampleTable
 from rosmeery_jax.knowledge import GroundTruthTable, predicate_tables
 from rosmeery_jax.mjx import mjx
 from rosmeery_jax.occupancy import GridGeometry
-from rosmeery_jax.raycast.kernel import CHUNK, RayScene, ray_scene
+from rosmeery_jax.raycast.kernel import CHUNK, RayScene, crosses_plane, ray_scene
 from rosmeery_jax.robot import RobotConfig, near_model, proxy_boxes, robot_model
 from rosmeery_jax.world import World
 
@@ -40,10 +41,12 @@ PHYSICS_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_aabb", "geom_rboun
 
 @dataclass(frozen=True)
 class Sizes:
-    """Padded sizes: boxes (raycast, whole chunks), proxies (collision), grid (H, W),
-    samples S, objects N, categories C, reachable cells M."""
+    """Padded sizes: boxes (raycast, whole chunks), laser_boxes (those crossing the laser's
+    plane, whole chunks), proxies (collision), grid (H, W), samples S, objects N,
+    categories C, reachable cells M."""
 
     boxes: int
+    laser_boxes: int
     proxies: int
     grid: tuple[int, int]
     samples: int
@@ -52,16 +55,18 @@ class Sizes:
     reachable: int
 
     @staticmethod
-    def of(world: World, robot: RobotConfig) -> "Sizes":
-        t = world.truth
-        return Sizes(-(-world.scene.num_boxes // CHUNK) * CHUNK, len(proxy_boxes(world, robot)),
+    def of(world: World, config) -> "Sizes":
+        """A world's own sizes under an env ``config`` (its ``robot`` and ``laser``)."""
+        t, chunks = world.truth, lambda n: -(-n // CHUNK) * CHUNK
+        return Sizes(chunks(world.scene.num_boxes), max(CHUNK, chunks(int(crosses_plane(world.scene, config.laser.height).sum()))),
+                     len(proxy_boxes(world, config.robot)),
                      tuple(world.free_space.occupied.shape), len(t.samples.object), int(t.num_objects),
                      len(world.taxonomy.names), int(world.free_space.reachable.sum()))
 
     @staticmethod
     def union(sizes: list["Sizes"]) -> "Sizes":
         """The largest of each size."""
-        return Sizes(max(s.boxes for s in sizes), max(s.proxies for s in sizes),
+        return Sizes(max(s.boxes for s in sizes), max(s.laser_boxes for s in sizes), max(s.proxies for s in sizes),
                      (max(s.grid[0] for s in sizes), max(s.grid[1] for s in sizes)),
                      max(s.samples for s in sizes), max(s.objects for s in sizes),
                      max(s.categories for s in sizes), max(s.reachable for s in sizes))
@@ -70,7 +75,7 @@ class Sizes:
 class WorldData(NamedTuple):
     """One world on device. physics: the world's MJX model fields (``PHYSICS_FIELDS``: the
     proxies' geometry, the robot's spawn); spawn (3,); rays: the
-    raycast scene (G boxes); grid: the free-space grid geometry (H, W); samples: (S,) ground
+    raycast scene (G boxes); laser_rays: the boxes crossing the laser's plane; grid: the free-space grid geometry (H, W); samples: (S,) ground
     truth samples of N objects; category (N,) int32; ps_G (N,) float32; declared (C,) and
     correct (N, C) int32 predicate tables; reachable (M, 2) cell centres, the first
     ``n_reachable`` real."""
@@ -78,6 +83,7 @@ class WorldData(NamedTuple):
     physics: dict
     spawn: jax.Array
     rays: RayScene
+    laser_rays: RayScene
     grid: GridGeometry
     samples: SampleTable
     category: jax.Array
@@ -88,11 +94,12 @@ class WorldData(NamedTuple):
     n_reachable: jax.Array
 
 
-def world_data(world: World, robot: RobotConfig, sizes: Sizes | None = None,
-               model: mjx.Model | None = None) -> WorldData:
-    """``world`` as data, padded to ``sizes`` (its own sizes by default); ``model``: its
-    :func:`physics_model` at those sizes, when the caller has built it already."""
-    own = Sizes.of(world, robot)
+def world_data(world: World, config, sizes: Sizes | None = None, model: mjx.Model | None = None) -> WorldData:
+    """``world`` as data under an env ``config`` (its ``robot`` and ``laser``), padded to
+    ``sizes`` (its own sizes by default); ``model``: its :func:`physics_model` at those sizes,
+    when the caller has built it already."""
+    robot = config.robot
+    own = Sizes.of(world, config)
     sizes = sizes or own
     t, fs = world.truth, world.free_space
     model = model if model is not None else physics_model(world, robot, sizes)
@@ -107,6 +114,7 @@ def world_data(world: World, robot: RobotConfig, sizes: Sizes | None = None,
         physics={f: getattr(model, f) for f in PHYSICS_FIELDS},
         spawn=jnp.asarray(world.spawn, jnp.float32),
         rays=ray_scene(world.scene, sizes.boxes),
+        laser_rays=ray_scene(world.scene.select(crosses_plane(world.scene, config.laser.height)), sizes.laser_boxes),
         grid=GridGeometry.of(fs, sizes.grid),
         samples=SampleTable.of(t, sizes.samples, sizes.objects),
         category=jnp.asarray(np.pad(np.asarray(t.category_index, np.int32), (0, extra)), jnp.int32),

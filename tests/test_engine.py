@@ -100,7 +100,7 @@ def test_results_do_not_depend_on_chunk_s(room, tmp_path):
 
 def test_padding_is_inert_and_worlds_stack():
     small = make("small_office")
-    sizes = Sizes.union([small.sizes, Sizes.of(make("kitchen").world, small.config.robot)])
+    sizes = Sizes.union([small.sizes, Sizes.of(make("kitchen").world, small.config)])
     padded = make("small_office", sizes=sizes)
     kitchen = make("kitchen", sizes=sizes)
     both = stack([padded.data, kitchen.data])  # one structure: static fields agree

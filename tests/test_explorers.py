@@ -109,7 +109,8 @@ def _taint(env, state):
                           samples.num_objects)
     held = np.asarray(k.label) >= 0
     return env.with_data(d._replace(
-        physics=jax.tree.map(noise, d.physics), rays=jax.tree.map(noise, d.rays), samples=samples,
+        physics=jax.tree.map(noise, d.physics), rays=jax.tree.map(noise, d.rays),
+        laser_rays=jax.tree.map(noise, d.laser_rays), samples=samples,
         category=jnp.where(held, d.category, noise(d.category)), ps_G=d.ps_G * 3 + 1,
         declared=noise(d.declared), correct=noise(d.correct), reachable=noise(d.reachable)))
 

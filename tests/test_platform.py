@@ -57,6 +57,28 @@ def test_raycast_agrees_with_mj_ray(name):
     assert matched >= 0.97 * 600
 
 
+@pytest.mark.parametrize("name", PAPER_WORLDS)
+def test_laser_on_the_boxes_crossing_its_plane_is_the_full_cast(name):
+    """The laser casts only against the boxes crossing its plane: bitwise the same ranges and
+    labels as against every box, at the default height and at heights where furniture tops
+    and bottoms lie exactly on the plane."""
+    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.raycast import sensors
+
+    w = load_world(name)
+    poses = jnp.asarray(random_targets(w, 64, 4))
+    cast = jax.jit(jax.vmap(sensors.laser, in_axes=(None, None, 0)), static_argnums=1)
+    s = w.scene
+    edges = np.concatenate([s.center[:, 2] - s.half[:, 2], s.center[:, 2] + s.half[:, 2]])
+    for h in [0.3] + sorted(set(edges[(edges > 0.05) & (edges < 1.5)].tolist()))[:3]:
+        env = make(w, laser__height=float(h))
+        assert env.laser_rays.num_boxes < env.rays.num_boxes
+        full, plane = cast(env.rays, env.config.laser, poses), cast(env.laser_rays, env.config.laser, poses)
+        for a, b in zip(full, plane):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        assert (np.asarray(full[1]) >= 0).mean() > 0.1  # not vacuous: beams hit objects
+
+
 @pytest.mark.parametrize("name", ["large_office", "small_office"])
 def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
     """The level-camera kernel is exact; the frustum cull only drops boxes that are hidden."""
@@ -99,7 +121,7 @@ def test_wide_vectors_change_no_sensor_or_coverage_value():
     knowledge = jax.vmap(lambda _: env.sk.init())(poses)
 
     def sense(p, k):
-        ranges, labels = sensors.laser(env.rays, env.config.laser, p)
+        ranges, labels = sensors.laser(env.laser_rays, env.config.laser, p)
         depth, seg = sensors.depth_seg(env.rays, env.config.camera, p)
         return ranges, labels, depth, seg, env.sk.observe(k, p, depth)
 

@@ -75,6 +75,13 @@ def ray_scene(scene: Scene, boxes: int | None = None) -> RayScene:
                     f(rgb), f(scene.floor_rgb))
 
 
+def crosses_plane(scene: Scene, height: float) -> np.ndarray:
+    """(G,) bool: the boxes a horizontal ray at ``height`` can hit (boxes rotate only about z),
+    with a millimetre to spare: a box left out could not be hit, and one kept that is never
+    hit changes nothing, since the cast keeps the boxes' order."""
+    return np.abs(scene.center[:, 2] - np.float32(height)) <= scene.half[:, 2] + 1e-3
+
+
 def index_bits(num_boxes: int) -> int:
     """Bits that index ``num_boxes`` boxes in the packed key."""
     bits = max(1, int(np.ceil(np.log2(num_boxes + 1))))
