@@ -139,7 +139,8 @@ def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
         return occupancy.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
 
     fns = {"navigation": xla.jit(jax.vmap(navigate)), "physics": xla.jit(jax.vmap(physics)),
-           "laser": xla.jit(jax.vmap(lambda p: laser(env.laser_rays, c.laser, p))), "mapping": xla.jit(jax.vmap(update_map)),
+           "laser": xla.jit(jax.vmap(lambda p: laser(env.laser_rays, c.laser, p))),
+           "mapping": xla.jit(jax.vmap(update_map)),
            "camera": xla.jit(jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))),
            "coverage": xla.jit(jax.vmap(env.sk.observe))}
     times: dict[str, list] = {}

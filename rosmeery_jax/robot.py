@@ -190,7 +190,7 @@ class Platform:
         m, n = self.model, self.model.ngeom - 1
         dist = jnp.linalg.norm(m.geom_pos[:n, :2] - pose[:2], axis=-1) - m.geom_rbound[:n]
         keep = jnp.append(jnp.sort(jax.lax.top_k(-dist, self.near.ngeom - 1)[1]), n)
-        return self.near.replace(body_pos=m.body_pos, body_quat=m.body_quat, qpos0=m.qpos0,
+        return self.near.replace(body_pos=m.body_pos, body_quat=m.body_quat, qpos0=m.qpos0,  # the world's spawn
                                  **{f: getattr(m, f)[keep] for f in PROXY_FIELDS})
 
     def step(self, d: mjx.Data, cmd: jax.Array) -> mjx.Data:

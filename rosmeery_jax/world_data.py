@@ -28,15 +28,14 @@ from rosmeery_jax.knowledge import GroundTruthTable, predicate_tables
 from rosmeery_jax.mjx import mjx
 from rosmeery_jax.occupancy import GridGeometry
 from rosmeery_jax.raycast.kernel import CHUNK, RayScene, crosses_plane, ray_scene
-from rosmeery_jax.robot import RobotConfig, near_model, proxy_boxes, robot_model
+from rosmeery_jax.robot import PROXY_FIELDS, RobotConfig, near_model, proxy_boxes, robot_model
 from rosmeery_jax.world import World
 
 NEVER = 2.0 ** 30  # ps_G of a padding object: no observed share ever names it
 # The MJX model fields that differ between worlds of one padded structure. Only these are
 # data; the rest of the model (the robot, solver settings) stays a compile-time constant,
 # which XLA folds (passing the whole model as an argument measured 14 % slower).
-PHYSICS_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_aabb", "geom_rbound", "body_pos", "body_quat",
-                  "qpos0")
+PHYSICS_FIELDS = PROXY_FIELDS + ("body_pos", "body_quat", "qpos0")
 
 
 @dataclass(frozen=True)
@@ -57,9 +56,9 @@ class Sizes:
     @staticmethod
     def of(world: World, config) -> "Sizes":
         """A world's own sizes under an env ``config`` (its ``robot`` and ``laser``)."""
-        t, chunks = world.truth, lambda n: -(-n // CHUNK) * CHUNK
-        return Sizes(chunks(world.scene.num_boxes), max(CHUNK, chunks(int(crosses_plane(world.scene, config.laser.height).sum()))),
-                     len(proxy_boxes(world, config.robot)),
+        t, chunks = world.truth, lambda n: max(CHUNK, -(-n // CHUNK) * CHUNK)
+        laser_boxes = int(crosses_plane(world.scene, config.laser.height).sum())
+        return Sizes(chunks(world.scene.num_boxes), chunks(laser_boxes), len(proxy_boxes(world, config.robot)),
                      tuple(world.free_space.occupied.shape), len(t.samples.object), int(t.num_objects),
                      len(world.taxonomy.names), int(world.free_space.reachable.sum()))
 
@@ -74,11 +73,11 @@ class Sizes:
 
 class WorldData(NamedTuple):
     """One world on device. physics: the world's MJX model fields (``PHYSICS_FIELDS``: the
-    proxies' geometry, the robot's spawn); spawn (3,); rays: the
-    raycast scene (G boxes); laser_rays: the boxes crossing the laser's plane; grid: the free-space grid geometry (H, W); samples: (S,) ground
-    truth samples of N objects; category (N,) int32; ps_G (N,) float32; declared (C,) and
-    correct (N, C) int32 predicate tables; reachable (M, 2) cell centres, the first
-    ``n_reachable`` real."""
+    proxies' geometry, the robot's spawn); spawn (3,); rays: the raycast scene (G boxes);
+    laser_rays: its boxes that cross the laser's plane; grid: the free-space grid geometry
+    (H, W); samples: (S,) ground truth samples of N objects; category (N,) int32; ps_G (N,)
+    float32; declared (C,) and correct (N, C) int32 predicate tables; reachable (M, 2) cell
+    centres, the first ``n_reachable`` real."""
 
     physics: dict
     spawn: jax.Array
