@@ -17,7 +17,7 @@ never changes a result (tests/test_engine.py runs a world alone and beside a lar
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +30,9 @@ from rosmeery_jax.occupancy import GridGeometry
 from rosmeery_jax.raycast.kernel import CHUNK, RayScene, crosses_plane, ray_scene
 from rosmeery_jax.robot import PROXY_FIELDS, RobotConfig, near_model, proxy_boxes, robot_model
 from rosmeery_jax.world import World
+
+if TYPE_CHECKING:  # env imports this module
+    from rosmeery_jax.env import EnvConfig
 
 NEVER = 2.0 ** 30  # ps_G of a padding object: no observed share ever names it
 # The MJX model fields that differ between worlds of one padded structure. Only these are
@@ -54,7 +57,7 @@ class Sizes:
     reachable: int
 
     @staticmethod
-    def of(world: World, config) -> "Sizes":
+    def of(world: World, config: "EnvConfig") -> "Sizes":
         """A world's own sizes under an env ``config`` (its ``robot`` and ``laser``)."""
         t, chunks = world.truth, lambda n: max(CHUNK, -(-n // CHUNK) * CHUNK)
         laser_boxes = int(crosses_plane(world.scene, config.laser.height).sum())
@@ -93,7 +96,8 @@ class WorldData(NamedTuple):
     n_reachable: jax.Array
 
 
-def world_data(world: World, config, sizes: Sizes | None = None, model: mjx.Model | None = None) -> WorldData:
+def world_data(world: World, config: "EnvConfig", sizes: Sizes | None = None,
+               model: mjx.Model | None = None) -> WorldData:
     """``world`` as data under an env ``config`` (its ``robot`` and ``laser``), padded to
     ``sizes`` (its own sizes by default); ``model``: its :func:`physics_model` at those sizes,
     when the caller has built it already."""
