@@ -11,11 +11,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 torch = pytest.importorskip("torch")
 
 from rosmeery_jax.cli import main  # noqa: E402
 from rosmeery_jax.detector import checkpoint  # noqa: E402
+from rosmeery_jax.detector.dataset import visible_boxes  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, OracleDetector, associate  # noqa: E402
 from rosmeery_jax.detector.evaluate import average_precision, mean_ap  # noqa: E402
 from rosmeery_jax.detector.yolo import YOLOv5, nms  # noqa: E402
@@ -105,6 +108,33 @@ def test_a_detection_attaches_to_the_object_covering_most_of_its_box():
     seg[8:18, 8:18] = 5   # 100 px, overlapping
     boxes = np.array([[2, 2, 10, 10], [6, 6, 18, 18], [12, 0, 20, 6], [0, 0, 20, 20]], np.float32)
     assert associate(boxes, seg).tolist() == [3, 5, -1, 5]
+
+
+def _boxes_by_mask(labels: np.ndarray, min_pixels: int) -> np.ndarray:
+    """visible_boxes by definition: one mask per object."""
+    rows = []
+    for o in np.unique(labels[labels >= 0]):
+        ys, xs = np.nonzero(labels == o)
+        if len(xs) >= min_pixels:
+            rows.append((o, xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, len(xs)))
+    return np.array(rows, np.int64).reshape(-1, 6)
+
+
+def test_visible_boxes_by_hand():
+    seg = np.full((6, 8), -1, np.int32)
+    seg[1:3, 2:5] = 7  # 6 px
+    seg[4, 0] = seg[5, 7] = 2  # 2 px at opposite corners: the box spans the frame's lower right
+    assert visible_boxes(seg, 1).tolist() == [[2, 0, 4, 8, 6, 2], [7, 2, 1, 5, 3, 6]]
+    assert visible_boxes(seg, 3).tolist() == [[7, 2, 1, 5, 3, 6]]
+    assert visible_boxes(np.full((4, 4), -3), 1).shape == (0, 6)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 12), st.integers(1, 12), st.integers(1, 6), st.integers(0, 2**32 - 1))
+def test_visible_boxes_match_one_mask_per_object(h, w, min_pixels, seed):
+    seg = np.random.default_rng(seed).integers(-3, 5, (h, w)).astype(np.int32)
+    got = visible_boxes(seg, min_pixels)
+    assert got.dtype == np.int64 and np.array_equal(got, _boxes_by_mask(seg, min_pixels))
 
 
 def test_oracle_is_deterministic_and_within_the_confidence_model():

@@ -42,16 +42,22 @@ class DatasetConfig:
 
 def visible_boxes(labels: np.ndarray, min_pixels: int) -> np.ndarray:
     """Per visible object in a label image (H, W): rows (object, x1, y1, x2, y2, pixels),
-    corners in pixels (x2, y2 exclusive), objects with at least ``min_pixels`` pixels."""
-    h, w = labels.shape
+    corners in pixels (x2, y2 exclusive), objects with at least ``min_pixels`` pixels, by
+    object index. One pass over the image: the object pixels sorted by object, then each
+    object's extremes by ``reduceat`` (a mask per object cost 10x more, ~2 ms per frame)."""
+    w = labels.shape[1]
     flat = labels.ravel()
-    objs = np.unique(flat[flat >= 0])
-    rows = []
-    for o in objs:
-        ys, xs = np.nonzero(labels == o)
-        if len(xs) >= min_pixels:
-            rows.append((o, xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, len(xs)))
-    return np.array(rows, np.int64).reshape(-1, 6)
+    where = np.flatnonzero(flat >= 0)
+    order = np.argsort(flat[where], kind="stable")
+    ids, where = flat[where][order], where[order]
+    if not len(ids):
+        return np.zeros((0, 6), np.int64)
+    start = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    ys, xs = np.divmod(where, w)
+    count = np.diff(np.r_[start, len(ids)])
+    rows = np.stack([ids[start], np.minimum.reduceat(xs, start), np.minimum.reduceat(ys, start),
+                     np.maximum.reduceat(xs, start) + 1, np.maximum.reduceat(ys, start) + 1, count], -1)
+    return rows[count >= min_pixels].astype(np.int64)
 
 
 def _is_val(world: str, xy: np.ndarray, cfg: DatasetConfig) -> np.ndarray:
