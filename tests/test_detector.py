@@ -239,13 +239,43 @@ def test_yolo_detections_do_not_depend_on_batch_mates_or_place_in_the_batch():
     poses = jnp.asarray(random_targets(env.world, 70, 4))
     img, _, seg = (np.asarray(a) for a in jax.jit(jax.vmap(lambda p: rgbd(env.rays, env.config.camera, p)))(poses))
     det = make_detector("yolo", env.world, 0.25)
-    alone = det.raw(img)
+    alone = det.forward(img)
     assert sum(len(d) for d in alone) > 20  # not vacuous: the frames hold detections
     order = np.random.default_rng(0).permutation(len(img))
-    mixed = det.raw(img[order])  # other batch-mates, other places, a second partial batch
+    mixed = det.forward(img[order])  # other batch-mates, other places, a second partial batch
     assert all(np.array_equal(mixed[i], alone[j]) for i, j in enumerate(order))
-    assert all(np.array_equal(a, b) for a, b in zip(det.raw(img[:5]), alone[:5]))
+    assert all(np.array_equal(a, b) for a, b in zip(det.forward(img[:5]), alone[:5]))
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(det(img, seg), det.finish(alone, seg)))
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.is_file(), reason="shipped weights missing")
+def test_yolo_sees_each_distinct_image_once_and_remembers_the_latest():
+    """A robot standing still sends the same frame again: raw() gives it the network's
+    detections on that image (the test above: they depend on nothing else) without a pass."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.detector.detections import make_detector
+    from rosmeery_jax.env import make
+    from rosmeery_jax.raycast.sensors import rgb
+
+    env = make("small_office")
+    poses = jnp.asarray(random_targets(env.world, 26, 4))
+    img = np.asarray(jax.jit(jax.vmap(lambda p: rgb(env.rays, env.config.camera, p)))(poses)[0])
+    forward = make_detector("yolo", env.world, 0.25).forward
+    alone = forward(img)
+    det, passes = make_detector("yolo", env.world, 0.25), []
+    det.forward = lambda images: passes.append(len(images)) or forward(images)
+    det.raw(img[:3])
+    got = det.raw(img[[0, 1, 2, 0, 1, 2, 10, 11]])  # 3 seen before, 3 repeats, 2 new
+    assert passes == [3, 2] and all(np.array_equal(a, alone[i]) for a, i in zip(got, [0, 1, 2, 0, 1, 2, 10, 11]))
+    assert len(det.raw(img[[11, 10, 0]])) == 3 and passes == [3, 2]  # all known: no network pass
+    det.memory = 4
+    det.raw(img[20:26])  # 6 new images; only the 4 most recent are kept
+    assert passes == [3, 2, 6] and len(det._known) == 4
+    det.raw(img[20:21])  # forgotten: the network sees it again
+    assert passes == [3, 2, 6, 1]
 
 
 def test_detect_runs_one_pass_per_shared_network_and_returns_each_row_its_frames():
