@@ -123,7 +123,7 @@ def _boxes_by_mask(labels: np.ndarray, min_pixels: int) -> np.ndarray:
 def test_visible_boxes_by_hand():
     seg = np.full((6, 8), -1, np.int32)
     seg[1:3, 2:5] = 7  # 6 px
-    seg[4, 0] = seg[5, 7] = 2  # 2 px at opposite corners: the box spans the frame's lower right
+    seg[4, 0] = seg[5, 7] = 2  # 2 px in opposite corners: the box spans the bottom two rows
     assert visible_boxes(seg, 1).tolist() == [[2, 0, 4, 8, 6, 2], [7, 2, 1, 5, 3, 6]]
     assert visible_boxes(seg, 3).tolist() == [[7, 2, 1, 5, 3, 6]]
     assert visible_boxes(np.full((4, 4), -3), 1).shape == (0, 6)

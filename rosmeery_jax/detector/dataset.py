@@ -44,7 +44,8 @@ def visible_boxes(labels: np.ndarray, min_pixels: int) -> np.ndarray:
     """Per visible object in a label image (H, W): rows (object, x1, y1, x2, y2, pixels),
     corners in pixels (x2, y2 exclusive), objects with at least ``min_pixels`` pixels, by
     object index. One pass over the image: the object pixels sorted by object, then each
-    object's extremes by ``reduceat`` (a mask per object cost 10x more, ~2 ms per frame)."""
+    object's extremes by ``reduceat`` (a mask per object took 0.18 against 0.10 ms for a
+    160 x 128 frame)."""
     w = labels.shape[1]
     flat = labels.ravel()
     where = np.flatnonzero(flat >= 0)

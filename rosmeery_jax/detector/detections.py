@@ -84,8 +84,7 @@ class YoloDetector:
     def raw(self, images: np.ndarray) -> list[np.ndarray]:
         """The network's detections per frame (k, 6): x1, y1, x2, y2, confidence, class
         (read-only: repeated images share them); the network sees each new image once."""
-        keys = [hashlib.blake2b(np.ascontiguousarray(im).data, digest_size=16, person=str(im.shape)[:16].encode())
-                .digest() for im in images]
+        keys = [_digest(im) for im in images]
         new: dict[bytes, int] = {}  # each unknown image's first frame
         for i, k in enumerate(keys):
             if k not in self._known:
@@ -177,6 +176,13 @@ def pad(per_frame: list[tuple], frames: int, max_det: int) -> tuple[np.ndarray, 
         k = np.argsort(-c, kind="stable")[:max_det]
         obj[f, :len(k)], label[f, :len(k)], conf[f, :len(k)], box[f, :len(k)] = o[k], lab[k], c[k], b[k]
     return obj, label, conf, box
+
+
+def _digest(image: np.ndarray) -> bytes:
+    """128 bits of BLAKE2b over an image's shape and pixels: its identity for YOLO's memory."""
+    h = hashlib.blake2b(str(image.shape).encode(), digest_size=16)
+    h.update(np.ascontiguousarray(image).data)
+    return h.digest()
 
 
 def make_detector(name: str, world, conf: float, weights: str | None = None):
