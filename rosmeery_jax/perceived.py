@@ -64,15 +64,19 @@ class PerceivedMapper:
         self.point_frame: list[np.ndarray] = []
         self.detections: list[tuple[int, int, int, float]] = []  # (frame, instance, label, conf)
         self.instances = 0
+        self._last: tuple | None = None  # (pose, depth, {box bytes: voxels}) of the latest frame
 
     def add(self, frame: int, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray, label: np.ndarray,
             conf: np.ndarray) -> None:
         """Fold one frame: pose (3,) x, y, yaw; depth (H, W) (0 = no return); boxes (D, 4)
         pixel corners x1, y1, x2, y2; label (D,) category index (-1 = padding); conf (D,)."""
+        memo = self._frame_memo(pose, depth)
         for box, k, c in zip(boxes, label, conf):
             if k < 0:
                 continue
-            keys, pts = self._voxels(pose, depth, box)
+            if (key := box.tobytes()) not in memo:
+                memo[key] = self._voxels(pose, depth, box)
+            keys, pts = memo[key]
             if len(keys) < max(self.cfg.min_voxels, 1):
                 continue
             owners = np.fromiter(map(self.owner.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
@@ -84,6 +88,15 @@ class PerceivedMapper:
                 self.point_instance.append(np.full(int(new.sum()), inst, np.int64))
                 self.point_frame.append(np.full(int(new.sum()), frame, np.int64))
             self.detections.append((frame, inst, int(k), float(c)))
+
+    def _frame_memo(self, pose: np.ndarray, depth: np.ndarray) -> dict:
+        """The voxels of each box already seen in this frame, kept while the frame repeats: a
+        robot at rest sends the same pose and depth after every decision, and a box's voxels
+        depend on pose, depth and box alone."""
+        last = self._last
+        if last is None or not (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)):
+            self._last = last = (np.array(pose), np.array(depth), {})
+        return last[2]
 
     def _voxels(self, pose: np.ndarray, depth: np.ndarray, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The detection's distinct voxel keys (V,) ascending and the first of its points in

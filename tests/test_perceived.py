@@ -129,6 +129,36 @@ def test_padding_and_empty_boxes_add_nothing(scenes, tmp_path):
     assert log.ps.shape == (2, 2) and not log.ps.any() and (log.label == -1).all()
 
 
+def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monkeypatch):
+    env, depth, label = _frame(scenes, "apart")
+    obj, boxes = _tight(label)
+    _, depth2, label2 = _frame(scenes, "apart", POSE + np.array([0.0, -0.3, 0.0], np.float32))
+    _, boxes2 = _tight(label2)
+    moved = depth.copy()
+    moved[label == obj[0]] += 0.01  # one object 1 cm further: a different frame
+    frames = [(POSE, depth, boxes), (POSE, depth, boxes), (POSE, moved, boxes), (POSE, moved, boxes),
+              (POSE + np.array([0.0, -0.3, 0.0], np.float32), depth2, boxes2), (POSE, depth, boxes)]
+    calls = []
+    voxels = PerceivedMapper._voxels
+    monkeypatch.setattr(PerceivedMapper, "_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
+
+    def build(memo: bool) -> PerceivedMapper:
+        m = PerceivedMapper(env.config.camera)
+        if not memo:
+            m._frame_memo = lambda pose, depth: {}
+        for f, (pose, d, b) in enumerate(frames):
+            m.add(f, pose, d, b, np.array([0, 4])[: len(b)], np.array([0.8, 0.6], np.float32)[: len(b)])
+        return m
+
+    kept, plain = build(True), build(False)
+    assert len(boxes) == len(boxes2) == 2
+    assert len(calls) == 2 * 4 + 2 * 6  # with the memory: A, moved, the nearer view, A again; without: all 6
+    for a, b in zip(kept.cloud(), plain.cloud()):
+        np.testing.assert_array_equal(a, b)
+    assert kept.detections == plain.detections and kept.instances == plain.instances
+    assert len(kept.detections) == 2 * len(frames)  # a repeated frame still counts as a sighting
+
+
 def test_perceived_needs_a_detector(tmp_path, capsys):
     from rosmeery_jax.cli import main
 
