@@ -132,12 +132,13 @@ def test_padding_and_empty_boxes_add_nothing(scenes, tmp_path):
 def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monkeypatch):
     env, depth, label = _frame(scenes, "apart")
     obj, boxes = _tight(label)
-    _, depth2, label2 = _frame(scenes, "apart", POSE + np.array([0.0, -0.3, 0.0], np.float32))
+    near = POSE + np.array([0.0, -0.3, 0.0], np.float32)
+    _, depth2, label2 = _frame(scenes, "apart", near)
     _, boxes2 = _tight(label2)
     moved = depth.copy()
     moved[label == obj[0]] += 0.01  # one object 1 cm further: a different frame
     frames = [(POSE, depth, boxes), (POSE, depth, boxes), (POSE, moved, boxes), (POSE, moved, boxes),
-              (POSE + np.array([0.0, -0.3, 0.0], np.float32), depth2, boxes2), (POSE, depth, boxes)]
+              (near, depth2, boxes2), (POSE, depth, boxes)]
     calls = []
     voxels = PerceivedMapper._voxels
     monkeypatch.setattr(PerceivedMapper, "_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
