@@ -81,6 +81,17 @@ def test_tight_boxes_give_one_instance_per_object_and_points_only_on_objects(sce
     assert sc.off_object == 0.0 and list(sc.matched) == [0, 1]
 
 
+NEAR = POSE + np.array([0.0, -0.3, 0.0], np.float32)  # 0.3 m closer to both objects
+
+
+def _two_views(scenes):
+    """The "apart" scene from POSE and from NEAR: env, depth, label, tight boxes, then the
+    nearer view's depth and tight boxes."""
+    env, depth, label = _frame(scenes, "apart")
+    _, depth2, label2 = _frame(scenes, "apart", NEAR)
+    return env, depth, label, _tight(label)[1], depth2, _tight(label2)[1]
+
+
 def _as_map(tmp_path, env, m, frames):
     points, instance, label, conf = m.snapshot(frames)
     names = [f"instance_{i}" for i in range(len(label))]
@@ -89,14 +100,10 @@ def _as_map(tmp_path, env, m, frames):
 
 
 def test_a_second_view_joins_the_same_instance_and_a_more_confident_label_replaces_the_first(scenes, tmp_path):
-    env, depth, label = _frame(scenes, "apart")
-    obj, boxes = _tight(label)
-    near = POSE + np.array([0.0, -0.3, 0.0], np.float32)
-    _, depth2, label2 = _frame(scenes, "apart", near)
-    obj2, boxes2 = _tight(label2)
+    env, depth, label, boxes, depth2, boxes2 = _two_views(scenes)
     m = PerceivedMapper(env.config.camera)
     m.add(0, POSE, depth, boxes[:1], np.array([3]), np.array([0.5], np.float32))  # the chair, mislabelled
-    m.add(1, near, depth2, boxes2[:1], np.array([0]), np.array([0.9], np.float32))  # seen again, right label
+    m.add(1, NEAR, depth2, boxes2[:1], np.array([0]), np.array([0.9], np.float32))  # seen again, right label
     assert m.instances == 1
     log = frame_logs(env.world, m, 2, 0.05)
     assert log.label[1][0] == 3 and log.conf_true[1][0] == 0.0  # after frame 0: wrong label, no cORI
@@ -130,15 +137,12 @@ def test_padding_and_empty_boxes_add_nothing(scenes, tmp_path):
 
 
 def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monkeypatch):
-    env, depth, label = _frame(scenes, "apart")
-    obj, boxes = _tight(label)
-    near = POSE + np.array([0.0, -0.3, 0.0], np.float32)
-    _, depth2, label2 = _frame(scenes, "apart", near)
-    _, boxes2 = _tight(label2)
+    env, depth, label, boxes, depth2, boxes2 = _two_views(scenes)
+    obj = _tight(label)[0]
     moved = depth.copy()
     moved[label == obj[0]] += 0.01  # one object 1 cm further: a different frame
     frames = [(POSE, depth, boxes), (POSE, depth, boxes), (POSE, moved, boxes), (POSE, moved, boxes),
-              (near, depth2, boxes2), (POSE, depth, boxes)]
+              (NEAR, depth2, boxes2), (POSE, depth, boxes)]
     calls = []
     voxels = PerceivedMapper._voxels
     monkeypatch.setattr(PerceivedMapper, "_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
