@@ -14,7 +14,7 @@ def __getattr__(name: str):
 
         return make
     if name == "jit":
-        from rosmeery_jax.xla import jit
+        from rosmeery_jax.core.xla import jit
 
         return jit
     raise AttributeError(f"module 'rosmeery_jax' has no attribute {name!r}")

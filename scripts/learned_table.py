@@ -3,7 +3,7 @@
 
     .venv/bin/python scripts/learned_table.py results/learned_eval [--figures docs/learned]
 
-ORI AUC is the time average of a run's ORI curve (``rosmeery_jax.metrics.summarize``).
+ORI AUC is the time average of a run's ORI curve (``rosmeery_jax.scoring.metrics.summarize``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from rosmeery_jax.metrics import summarize
+from rosmeery_jax.scoring.metrics import summarize
 
 PAPER = ("kitchen", "laboratory", "small_office", "large_office")
 POLICIES = ("learned", "gradient_nbv", "frontier", "random", "semantic_nbv")
@@ -61,7 +61,7 @@ def targets(runs: pd.DataFrame) -> None:
 def figures(df: pd.DataFrame, directory: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from rosmeery_jax.plots import plot_curves, save_figure
+    from rosmeery_jax.scoring.plots import plot_curves, save_figure
 
     worlds = list(dict.fromkeys(df.world))
     fig, axes = plt.subplots((len(worlds) + 1) // 2, 2, figsize=(12, 3.4 * ((len(worlds) + 1) // 2)), squeeze=False)

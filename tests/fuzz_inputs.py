@@ -60,7 +60,7 @@ def number_swaps(text: str):
 
 
 def recording_text() -> str:
-    from rosmeery_jax.teleop.recording import world_hash
+    from rosmeery_jax.policies.recording import world_hash
     from rosmeery_jax.world import load_world
 
     w = load_world("small_office")
@@ -79,14 +79,14 @@ def load_world_file(path: Path):
 
 
 def load_session_config(path: Path):
-    from rosmeery_jax.session import load_config
+    from rosmeery_jax.session.runner import load_config
 
     return load_config(path, out=str(path.parent / "never_written"))
 
 
 def load_recording(path: Path):
     from rosmeery_jax.policies.replay import recordings_by_world
-    from rosmeery_jax.teleop.recording import check_world
+    from rosmeery_jax.policies.recording import check_world
     from rosmeery_jax.world import load_world
 
     for recs in recordings_by_world(f"replay:{path}").values():
@@ -95,7 +95,7 @@ def load_recording(path: Path):
 
 
 def load_poses(path: Path):
-    from rosmeery_jax.pose_replay import read_poses
+    from rosmeery_jax.scoring.pose_replay import read_poses
 
     return read_poses(path)
 
@@ -109,7 +109,7 @@ def load_weights(path: Path):
 def check_one(loader, path: Path) -> str:
     """'ok', 'error' (a one-line InputError naming the file), or raises AssertionError with
     the offending exception for anything else."""
-    from rosmeery_jax.errors import InputError
+    from rosmeery_jax.core.errors import InputError
 
     try:
         loader(path)

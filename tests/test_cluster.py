@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 
 from conftest import room_xml
-from rosmeery_jax.cli import main
-from rosmeery_jax.engine import BLOCK
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.session.engine import BLOCK
 
 BODIES = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -126,7 +126,7 @@ def test_devices_split_the_batch_over_host_devices_and_change_nothing(world, loc
 
 
 def test_padding_blocks_give_each_device_a_whole_share(world):
-    from rosmeery_jax.engine import build_groups
+    from rosmeery_jax.session.engine import build_groups
 
     for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
         group = build_groups([(world, p) for p in policies], {}, False, 3, 10, 100, devices)[0]
@@ -138,7 +138,7 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
 def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(world, monkeypatch):
     import jax
 
-    from rosmeery_jax.engine import build_groups
+    from rosmeery_jax.session.engine import build_groups
 
     one = jax.devices()[:1]
     monkeypatch.setattr(jax, "devices", lambda *a: one * 3)  # three devices, as far as counting goes
@@ -160,8 +160,8 @@ def test_more_devices_than_there_are_is_one_clear_line(world, tmp_path, capsys, 
 
 def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp_path):
     pytest.importorskip("ray")
-    from rosmeery_jax.errors import InputError
-    from rosmeery_jax.session import Session, SessionConfig
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.session.runner import Session, SessionConfig
 
     cfg = SessionConfig(worlds=(world,), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
     with pytest.raises(InputError, match="--devices.*not with --cluster"):

@@ -16,13 +16,13 @@ from hypothesis import strategies as st
 
 torch = pytest.importorskip("torch")
 
-from rosmeery_jax.cli import main  # noqa: E402
+from rosmeery_jax.apps.cli import main  # noqa: E402
 from rosmeery_jax.detector import checkpoint  # noqa: E402
 from rosmeery_jax.detector.dataset import visible_boxes  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, OracleDetector, associate  # noqa: E402
 from rosmeery_jax.detector.evaluate import average_precision, mean_ap  # noqa: E402
 from rosmeery_jax.detector.yolo import YOLOv5, nms  # noqa: E402
-from rosmeery_jax.errors import InputError  # noqa: E402
+from rosmeery_jax.core.errors import InputError  # noqa: E402
 
 # The official yolov5n.pt is not shipped (no downloads at run time): point this variable at
 # a copy to run the test (README, "Tests").
@@ -138,7 +138,7 @@ def test_visible_boxes_match_one_mask_per_object(h, w, min_pixels, seed):
 
 
 def test_oracle_is_deterministic_and_within_the_confidence_model():
-    from rosmeery_jax.taxonomy import load_taxonomy
+    from rosmeery_jax.world.taxonomy import load_taxonomy
 
     tax = load_taxonomy()
     seg = np.full((3, 64, 80), -1, np.int32)
@@ -191,7 +191,7 @@ def test_training_from_scratch_on_a_tiny_generated_dataset_reduces_the_loss(tmp_
 
 
 def test_the_jax_core_never_imports_torch():
-    code = ("import sys, rosmeery_jax, rosmeery_jax.env, rosmeery_jax.session, rosmeery_jax.metrics, "
+    code = ("import sys, rosmeery_jax, rosmeery_jax.env.environment, rosmeery_jax.session.runner, rosmeery_jax.scoring.metrics, "
             "rosmeery_jax.detector.dataset; assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -230,10 +230,10 @@ def test_yolo_detections_do_not_depend_on_batch_mates_or_place_in_the_batch():
     import jax
     import jax.numpy as jnp
 
-    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.detector.detections import make_detector
     from rosmeery_jax.env import make
-    from rosmeery_jax.raycast.sensors import rgbd
+    from rosmeery_jax.sim.sensors import rgbd
 
     env = make("small_office")
     poses = jnp.asarray(random_targets(env.world, 70, 4))
@@ -255,10 +255,10 @@ def test_yolo_sees_each_distinct_image_once_and_remembers_the_latest():
     import jax
     import jax.numpy as jnp
 
-    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.detector.detections import make_detector
     from rosmeery_jax.env import make
-    from rosmeery_jax.raycast.sensors import rgb
+    from rosmeery_jax.sim.sensors import rgb
 
     env = make("small_office")
     poses = jnp.asarray(random_targets(env.world, 26, 4))
@@ -281,7 +281,7 @@ def test_yolo_sees_each_distinct_image_once_and_remembers_the_latest():
 def test_detect_runs_one_pass_per_shared_network_and_returns_each_row_its_frames():
     from types import SimpleNamespace
 
-    from rosmeery_jax import engine
+    from rosmeery_jax.session.runner import engine
 
     class Net:
         """Raw detections encode the frame (its first pixel); finish tags them with the world."""

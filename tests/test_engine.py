@@ -11,11 +11,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax import engine, results
-from rosmeery_jax.cli import compilation_cache, main
+from rosmeery_jax.session.runner import engine
+
+from rosmeery_jax.scoring import results
+from rosmeery_jax.apps.cli import compilation_cache, main
 from rosmeery_jax.env import make
-from rosmeery_jax.knowledge import ObjectLog
-from rosmeery_jax.world_data import NEVER, Sizes, stack
+from rosmeery_jax.sim.knowledge import ObjectLog
+from rosmeery_jax.env.world_data import NEVER, Sizes, stack
 
 from conftest import room_xml
 

@@ -16,9 +16,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.cli import main
+from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.core.errors import InputError
 
 # One session setting for the module's sessions (the kill-9 test's child included: it inherits
 # conftest's one host device), so they share one compiled function through the persistent cache.
@@ -207,7 +207,7 @@ def test_kill_9_then_resume_gives_the_files_of_an_uninterrupted_run(tmp_path):
               "    write(*a, **k)\n"
               "    os.kill(os.getpid(), signal.SIGKILL)\n"
               "session.write_run = write_then_die\n"
-              "from rosmeery_jax.cli import main\n"
+              "from rosmeery_jax.apps.cli import main\n"
               "sys.exit(main(sys.argv[1:]))\n")
     proc = subprocess.run([sys.executable, "-c", killer, "run", *args, "--out", str(cut)],
                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -9,10 +9,10 @@ import pytest
 import trimesh
 
 from conftest import room_xml
-from rosmeery_jax.cli import main
-from rosmeery_jax.map_eval import read_map, score
-from rosmeery_jax.metrics import compute
-from rosmeery_jax.knowledge import GroundTruthTable
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.scoring.evaluate import read_map, score
+from rosmeery_jax.scoring.metrics import compute
+from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.world import load_world
 
 # A chair (0.4 m cube) and a bigger desk (0.6 m cube) in a 4 x 4 m room.
@@ -142,7 +142,7 @@ def _moved(yaw_deg: float, t) -> np.ndarray:
 
 
 def test_alignment_recovers_a_known_transform_and_a_given_one_is_applied(tmp_path, capsys):
-    from rosmeery_jax.align import apply
+    from rosmeery_jax.scoring.align import apply
 
     world = load_world("small_office")
     pts, obj = np.asarray(world.truth.samples.points, float), np.asarray(world.truth.samples.object)

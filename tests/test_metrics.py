@@ -18,13 +18,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import room_xml
-from rosmeery_jax import metrics
-from rosmeery_jax.cli import main
+from rosmeery_jax.scoring import metrics
+from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
-from rosmeery_jax.semantic_map import load_schema
-from rosmeery_jax.knowledge import GroundTruthTable, ObjectLog, predicate_tables
-from rosmeery_jax.pose_replay import replay
-from rosmeery_jax.taxonomy import load_taxonomy
+from rosmeery_jax.scoring.semantic_map import load_schema
+from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
+from rosmeery_jax.scoring.pose_replay import replay
+from rosmeery_jax.world.taxonomy import load_taxonomy
 
 # A room 8 m across. The camera (robot at the origin facing +x: camera at (0.1, 0, 0.5))
 # sees the 1 m x 1 m front face of "front" (x = 1.7), and nothing else of it: its sides lie
@@ -93,8 +93,8 @@ def test_soft_coverage_is_a_smooth_version_of_the_hard_test(three_box_world):
     front = env.world.truth.names.index("front")
     assert soft.logs.ps[-1, front] == pytest.approx(hard.logs.ps[-1, front], rel=0.1)
     # and it has a gradient with respect to the pose
-    from rosmeery_jax import coverage
-    from rosmeery_jax.raycast.sensors import depth_seg
+    from rosmeery_jax.sim import coverage
+    from rosmeery_jax.sim.sensors import depth_seg
 
 
     def covered(x):

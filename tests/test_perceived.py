@@ -10,14 +10,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import room_xml
-from rosmeery_jax import metrics
+from rosmeery_jax.scoring import metrics
 from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
-from rosmeery_jax.knowledge import GroundTruthTable
-from rosmeery_jax.map_eval import read_map, score
-from rosmeery_jax.perceived import PerceivedMapper, _median, frame_logs
-from rosmeery_jax.raycast.sensors import rgbd
-from rosmeery_jax.semantic_map import build_map, write_map
+from rosmeery_jax.sim.knowledge import GroundTruthTable
+from rosmeery_jax.scoring.evaluate import read_map, score
+from rosmeery_jax.scoring.perceived import PerceivedMapper, _median, frame_logs
+from rosmeery_jax.sim.sensors import rgbd
+from rosmeery_jax.scoring.semantic_map import build_map, write_map
 
 # Apart: a chair (0.4 m cube) and a desk (0.6 m cube) 2 m apart; together: the same two
 # touching, side by side at the same distance from the camera.
@@ -165,7 +165,7 @@ def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monk
 
 
 def test_perceived_needs_a_detector(tmp_path, capsys):
-    from rosmeery_jax.cli import main
+    from rosmeery_jax.apps.cli import main
 
     assert main(["run", "--worlds", "small_office", "--detector", "off", "--mapper", "perceived",
                  "--out", str(tmp_path / "o")]) == 2

@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from rosmeery_jax import occupancy
+from rosmeery_jax.sim import occupancy
 from rosmeery_jax.env import make
-from rosmeery_jax.navigation import STATUS_NAMES
-from rosmeery_jax.robot import penetration
-from rosmeery_jax.raycast.kernel import cast, ray_scene
+from rosmeery_jax.sim.navigation import STATUS_NAMES
+from rosmeery_jax.sim.robot import penetration
+from rosmeery_jax.sim.raycast import cast, ray_scene
 from rosmeery_jax.world import PAPER_WORLDS, WALL, load_world
 from rosmeery_jax.world.freespace import rasterize
 
@@ -62,7 +62,7 @@ def test_laser_on_the_boxes_crossing_its_plane_is_the_full_cast(name):
     """The laser casts only against the boxes crossing its plane: bitwise the same ranges and
     labels as against every box, at the default height and at heights where furniture tops
     and bottoms lie exactly on the plane."""
-    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.raycast import sensors
 
     w = load_world(name)
@@ -84,7 +84,7 @@ def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
     """The level-camera kernel is exact; the frustum cull only drops boxes that are hidden."""
     from dataclasses import replace
 
-    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.raycast import sensors
 
     w = load_world(name)
@@ -111,9 +111,9 @@ def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
 
 
 def test_wide_vectors_change_no_sensor_or_coverage_value():
-    """``rosmeery_jax.xla`` lets LLVM use 512-bit vectors as a speed choice: the laser, the
+    """``rosmeery_jax.core.xla`` lets LLVM use 512-bit vectors as a speed choice: the laser, the
     depth and label images and the coverage counts are bitwise those of XLA's default."""
-    from rosmeery_jax.bench import random_targets
+    from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.raycast import sensors
 
     env = _env("target")
@@ -155,7 +155,7 @@ def _rollout(mode, steps):
 
 
 def test_materialized_changes_no_value():
-    from rosmeery_jax.raycast.kernel import materialized
+    from rosmeery_jax.sim.raycast import materialized
 
     x = jnp.array([0.0, -0.0, 8.0, 1e-30, -3e38, np.finfo(np.float32).min, np.inf, 7.5], jnp.float32)
     np.testing.assert_array_equal(np.asarray(jax.jit(materialized)(x)), np.asarray(x))
@@ -213,7 +213,7 @@ def test_nearest_proxies_step_as_the_whole_model():
 
 
 def test_too_few_nearest_proxies_is_refused():
-    from rosmeery_jax.errors import InputError
+    from rosmeery_jax.core.errors import InputError
 
     with pytest.raises(InputError, match="robot__near_proxies.*at least robot__max_pairs"):
         make("small_office", robot__near_proxies=4)
@@ -249,7 +249,7 @@ def test_navigation_sweep_is_the_eight_neighbour_bellman_update():
     """Each sweep is the Bellman update over the 8-neighbourhood, bitwise: a cell's new
     cost-to-go is min over neighbours of (neighbour + its own step cost, x sqrt 2 on
     diagonals); blocked cells and cells off the world's extent stay BIG; the goal is 0."""
-    from rosmeery_jax.navigation import BIG
+    from rosmeery_jax.sim.navigation import BIG
 
     nav = _env("target").navigator
     hc, wc = nav.coarse_shape
@@ -282,7 +282,7 @@ def test_navigation_sweep_is_the_eight_neighbour_bellman_update():
 def test_block_any_and_grow_match_a_plain_reference(h, w, f, seed):
     """block_any: an f x f block is True when any of its cells is (the grid padded with False
     to whole blocks); grow: the 3 x 3 dilation (scipy's), cells off the grid counting as False."""
-    from rosmeery_jax import grid
+    from rosmeery_jax.sim import grid
 
     mask = np.random.default_rng(seed).random((h, w)) < 0.15
     hc, wc = -(-h // f), -(-w // f)
@@ -319,7 +319,7 @@ def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
 def test_hit_normals_labels_and_distances_by_hand():
     """One box turned 30 degrees (centre (2, 0, 0.5), half 0.5) and the floor: the face a ray
     enters gives the normal, turned with the box; the floor's is +z; a miss has none."""
-    from rosmeery_jax.raycast.kernel import RayScene
+    from rosmeery_jax.sim.raycast import RayScene
     from rosmeery_jax.world.scene import FLOOR, NOTHING
 
     yaw = np.pi / 6

@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from rosmeery_jax.cli import main
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world import load_world
 from rosmeery_jax.world.generate import (
     KINDS, GenerationError, GenOptions, check_options, expand_names, generate, parse_name, write_world,
@@ -164,7 +164,7 @@ def test_a_bank_of_generated_worlds_runs_in_one_session_with_one_compile(tmp_pat
 
 def test_world_bank_steps_each_world_as_that_world_alone():
     from rosmeery_jax.env import Env
-    from rosmeery_jax.world_bank import world_bank
+    from rosmeery_jax.env.world_bank import world_bank
 
     bank = world_bank(["procedural:lab:0-1:rooms=1:objects=4"])
     assert len(bank) == 2 and jax.tree.leaves(bank.data)[0].shape[0] == 2

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.cli import main
+from rosmeery_jax.apps.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 ARGS = ["record", "--world", "small_office", "--policy", "frontier", "--duration", "10", "--width", "160",

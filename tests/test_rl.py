@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import room_xml
-from rosmeery_jax.rl import ExplorationEnv, RLConfig, goal, goal_offsets, score
+from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, goal, goal_offsets, score
 
 BODIES_A = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -36,7 +36,7 @@ def worlds(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def rl(worlds):
-    from rosmeery_jax.world_bank import world_bank
+    from rosmeery_jax.env.world_bank import world_bank
 
     env = ExplorationEnv(world_bank(worlds), CFG)
     params = env.default_params()
@@ -118,7 +118,7 @@ def test_goal_grid_by_hand():
 
 def test_reward_is_the_increase_of_the_metric(rl, worlds):
     """score() is the session's ORI of the world alone (padding objects left out)."""
-    from rosmeery_jax import metrics
+    from rosmeery_jax.scoring import metrics
 
     env, params, reset, step = rl
     steps = _episode(rl, 1, [7, 7])
@@ -130,7 +130,7 @@ def test_reward_is_the_increase_of_the_metric(rl, worlds):
         alone = env.bank.worlds[world].truth
         n = len(alone.ps_G)
         log = jax.tree.map(lambda a: np.asarray(a)[None, :n], e.log(s))
-        from rosmeery_jax.knowledge import GroundTruthTable
+        from rosmeery_jax.sim.knowledge import GroundTruthTable
 
         truth = GroundTruthTable(np.asarray(alone.ps_G), np.asarray(alone.num_predicates),
                                  np.asarray(alone.category_index))
@@ -142,13 +142,13 @@ def test_reward_is_the_increase_of_the_metric(rl, worlds):
 
 
 def _gave_up(state):
-    from rosmeery_jax.rl import gave_up
+    from rosmeery_jax.rl.env import gave_up
 
     return jax.vmap(gave_up)(state.env)
 
 
 def test_bad_config_is_refused(worlds):
-    from rosmeery_jax.world_bank import world_bank
+    from rosmeery_jax.env.world_bank import world_bank
 
     with pytest.raises(ValueError, match="reward"):
         ExplorationEnv(world_bank(worlds[:1]), replace(CFG, reward="speed"))
@@ -161,7 +161,7 @@ def _train_config(worlds, **ppo):
     """30 updates of 8 envs on the two rooms, a checkpoint after every update. One training
     run (the ``trained`` fixture) serves the learning, resume and session tests: a compile of
     the update is most of a run's time."""
-    from rosmeery_jax.ppo import PPOConfig, TrainConfig
+    from rosmeery_jax.rl.ppo import PPOConfig, TrainConfig
 
     base = dict(num_envs=8, num_steps=6, updates=30, update_epochs=2, minibatches=2, checkpoint_every=1,
                 anneal_lr=False, lr=2e-3, ent_coef=0.0)
@@ -172,7 +172,7 @@ def _train_config(worlds, **ppo):
 @pytest.fixture(scope="module")
 def trained(worlds, tmp_path_factory):
     """An uninterrupted run (its policy file serves the session test)."""
-    from rosmeery_jax import ppo
+    from rosmeery_jax.rl.env import ppo
 
     out = tmp_path_factory.mktemp("train") / "whole"
     ppo.train(_train_config(worlds), out, progress=False)
@@ -180,7 +180,7 @@ def trained(worlds, tmp_path_factory):
 
 
 def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_path, monkeypatch):
-    from rosmeery_jax import ppo
+    from rosmeery_jax.rl.env import ppo
 
     out = tmp_path / "interrupted"
     real = ppo.make_update
@@ -213,8 +213,8 @@ def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_pat
 def test_resume_refuses_another_configuration(worlds, trained, tmp_path):
     import shutil
 
-    from rosmeery_jax import ppo
-    from rosmeery_jax.errors import InputError
+    from rosmeery_jax.rl.env import ppo
+    from rosmeery_jax.core.errors import InputError
 
     out = tmp_path / "copy"
     shutil.copytree(trained, out)
@@ -227,7 +227,7 @@ def test_resume_refuses_another_configuration(worlds, trained, tmp_path):
 def test_a_short_training_run_raises_the_return(trained):
     """30 updates on the two rooms: the mean episode return of the last 8 updates beats the
     first 8 (the policy learns to pick goal cells it can reach and that show new surface)."""
-    from rosmeery_jax import ppo
+    from rosmeery_jax.rl.env import ppo
 
     curve = ppo.read_curve(trained)
     assert list(curve["update"]) == list(range(1, 31))
@@ -237,8 +237,8 @@ def test_a_short_training_run_raises_the_return(trained):
 
 def test_learned_and_gradient_nbv_run_in_a_session(worlds, trained, tmp_path):
     """Both new policies in one session (one set-up and compile for the two)."""
-    from rosmeery_jax.cli import main
-    from rosmeery_jax.results import load
+    from rosmeery_jax.apps.cli import main
+    from rosmeery_jax.scoring.results import load
 
     out = tmp_path / "session"
     spec = f"learned:{trained / 'policy.msgpack'}"
@@ -252,7 +252,7 @@ def test_learned_and_gradient_nbv_run_in_a_session(worlds, trained, tmp_path):
 
 
 def test_a_bad_policy_file_is_one_line(worlds, tmp_path, capsys):
-    from rosmeery_jax.cli import main
+    from rosmeery_jax.apps.cli import main
 
     bad = tmp_path / "policy.msgpack"
     bad.write_bytes(b"not msgpack at all")
@@ -264,7 +264,7 @@ def test_a_bad_policy_file_is_one_line(worlds, tmp_path, capsys):
 
 
 def test_the_shipped_policy_loads():
-    from rosmeery_jax import ppo
+    from rosmeery_jax.rl.env import ppo
     from rosmeery_jax.policies.learned import SHIPPED
 
     rl, _, params = ppo.load_policy(SHIPPED)
@@ -273,6 +273,6 @@ def test_the_shipped_policy_loads():
 
 
 def _blank_obs(rl):
-    from rosmeery_jax.rl import Obs
+    from rosmeery_jax.rl.env import Obs
 
     return Obs(jnp.zeros((rl.crop, rl.crop, 4)), jnp.zeros(4))

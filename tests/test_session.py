@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax import results
-from rosmeery_jax.cli import main
+from rosmeery_jax.scoring import results
+from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
 
@@ -122,7 +122,7 @@ def test_example_notebook_runs_on_a_results_folder(session_dir, tmp_path):
 
 
 def test_frontier_mapped_area_grows_and_exploration_ends():
-    from rosmeery_jax import occupancy
+    from rosmeery_jax.sim import occupancy
 
     env = make("small_office", start_yaw="spawn")
     policy = make_policy("frontier", env)

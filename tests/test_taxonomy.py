@@ -1,7 +1,7 @@
 import pytest
 
-from rosmeery_jax.errors import InputError
-from rosmeery_jax.taxonomy import load_taxonomy
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.world.taxonomy import load_taxonomy
 
 
 def test_builtin_taxonomy_chains_and_coco_names():

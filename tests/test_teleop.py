@@ -16,15 +16,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.cli import main
-from rosmeery_jax.teleop.recording import read
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.policies.recording import read
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 WORLD = "small_office"
 
 
 def _header(**over) -> str:
-    from rosmeery_jax.teleop.recording import world_hash
+    from rosmeery_jax.policies.recording import world_hash
     from rosmeery_jax.world import load_world
 
     w = load_world(WORLD)
@@ -148,12 +148,12 @@ class _StubApp:
     """What the HTTP handler needs of a Teleop, without compiling a world."""
 
     def __init__(self):
-        from rosmeery_jax.robot import RobotConfig
+        from rosmeery_jax.sim.robot import RobotConfig
 
         self.robot, self.cmd, self.running, self.frame = RobotConfig(), None, True, None
 
     def command(self, body):
-        from rosmeery_jax.teleop.server import parse_command
+        from rosmeery_jax.apps.teleop.server import parse_command
 
         self.cmd = parse_command(body, self.robot)
 
@@ -173,7 +173,7 @@ def test_commands_are_validated_and_only_the_page_may_drive():
     import threading
     from http.server import ThreadingHTTPServer
 
-    from rosmeery_jax.teleop.server import _handler
+    from rosmeery_jax.apps.teleop.server import _handler
 
     app = _StubApp()
     server = ThreadingHTTPServer(("127.0.0.1", 0), _handler(app))
@@ -213,7 +213,7 @@ def test_teleop_refuses_an_existing_recording_and_a_busy_port_before_compiling(t
 
 
 def test_blind_view_shows_only_what_the_papers_driver_saw():
-    from rosmeery_jax.teleop.server import Teleop
+    from rosmeery_jax.apps.teleop.server import Teleop
 
     app = Teleop(WORLD, record=None, view="blind")
     state = app.state_json()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.core.errors import InputError
 
 FORMAT = "rosmeery-yolov5"
 

@@ -88,9 +88,9 @@ def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, 
     import jax
     import jax.numpy as jnp
 
-    from rosmeery_jax import xla
-    from rosmeery_jax.raycast.kernel import ray_scene
-    from rosmeery_jax.raycast.sensors import CameraConfig, rgb
+    from rosmeery_jax.core import xla
+    from rosmeery_jax.sim.raycast import ray_scene
+    from rosmeery_jax.sim.sensors import CameraConfig, rgb
 
     cam = camera or CameraConfig()
     rs = ray_scene(world.scene)
@@ -146,7 +146,7 @@ def generate(cfg: DatasetConfig, splits: tuple[str, ...] = ("train", "val"), pro
     """Yield (split, world name, index, rgb (H, W, 3) uint8, rows (k, 5)) frame by frame."""
     from tqdm.auto import tqdm
 
-    from rosmeery_jax.raycast.kernel import ray_scene
+    from rosmeery_jax.sim.raycast import ray_scene
     from rosmeery_jax.world import load_world
 
     for w_i, name in enumerate(cfg.worlds):
@@ -170,8 +170,8 @@ def write(cfg: DatasetConfig, out: str | Path, progress: bool = True) -> dict:
     """Render the dataset into ``out`` (see the module docstring); returns its summary."""
     import cv2
 
-    from rosmeery_jax.raycast.sensors import CameraConfig
-    from rosmeery_jax.taxonomy import load_taxonomy
+    from rosmeery_jax.sim.sensors import CameraConfig
+    from rosmeery_jax.world.taxonomy import load_taxonomy
 
     out = Path(out)
     counts = {"train": 0, "val": 0}
@@ -196,7 +196,7 @@ def read(root: str | Path, split: str) -> tuple[np.ndarray, list[np.ndarray], di
     """Load a written split: images (I, H, W, 3) uint8 RGB, label rows per image, data.json."""
     import cv2
 
-    from rosmeery_jax.errors import InputError
+    from rosmeery_jax.core.errors import InputError
 
     root = Path(root)
     meta_path = root / "data.json"

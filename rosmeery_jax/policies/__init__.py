@@ -16,7 +16,7 @@ trained explorer shipped in the package; ``learned:PATH`` for a policy file of
 
 from __future__ import annotations
 
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy

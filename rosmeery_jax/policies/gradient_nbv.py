@@ -10,7 +10,7 @@ object's unseen sides and back lie in space its sensors have not reached yet), a
 ``point_height``. Cells the map shows free hold none. Its weight is what the robot believes
 is still unseen of it: one minus its *viewed* probability, the largest of any view so far:
 of the real depth frame at every decision (soft coverage,
-:func:`rosmeery_jax.coverage.observed_soft`, with a depth tolerance of 1.5 cells since a
+:func:`rosmeery_jax.sim.coverage.observed_soft`, with a depth tolerance of 1.5 cells since a
 point stands at its cell's centre) and, when a view target is reached, of what that view
 was expected to show; zero where the camera has observed object surface in that cell.
 
@@ -40,8 +40,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from rosmeery_jax import coverage, grid, occupancy
-from rosmeery_jax.coverage import CoverageConfig, SampleTable
+from rosmeery_jax.sim import coverage, grid, occupancy
+from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
 from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
 
@@ -109,7 +109,7 @@ class GradientNBVPolicy(Policy):
     def belief(self, state) -> tuple[SampleTable, jax.Array]:
         """Belief points (a SampleTable of Hc * Wc points, one per coarse cell) and which
         cells hold one (Hc * Wc,) float: weight them by ``1 - viewed``."""
-        from rosmeery_jax.rl import surface_maps
+        from rosmeery_jax.rl.env import surface_maps
 
         surface, labelled = surface_maps(self.env, self.env.labelled_knowledge(state))  # (H, W) observed / labelled object surface
         near = grid.block_any(labelled > 0, self.f)

@@ -1,10 +1,10 @@
-"""``learned``: the explorer trained with PPO (:mod:`rosmeery_jax.ppo`) on generated worlds.
+"""``learned``: the explorer trained with PPO (:mod:`rosmeery_jax.rl.ppo`) on generated worlds.
 
-``learned`` runs the policy shipped in the package (``rosmeery_jax/data/learned_policy.msgpack``,
+``learned`` runs the policy shipped in the package (``rosmeery_jax/policies/learned_policy.msgpack``,
 trained by ``rosmeery train --config experiments/learned/ppo.toml``); ``learned:PATH`` runs a
 ``policy.msgpack`` written by ``rosmeery train``.
 
-Each decision it builds the observation of :mod:`rosmeery_jax.rl` from the robot's own maps,
+Each decision it builds the observation of :mod:`rosmeery_jax.rl.env` from the robot's own maps,
 samples a goal cell from the network's softmax (as in training) and sends the navigator to
 that cell's pose until the next decision. It was trained deciding every 10 control steps
 (1 s), the session's default ``decide_every``. It runs in the session's env: env settings
@@ -20,7 +20,7 @@ import jax
 from rosmeery_jax.policies.base import Policy
 
 PREFIX = "learned:"
-SHIPPED = Path(__file__).resolve().parents[1] / "data" / "learned_policy.msgpack"
+SHIPPED = Path(__file__).resolve().parent / "learned_policy.msgpack"
 
 
 def policy_file(spec: str) -> Path:
@@ -40,8 +40,8 @@ def label(spec: str) -> str:
 
 class LearnedPolicy(Policy):
     def __init__(self, env, spec: str = "learned"):
-        from rosmeery_jax.ppo import ActorCritic, load_policy
-        from rosmeery_jax.rl import crop_offsets, goal_offsets
+        from rosmeery_jax.rl.ppo import ActorCritic, load_policy
+        from rosmeery_jax.rl.env import crop_offsets, goal_offsets
 
         super().__init__(env)
         self.name = label(spec)
@@ -50,7 +50,7 @@ class LearnedPolicy(Policy):
         self.offsets, self.crop_xy = goal_offsets(rl), crop_offsets(rl)
 
     def decide(self, state, pstate, key):
-        from rosmeery_jax.rl import goal, observe
+        from rosmeery_jax.rl.env import goal, observe
 
         logits, _ = self.net.apply(self.params, observe(self.env, state, self.crop_xy))
         return goal(state.pose, jax.random.categorical(key, logits), self.offsets), pstate

@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax import occupancy
+from rosmeery_jax.sim import occupancy
 from rosmeery_jax.policies.base import Policy, needs_target
 
 

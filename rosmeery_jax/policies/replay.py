@@ -1,4 +1,4 @@
-"""``replay:FILES``: drives recorded velocity commands (human-driven sessions, :mod:`rosmeery_jax.teleop`).
+"""``replay:FILES``: drives recorded velocity commands (human-driven sessions, :mod:`rosmeery_jax.apps.teleop`).
 
 FILES are recordings or glob patterns joined by ``+`` (``replay:a.jsonl+b.jsonl``,
 ``replay:recordings/*.jsonl``). In a world, the policy runs the recordings made in that
@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
 
 PREFIX = "replay:"
@@ -40,7 +40,7 @@ def replay_files(spec: str) -> list[Path]:
 
 def recordings_by_world(spec: str) -> dict:
     """{world name: [Recording, ...]} of a ``replay:`` entry (each file read and checked)."""
-    from rosmeery_jax.teleop.recording import read
+    from rosmeery_jax.policies.recording import read
 
     by_world: dict = {}
     for f in replay_files(spec):
@@ -54,7 +54,7 @@ class ReplayPolicy(Policy):
     per_step = True
 
     def __init__(self, env, spec: str, steps_per_decision: int, total_steps: int):
-        from rosmeery_jax.teleop.recording import check_world
+        from rosmeery_jax.policies.recording import check_world
 
         super().__init__(env)
         self.recordings = recordings_by_world(spec).get(env.world.name, [])

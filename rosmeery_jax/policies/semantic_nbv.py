@@ -22,8 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax import occupancy
-from rosmeery_jax import grid
+from rosmeery_jax.sim import occupancy
+from rosmeery_jax.sim import grid
 from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
 

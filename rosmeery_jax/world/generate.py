@@ -1,7 +1,7 @@
 """Procedural indoor worlds: a seeded generator of apartments, offices, kitchens and labs.
 
 ``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
-world file in the format of ``rosmeery_jax/worlds/`` (it loads with ``load_world``). The
+world file in the format of ``rosmeery_jax/world/builtin/`` (it loads with ``load_world``). The
 name ``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X]`` works wherever a world name
 does: the file is generated on first use into a cache folder (:func:`procedural_path`).
 
@@ -42,7 +42,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import ndimage
 
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world import furniture as F
 from rosmeery_jax.world.mjcf import Body, Wall, world_xml
 from rosmeery_jax.world.recipes import KIND_DEFAULTS, KIND_ROOMS, PIECES, REPEAT, ROOMS, SMALL, SUPPORTS, Piece, room_types

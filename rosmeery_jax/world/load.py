@@ -23,13 +23,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from rosmeery_jax.errors import InputError
-from rosmeery_jax.taxonomy import Predicate, Taxonomy, load_taxonomy
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.world.taxonomy import Predicate, Taxonomy, load_taxonomy
 from rosmeery_jax.world.freespace import FreeSpace, build_free_space
 from rosmeery_jax.world.scene import WALL, Scene
 from rosmeery_jax.world.surface import SurfaceSamples, observable_samples
 
-WORLDS_DIR = Path(__file__).resolve().parents[1] / "worlds"  # packaged: works from a wheel
+WORLDS_DIR = Path(__file__).resolve().parent / "builtin"  # packaged: works from a wheel
 PAPER_WORLDS = ("kitchen", "laboratory", "small_office", "large_office")
 CATEGORY_PREFIX = "rosmeery:category:"
 SPAWN_NAME = "rosmeery:spawn"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.errors import InputError
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world.load import World, load_world
 
 COLUMNS = ["world", "objects", "categories", "boxes", "floor_m2", "reachable_m2", "objects_per_10m2", "samples"]

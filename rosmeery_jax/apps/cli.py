@@ -1,0 +1,563 @@
+"""The ``rosmeery`` command line (also ``python -m rosmeery_jax``).
+
+Every sub-command turns bad input into one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from rosmeery_jax.core.errors import InputError
+
+
+def _cmd_worlds(args) -> int:
+    from rosmeery_jax.world import load_world, world_names
+
+    worlds = [load_world(n) for n in world_names()]
+    summaries = [w.summary() for w in worlds]
+    if args.pictures:
+        from rosmeery_jax.world.draw import save_world_picture
+
+        for w, s in zip(worlds, summaries):
+            s["picture"] = str(save_world_picture(w, Path(args.pictures) / f"{w.name}.png"))
+    if args.json:
+        print(json.dumps(summaries, indent=2))
+        return 0
+    print(f"{'world':<14}{'title':<15}{'objects':>8}{'samples':>9}{'boxes':>7}{'reach m2':>10}  categories")
+    for s in summaries:
+        cats = ", ".join(f"{c} x{k}" for c, k in s["categories"].items())
+        print(f"{s['name']:<14}{s['title']:<15}{s['objects']:>8}{s['samples']:>9}{s['boxes']:>7}"
+              f"{s['reachable_area_m2']:>10.1f}  {cats}")
+    for s in summaries:
+        if "picture" in s:
+            print(f"wrote {s['picture']}")
+    return 0
+
+
+def _cmd_worlds_generate(args) -> int:
+    import time
+
+    from rosmeery_jax.world.generate import GenOptions, check_options, generate, write_world
+
+    if args.count < 1:
+        raise InputError("command line", "--count", f"{args.count}: at least 1")
+    check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter), "command line")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "", "exists and is not a folder")
+    t0 = time.perf_counter()
+    layouts = [generate(GenOptions(args.kind, s, args.rooms, args.objects, args.clutter))
+               for s in range(args.seed, args.seed + args.count)]  # all or nothing: generate, then write
+    gen_s = time.perf_counter() - t0
+    paths = [write_world(layout, out) for layout in layouts]
+    total_s = time.perf_counter() - t0
+    print(f"wrote {len(paths)} {args.kind} worlds to {out}/ in {total_s:.2f} s "
+          f"({1000 * gen_s / len(paths):.1f} ms per world to generate, the rest writing)")
+    if args.check:
+        from rosmeery_jax.world import load_world
+
+        t1 = time.perf_counter()
+        for p in paths:
+            load_world(p)  # a world that fails the loader's validation stops here, in one line
+        print(f"all {len(paths)} pass the loader's validation ({time.perf_counter() - t1:.1f} s)")
+    return 0
+
+
+def _cmd_worlds_stats(args) -> int:
+    from rosmeery_jax.world.stats import stats_table, summary, world_names_in
+
+    names = world_names_in(args.worlds)
+    table, cats = stats_table(names)
+    if args.csv:
+        table.to_csv(sys.stdout, index=False)
+        return 0
+    if len(table) <= args.rows:
+        print(table.to_string(index=False))
+    if len(table) > 1:
+        print(f"\n{len(table)} worlds:")
+        print(summary(table).to_string())
+    print("\ncategories (objects over all worlds): " + ", ".join(f"{c} {n}" for c, n in cats.items()))
+    return 0
+
+
+def _cmd_world_show(args) -> int:
+    from rosmeery_jax.world import load_world
+    from rosmeery_jax.world.draw import save_world_picture
+
+    world = load_world(args.world)
+    out = save_world_picture(world, args.out)
+    print(f"wrote {out} ({world.title}: {world.truth.num_objects} objects)")
+    return 0
+
+
+def _int_list(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: batch sizes must be >= 1")
+    return values
+
+
+def _cmd_bench(args) -> int:
+    from rosmeery_jax.apps.bench import BenchConfig, format_table, run_bench
+    from rosmeery_jax.session.runner import cores, host_devices
+    from rosmeery_jax.world import load_world
+
+    if args.devices < 0:
+        raise InputError("command line", "--devices", f"{args.devices} must be >= 0 (0: one per core)")
+    host_devices(args.devices or cores())  # before JAX starts
+    load_world(args.world)  # a bad name fails here, in one line, before any compile
+    cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,
+                      memory_batch=args.memory_batch, session_s=args.session_s, devices=args.devices)
+    quiet = (lambda msg: print(msg, file=sys.stderr)) if args.json else print
+    result = run_bench(cfg, progress=quiet)
+    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
+
+def _cmd_replay(args) -> int:
+    import jax
+
+    from rosmeery_jax.scoring import metrics, results
+    from rosmeery_jax.env import make
+    from rosmeery_jax.scoring.semantic_map import write_semantic_map
+    from rosmeery_jax.scoring.pose_replay import read_poses, replay
+
+    times, poses = read_poses(args.poses)
+    names = metrics.resolve(args.metrics.split(",")) if args.metrics else metrics.DEFAULT_METRICS
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "--out", "is a file, not a folder")
+    taken = [f for f in ("config.json", "metrics.csv", "objects.csv", "semantic_map.ply") if (out / f).exists()]
+    if taken:
+        raise InputError(str(out), "--out", f"already holds {taken[0]}: results are never overwritten; "
+                         "choose another --out")
+    env = make(args.world)
+    run = replay(env, times, poses)
+    curves = metrics.compute(run.logs, env.sk.truth, names)
+    tags = dict(policy="replay", detector="off", seed=0)
+    results.write_csv(results.metric_frame(curves, times, world=env.world.name, **tags), out / "metrics.csv")
+    final = jax.tree.map(lambda a: a[-1], run.logs)
+    results.write_csv(results.object_frame(env.world, final, **tags), out / "objects.csv")
+    write_semantic_map(out, "semantic_map", env.world, run.knowledge, float(times[-1]))
+    print(f"{env.world.title}: {len(times)} poses over {times[-1] - times[0]:.1f} s")
+    print(f"{'metric':<12}{'final':>8}{'auc':>8}{'t50 s':>8}{'t90 s':>8}")
+    for name, c in curves.items():
+        s = metrics.summarize(times, c)
+        print(f"{name:<12}{s['final']:>8.3f}{s['auc']:>8.3f}{s['t50_s']:>8.1f}{s['t90_s']:>8.1f}")
+    print(f"wrote {out}/metrics.csv, objects.csv, semantic_map.ply, semantic_map.json")
+    return 0
+
+
+def _cmd_run(args) -> int:
+    from rosmeery_jax.session.runner import Session, load_config
+
+    cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
+                      duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
+                      conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
+                      detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices)
+    print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
+          f"{cfg.duration:g} s -> {cfg.out}")
+    out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
+    _print_summary(out)
+    return 0
+
+
+def _print_summary(out: Path) -> None:
+    import pandas as pd
+
+    from rosmeery_jax.scoring import metrics, results
+
+    df = results.load(out)
+    df["policy"] = df.policy.where(df.mapper == "oracle", df.policy + " [" + df.mapper + "]")
+    print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final':>14}{'auc':>8}{'t90 s':>8}")
+    for (w, p, m), g in df.groupby(["world", "policy", "metric"], sort=False):
+        per_seed = [metrics.summarize(s.time_s.to_numpy(), s.value.to_numpy()) for _, s in g.groupby("seed")]
+        final = [x["final"] for x in per_seed]
+        auc = sum(x["auc"] for x in per_seed) / len(per_seed)
+        t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
+        print(f"{w:<14}{p:<18}{m:<12}{sum(final) / len(final):>8.3f} ±{pd.Series(final).std(ddof=0):.3f}"
+              f"{auc:>8.3f}{t90:>8.1f}")
+    if (out / "timing.json").exists():
+        t = json.loads((out / "timing.json").read_text())
+        print(f"engine: {t['env_steps']:,} env-steps in {t['wall_s']:.1f} s ({t['env_steps_per_s']:,.0f} env-steps/s "
+              f"end to end), of which compile {t['compile_s']:.1f} s ({t['compiles']} compiled chunk function"
+              f"{'s' if t['compiles'] != 1 else ''})")
+        if t["frames"]:
+            print(f"detector: {t['frames']:,} frames in {t['detector_s']:.1f} s ({t['frames'] / t['detector_s']:,.0f} "
+                  f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
+        if t.get("mapper_s"):
+            print(f"perceived mapper: {t['mapper_s']:.1f} s in the same worker thread")
+    print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
+
+
+def _cmd_detector_dataset(args) -> int:
+    from rosmeery_jax.detector.dataset import DatasetConfig, write
+    from rosmeery_jax.world import load_world
+
+    from rosmeery_jax.world.generate import expand_names
+
+    worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
+    for w in worlds:
+        load_world(w)  # a bad name fails here, in one line
+    cfg = DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
+    summary = write(cfg, args.out, progress=not args.quiet)
+    print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
+          f"{summary['boxes']['train']} / {summary['boxes']['val']} boxes")
+    return 0
+
+
+def _cmd_detector_train(args) -> int:
+    from rosmeery_jax.detector.train import TrainConfig, train
+
+    cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
+                      max_images=args.max_images)
+    best = train(args.data, args.out, cfg, progress=not args.quiet)
+    print(f"best validation mAP@0.5 {best['map50']:.3f} at epoch {best['epoch']}; wrote {args.out}")
+    return 0
+
+
+def _cmd_detector_eval(args) -> int:
+    import numpy as np
+
+    from rosmeery_jax.detector import checkpoint
+    from rosmeery_jax.detector.dataset import DatasetConfig, generate, read
+    from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+    from rosmeery_jax.detector.evaluate import evaluate
+
+    weights = Path(args.weights) if args.weights else DEFAULT_WEIGHTS
+    model = checkpoint.load(weights)
+    if args.data:
+        images, rows, _ = read(args.data, "val")
+        source = f"{args.data} (val)"
+    else:  # the held-out viewpoints of the default dataset, rendered now (deterministic)
+        frames = list(generate(DatasetConfig(), splits=("val",), progress=False))
+        images = np.stack([f[3] for f in frames])
+        rows = [f[4] for f in frames]
+        source = "default dataset, held-out viewpoints (rendered now)"
+    r = evaluate(model, images, rows)
+    names = model.names
+    if args.json:
+        print(json.dumps({"weights": str(weights), "data": source, "images": len(images), "map50": r["map50"],
+                          "precision": r["precision"], "recall": r["recall"],
+                          "ap50": {names[c]: v for c, v in r["ap"].items()},
+                          "instances": {names[c]: v for c, v in r["n_gt"].items()}}, indent=2))
+        return 0
+    print(f"weights {weights}\ndata {source}: {len(images)} images")
+    print(f"{'class':<16}{'instances':>10}{'AP@0.5':>8}")
+    for c, v in sorted(r["ap"].items(), key=lambda kv: names[kv[0]]):
+        print(f"{names[c]:<16}{r['n_gt'][c]:>10}{v:>8.3f}")
+    print(f"{'all':<16}{sum(r['n_gt'].values()):>10}{r['map50']:>8.3f}   (mAP@0.5; precision {r['precision']:.3f}, "
+          f"recall {r['recall']:.3f} at conf 0.25)")
+    return 0
+
+
+def _cmd_teleop(args) -> int:
+    import socket
+    import time as _time
+
+    from rosmeery_jax.apps.teleop.server import Teleop, serve
+    from rosmeery_jax.world import load_world
+
+    load_world(args.world)  # a bad name fails here, in one line
+    record = Path(args.record or f"recordings/{Path(args.world).stem}-{_time.strftime('%Y%m%d-%H%M%S')}.jsonl")
+    if record.exists():
+        raise InputError(str(record), "--record", "exists already: recordings are never overwritten")
+    try:  # the port is checked before a minute of compiling, and before the recording exists
+        with socket.create_server((args.host, args.port)):
+            pass
+    except OSError as err:
+        raise InputError(f"{args.host}:{args.port}", "--port", f"cannot serve there ({err.strerror or err})") from None
+    print(f"loading {args.world} and compiling (about a minute on first use)...", flush=True)
+    app = Teleop(args.world, record=record, detector=args.detector, seed=args.seed,
+                 conf_threshold=args.conf_threshold, weights=args.weights, view=args.view)
+
+    def ready(addr):
+        print(f"teleop: open http://{addr[0]}:{addr[1]}/ (arrow keys / WASD drive; Stop or Ctrl-C ends; "
+              f"{args.view} view)", flush=True)
+        print(f"recording to {record}", flush=True)
+
+    try:
+        serve(app, args.host, args.port, ready)
+    except OSError as err:  # taken between the check and now
+        app.stop()
+        raise InputError(f"{args.host}:{args.port}", "--port", f"cannot serve there ({err.strerror or err})") from None
+    if app.error:
+        print(f"rosmeery: {app.error}", file=sys.stderr)
+    f = app.frame
+    print(f"stopped after {f.t:.1f} s; " + ", ".join(f"{k} {v:.3f}" for k, v in app.final_metrics().items()))
+    print(f"recording: {record} (replay: rosmeery run --worlds {app.env.world.name} --policies replay:{record})")
+    return 1 if app.error else 0
+
+
+def _cmd_evaluate(args) -> int:
+    from rosmeery_jax.scoring import results
+    from rosmeery_jax.scoring.align import to_world
+    from rosmeery_jax.scoring.evaluate import evaluate, read_map
+    from rosmeery_jax.world import load_world
+
+    if not args.tolerance > 0:
+        raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
+    world = load_world(args.world)
+    maps = [read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
+    maps, frame = to_world(world, maps, args.transform, args.align)
+    if frame and frame["source"] == "icp":
+        print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
+              f"{100 * frame['inliers']:.0f}% of points, {frame['iterations']} iterations")
+    metric_df, objects, classes, summary = evaluate(world, maps, args.tolerance, args.name)
+    if frame:
+        summary["alignment"] = frame
+    out = Path(args.out)
+    results.write_csv(metric_df, out / "metrics.csv")
+    results.write_csv(objects, out / "objects.csv")
+    results.write_csv(classes, out / "classes.csv")
+    results.write_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    print(", ".join(f"{k} {summary[k]:.3f}" for k in ("ori", "cori", "opi", "opi_strict")) +
+          f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
+          f"{summary['unmatched_instances']} instances matched to no object")
+    print(f"results in {out}/ (metrics.csv, objects.csv, classes.csv, summary.json)")
+    return 0
+
+
+def _cmd_record(args) -> int:
+    from rosmeery_jax.apps.record import RecordConfig, record
+
+    seeds = args.seeds if args.seed is None else [args.seed]
+    cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate)
+    folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
+                     progress=not args.quiet)
+    print(f"recorded {len(folders)} sequence(s) (TUM RGB-D layout, laser, odometry) in {args.out}/: "
+          + ", ".join(f.name for f in folders))
+    return 0
+
+
+def _cmd_train(args) -> int:
+    from rosmeery_jax.rl.env import ppo
+
+    cfg = ppo.load_config(args.config)
+    out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
+    curve = ppo.read_curve(out)
+    last = curve.iloc[-1]
+    print(f"trained {int(last['update'])} updates ({int(last['env_steps']):,} env-steps; mean return of the last "
+          f"10 updates {curve['return'].tail(10).mean():.3f}) -> {out}/policy.msgpack (use it as --policies "
+          f"learned:{out}/policy.msgpack)")
+    return 0
+
+
+def _cmd_plot(args) -> int:
+    from rosmeery_jax.scoring import plots, results
+
+    d = Path(args.dir)
+    written = plots.plot_results(results.load(d), d / "plots")
+    print(f"wrote {len(written)} plots to {d / 'plots'}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("worlds", help="list the built-in worlds with object and sample counts")
+    p.add_argument("--json", action="store_true", help="print one JSON list instead of a table")
+    p.add_argument("--pictures", metavar="DIR", help="also draw every world's top-down map into DIR")
+    p.set_defaults(func=_cmd_worlds)
+    wsub = p.add_subparsers(dest="worlds_command", metavar="{generate,stats}")
+    s = wsub.add_parser("generate", help="write procedural worlds (MJCF, the format of the built-in ones)")
+    s.add_argument("--kind", required=True, help="apartment, office, kitchen or lab")
+    s.add_argument("--seed", type=int, required=True, metavar="S", help="the first seed")
+    s.add_argument("--count", type=int, default=1, metavar="N", help="worlds of seeds S..S+N-1 (default 1)")
+    s.add_argument("--rooms", type=int, metavar="R", help="rooms (default: by kind)")
+    s.add_argument("--objects", type=int, metavar="K", help="objects (default: by kind)")
+    s.add_argument("--clutter", type=float, default=0.2, metavar="X", help="share of small clutter objects (0.2)")
+    s.add_argument("--out", required=True, metavar="DIR")
+    s.add_argument("--check", action="store_true", help="also load every world with the loader's validation")
+    s.set_defaults(func=_cmd_worlds_generate)
+    s = wsub.add_parser("stats", help="objects, floor and reachable area, categories and samples of worlds")
+    s.add_argument("worlds", nargs="+", metavar="DIR_OR_NAMES", help="folders of world files, names, paths "
+                   "or procedural:KIND:A-B")
+    s.add_argument("--rows", type=int, default=40, metavar="N", help="print per-world rows up to N worlds (40)")
+    s.add_argument("--csv", action="store_true", help="print the per-world table as CSV")
+    s.set_defaults(func=_cmd_worlds_stats)
+
+    p = sub.add_parser("world", help="commands on one world")
+    wsub = p.add_subparsers(dest="world_command", required=True)
+    s = wsub.add_parser("show", help="draw a world's top-down map with labelled objects")
+    s.add_argument("world", metavar="NAME_OR_PATH", help="built-in world name or path to an MJCF file")
+    s.add_argument("--out", required=True, metavar="FILE.png")
+    s.set_defaults(func=_cmd_world_show)
+
+    p = sub.add_parser("bench", help="env-steps/s by batch size, stage breakdown, and the C MuJoCo peer")
+    p.add_argument("--world", default="large_office", metavar="NAME_OR_PATH")
+    p.add_argument("--batches", type=_int_list, default=(1, 16, 64, 256), metavar="B,B,...")
+    p.add_argument("--steps", type=int, default=20, help="env-steps per timed chunk")
+    p.add_argument("--memory-batch", type=int, default=1024, metavar="B",
+                   help="also measure peak memory at this batch in a child process (0: skip)")
+    p.add_argument("--session-s", type=float, default=20.0, metavar="S",
+                   help="also time a default session of S simulated seconds end to end (0: skip)")
+    p.add_argument("--devices", type=int, default=0, metavar="N", help="also time the reference batch split "
+                   "over N devices (default 0: one host device per core)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (progress goes to stderr)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("replay", help="score a recorded trajectory (CSV of t, x, y, yaw) without physics")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--poses", required=True, metavar="FILE.csv")
+    p.add_argument("--out", default="out/replay", metavar="DIR")
+    p.add_argument("--metrics", metavar="NAME,...", help="active metrics (default: all built-in)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser("run", help="run a benchmark session (worlds x policies x seeds) and write results")
+    p.add_argument("--config", metavar="FILE.toml", help="session options (the same names as below)")
+    p.add_argument("--worlds", metavar="A,B", help="built-in names or MJCF paths (default: the four paper worlds)")
+    p.add_argument("--policies", metavar="P,Q", help="default: frontier,random")
+    p.add_argument("--seeds", type=int, metavar="N", help="runs per world and policy, batched (default 5)")
+    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds per run (default 300)")
+    p.add_argument("--detector", help="yolo (default: the torch YOLO-v5), oracle (simulated from ground truth) "
+                   "or off (ground-truth labels of observed objects)")
+    p.add_argument("--conf-threshold", type=float, metavar="C", help="drop detections below C (default 0.25)")
+    p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
+    p.add_argument("--metrics", metavar="M,N", help="active metrics (default: all built-in)")
+    p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (default: the built-in "
+                   "knowledge, ground-truth association) and/or perceived (depth inside detector boxes)")
+    p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
+    p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a local "
+                   "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
+                   "[cluster] extra)")
+    p.add_argument("--devices", type=int, metavar="N", help="split each batch over N devices (GPUs, or N host "
+                   "devices made from the CPU's cores); results are the same (default 0: every device; on a "
+                   "CPU one host device per core, less one for torch with --detector yolo; at most one "
+                   "per block)")
+    p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
+                   "detector (progress granularity only; default 30)")
+    p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "
+                   "the robot at the start of the period after next (default 10)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("record", help="drive the robot with a policy and write what it saw: TUM RGB-D, laser, "
+                       "odometry (docs/record.md)")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--policy", default="frontier", metavar="P", help="default: frontier")
+    p.add_argument("--seeds", type=int, default=1, metavar="N", help="record seeds 0..N-1, batched (default 1)")
+    p.add_argument("--seed", type=int, metavar="S", help="record seed S only (instead of --seeds)")
+    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="simulated seconds (default 60)")
+    p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
+    p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    p.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="RGB-D frames per simulated second "
+                   "(a divisor of 10; default 5); laser, odometry and poses are written every 0.1 s")
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_record)
+
+    p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
+    dsub = p.add_subparsers(dest="detector_command", required=True)
+    s = dsub.add_parser("dataset", help="render a YOLO-format dataset from the simulator")
+    s.add_argument("--worlds", default="kitchen,laboratory,small_office,large_office", metavar="A,B")
+    s.add_argument("--out", default="data/detector", metavar="DIR")
+    s.add_argument("--per-world", type=int, default=1500, metavar="N", help="viewpoints per world (train + val)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--quiet", action="store_true")
+    s.set_defaults(func=_cmd_detector_dataset)
+    s = dsub.add_parser("train", help="train YOLO-v5 from scratch on a dataset folder (CPU)")
+    s.add_argument("--data", default="data/detector", metavar="DIR")
+    s.add_argument("--out", default="out/detector/yolov5n.pt", metavar="FILE.pt")
+    s.add_argument("--size", default="n", choices=("n", "s"))
+    s.add_argument("--epochs", type=int, default=40)
+    s.add_argument("--batch", type=int, default=32)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--max-images", type=int, default=0, metavar="N", help="use only the first N training images")
+    s.add_argument("--quiet", action="store_true")
+    s.set_defaults(func=_cmd_detector_train)
+    s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
+    s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
+    s.add_argument("--data", metavar="DIR", help="a dataset folder (default: render the default held-out split)")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=_cmd_detector_eval)
+
+    p = sub.add_parser("teleop", help="drive the robot from a local web page; the session is recorded")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default: loopback only)")
+    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--record", metavar="FILE.jsonl", help="default: recordings/<world>-<time>.jsonl")
+    p.add_argument("--detector", default="yolo", choices=("yolo", "oracle", "off"))
+    p.add_argument("--conf-threshold", type=float, default=0.25, metavar="C")
+    p.add_argument("--weights", metavar="FILE.pt")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--view", default="blind", choices=("blind", "full"),
+                   help="blind (default): only the map and the camera, as the paper's human saw; "
+                        "full: also live scores and held labels (not a paper baseline)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(func=_cmd_teleop)
+
+    p = sub.add_parser("evaluate", help="score your own semantic map(s) (PLY + JSON) against a world's ground truth")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--map", required=True, nargs="+", metavar="MAP.ply", help="one or more maps of one run "
+                   "(with MAP.json beside each: frame, labels; several maps with times give curves)")
+    p.add_argument("--out", default="out/evaluate", metavar="DIR")
+    p.add_argument("--tolerance", type=float, default=0.05, metavar="M",
+                   help="a point within M metres of a surface sample lies on it (default 0.05)")
+    p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
+    frame = p.add_mutually_exclusive_group()
+    frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")
+    frame.add_argument("--transform", metavar="FILE", help="a 4 x 4 map-to-world transform (JSON or text) to apply first")
+    p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser("train", help="train the learned explorer with PPO (flax + optax) on a world bank")
+    p.add_argument("--config", metavar="FILE.toml", help="training options (default: the built-in defaults; "
+                   "experiments/learned/ppo.toml trains the shipped policy)")
+    p.add_argument("--out", default="results/train", metavar="DIR", help="checkpoints, curve.csv, curve.png and "
+                   "policy.msgpack (default results/train)")
+    p.add_argument("--resume", action="store_true", help="continue from the checkpoint in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("plot", help="redraw the plots of a results folder")
+    p.add_argument("dir", metavar="DIR")
+    p.set_defaults(func=_cmd_plot)
+    return parser
+
+
+def compilation_cache(enabled: bool) -> str | None:
+    """Turn JAX's persistent compilation cache on (a rerun loads its compiled functions in
+    seconds instead of compiling them again) in ``$JAX_COMPILATION_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/rosmeery-jax/jax`` (``~/.cache/...``); or off. Returns the folder."""
+    import os
+
+    import jax
+
+    if not enabled:
+        jax.config.update("jax_enable_compilation_cache", False)
+        return None
+    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rosmeery-jax" / "jax")
+    jax.config.update("jax_compilation_cache_dir", folder)
+    return folder
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if hasattr(args, "no_cache"):
+            compilation_cache(not args.no_cache)
+        return args.func(args)
+    except InputError as err:
+        print(f"rosmeery: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rosmeery: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

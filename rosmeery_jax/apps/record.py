@@ -1,0 +1,211 @@
+"""Sensor streams out: what the robot saw, in the layout external mappers already read.
+
+``record(world, policy, seeds, duration, out)`` drives the robot with a policy (a session
+with the detector off, all seeds in one batch) and writes, per seed, a TUM RGB-D sequence
+plus the laser and odometry (docs/record.md has every convention)::
+
+    OUT/seed<k>/rgb/<t>.png          8-bit colour, width x height
+    OUT/seed<k>/depth/<t>.png        16-bit depth along the optical axis, 5000 per metre, 0 = none
+    OUT/seed<k>/seg/<t>.png          16-bit ground-truth instance id + 1 (0: wall, floor, nothing),
+                                     for checking a mapper, not for feeding it
+    OUT/seed<k>/rgb.txt, depth.txt, seg.txt   "timestamp filename" per frame
+    OUT/seed<k>/groundtruth.txt      "timestamp tx ty tz qx qy qz qw": the camera's optical
+                                     frame (x right, y down, z forward) in the world, every step
+    OUT/seed<k>/camera.json          pinhole intrinsics, depth scale, the camera on the robot
+    OUT/seed<k>/scan.txt             "timestamp r_0 ... r_K-1" laser ranges (m), every step
+    OUT/seed<k>/odometry.txt         "timestamp x y yaw v w" base pose and velocities, every step
+    OUT/seed<k>/objects.json         seg ids -> object name and category
+    OUT/session/                     the session that drove the robot (its own scores)
+
+Timestamps are simulated seconds from the start. Each seed's folder is written under a
+temporary name and renamed when complete, so a folder that exists is whole, and
+``resume=True`` records only the seeds still missing.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from rosmeery_jax.core import xla
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.sim.sensors import CameraConfig, laser, laser_dirs, rgbd
+
+DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
+FRAME_BATCH = 8  # frames rendered per jitted call (bounds the memory of a 640 x 480 cast)
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    width: int = 640
+    height: int = 480
+    rate_hz: float = 5.0  # RGB-D frames per simulated second (a divisor of the 10 Hz control rate)
+    decide_every: int = 10
+
+    def stride(self, dt: float) -> int:
+        """Control steps between frames."""
+        return int(round(1.0 / (self.rate_hz * dt)))
+
+
+def check(cfg: RecordConfig, out: Path, resume: bool, dt: float = 0.1) -> None:
+    """Every check on the recorder's own options before anything is written."""
+    for name in ("width", "height"):
+        if not 16 <= getattr(cfg, name) <= 4096:
+            raise InputError("command line", f"--{name}", f"{getattr(cfg, name)!r} must be a whole number of "
+                             "pixels in [16, 4096]")
+    stride = 1.0 / (cfg.rate_hz * dt) if cfg.rate_hz > 0 else 0.0
+    if not (cfg.rate_hz > 0 and abs(stride - round(stride)) < 1e-9 and stride >= 1):
+        raise InputError("command line", "--rate", f"{cfg.rate_hz!r} Hz must divide the {1 / dt:g} Hz control rate "
+                         "(10, 5, 2, 1, 0.5, ...)")
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "--out", "is a file, not a folder")
+    if out.exists() and any(out.iterdir()) and not resume:
+        raise InputError(str(out), "--out", "is not empty: pass --resume to finish a recording, or choose another")
+
+
+def record(world: str, policy: str, seeds: int | list[int], duration: float, out: str | Path,
+           cfg: RecordConfig = RecordConfig(), resume: bool = False, progress: bool = True) -> list[Path]:
+    """Record the runs of ``policy`` in ``world`` for ``seeds`` (a count: seeds 0..n-1, or a
+    list of seeds) into ``out`` (module docstring); returns the seed folders. Seeds 0 to the
+    largest are simulated in one batch (a seed's run does not depend on its batch-mates)."""
+    from rosmeery_jax.session.runner import Session, SessionConfig
+
+    out = Path(out)
+    wanted = list(range(seeds)) if isinstance(seeds, int) else sorted(set(seeds))
+    if not wanted or min(wanted) < 0:
+        raise InputError("command line", "--seeds", f"{seeds!r}: name at least one seed, none negative")
+    check(cfg, out, resume)
+    session = SessionConfig(worlds=(world,), policies=(policy,), seeds=max(wanted) + 1, duration=duration,
+                            detector="off", decide_every=cfg.decide_every, sample_s=0.1, out=str(out / "session"))
+    session = session.validate("command line")
+    folders = [out / f"seed{k}" for k in wanted]
+    todo = [(k, f) for k, f in zip(wanted, folders) if not f.is_dir()]
+    if not todo:
+        return folders
+    results = Session(session, progress=progress).run(resume=(out / "session" / "config.json").exists())
+    trajectory = pd.read_csv(results / "trajectories.csv")
+    env = _env(world, session)
+    for k, folder in todo:
+        poses = trajectory[trajectory.seed == k].sort_values("time_s")
+        _write_seed(env, cfg, poses.time_s.to_numpy(), poses[["x", "y", "yaw"]].to_numpy(np.float32), folder,
+                    {"world": env.world.name, "policy": policy, "seed": k, "duration_s": duration})
+    return folders
+
+
+def _env(world: str, session):
+    """The env the session drove (same camera, laser and robot settings)."""
+    from rosmeery_jax.env import make
+
+    return make(world, **{"labels": "observed", **session.env})
+
+
+def camera_intrinsics(camera: CameraConfig, width: int, height: int) -> dict:
+    """Pinhole intrinsics of the camera at width x height: pixel (u, v) with centre (u + 0.5,
+    v + 0.5) looks along ((u - cx) / fx, (v - cy) / fy, 1) in the optical frame."""
+    f = camera.focal(width)
+    return {"width": width, "height": height, "fx": f, "fy": f, "cx": width / 2 - 0.5, "cy": height / 2 - 0.5,
+            "distortion": [0.0] * 5, "hfov_deg": float(np.rad2deg(camera.hfov)),
+            "depth_scale": DEPTH_SCALE, "depth_min_m": camera.min_range, "depth_max_m": camera.max_range}
+
+
+def optical_poses(camera: CameraConfig, poses: np.ndarray) -> np.ndarray:
+    """(T, 7) tx ty tz qx qy qz qw of the optical frame (x right, y down, z forward) in the
+    world for robot poses (T, 3)."""
+    cp, sp = np.cos(camera.pitch), np.sin(camera.pitch)
+    forward, left, up = np.array([cp, 0, -sp]), np.array([0.0, 1, 0]), np.array([sp, 0, cp])
+    body = np.stack([-left, -up, forward], 1)  # optical axes as columns, in the robot frame
+    yaw = Rotation.from_euler("z", poses[:, 2:3].astype(np.float64)).as_matrix()
+    rot = Rotation.from_matrix(yaw @ body)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    t = np.stack([poses[:, 0] + camera.mount_x * c, poses[:, 1] + camera.mount_x * s,
+                  np.full(len(poses), camera.mount_height)], 1)
+    return np.concatenate([t, rot.as_quat()], 1)
+
+
+def _render_fn(env, camera: CameraConfig):
+    """jit: poses (F, 3) -> RGB (F, H, W, 3), depth (F, H, W), labels (F, H, W)."""
+    return xla.jit(jax.vmap(lambda pose: rgbd(env.rays, camera, pose)))
+
+
+def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, folder: Path, info: dict) -> None:
+    tmp = folder.with_name(f".{folder.name}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    for sub in ("rgb", "depth", "seg"):
+        (tmp / sub).mkdir(parents=True)
+    camera = replace(env.config.camera, rgb_width=cfg.width, rgb_height=cfg.height)
+    frames = np.arange(0, len(times), cfg.stride(env.dt))
+    stamps = [f"{times[i]:.6f}" for i in frames]
+    render = _render_fn(env, camera)
+    with ThreadPoolExecutor(max_workers=2) as pool:  # PNG encoding overlaps the next render
+        jobs = []
+        for start in range(0, len(frames), FRAME_BATCH):
+            part = frames[start:start + FRAME_BATCH]
+            batch = np.zeros((FRAME_BATCH, 3), np.float32)  # a fixed batch shape: one compile
+            batch[:len(part)] = poses[part]
+            img, depth, label = (np.asarray(a)[:len(part)] for a in render(jnp.asarray(batch)))
+            jobs.append(pool.submit(_write_pngs, tmp, stamps[start:start + FRAME_BATCH], img, depth, label))
+        for j in jobs:
+            j.result()
+    for sub in ("rgb", "depth", "seg"):
+        _write_table(tmp / f"{sub}.txt", f"{sub} images of {info['world']}: timestamp filename",
+                     [f"{s} {sub}/{s}.png" for s in stamps])
+    gt = optical_poses(camera, poses)
+    _write_table(tmp / "groundtruth.txt", "camera optical frame in the world: timestamp tx ty tz qx qy qz qw",
+                 [f"{t:.6f} " + " ".join(f"{v:.6f}" for v in row) for t, row in zip(times, gt)])
+    _write_laser(env, tmp, times, poses)
+    _write_odometry(tmp, times, poses, env.dt)
+    truth = env.world.truth
+    (tmp / "objects.json").write_text(json.dumps(
+        {"seg_values": "object id + 1; 0 = wall, floor or nothing", "objects": [
+            {"id": i, "seg": i + 1, "name": n, "category": c} for i, (n, c) in enumerate(zip(truth.names,
+                                                                                        truth.categories))]},
+        indent=1))
+    mount = {"x": camera.mount_x, "y": 0.0, "z": camera.mount_height, "pitch_rad": camera.pitch}
+    (tmp / "camera.json").write_text(json.dumps({**camera_intrinsics(camera, cfg.width, cfg.height),
+                                                 "rate_hz": cfg.rate_hz, "base_to_camera": mount}, indent=1))
+    (tmp / "info.json").write_text(json.dumps({**info, "frames": len(frames), "control_dt_s": env.dt}, indent=1))
+    tmp.rename(folder)
+
+
+def _write_pngs(folder: Path, stamps: list[str], img, depth, label) -> None:
+    for s, rgb, d, lab in zip(stamps, img, depth, label):
+        cv2.imwrite(str(folder / "rgb" / f"{s}.png"), rgb[..., ::-1])  # OpenCV writes BGR
+        cv2.imwrite(str(folder / "depth" / f"{s}.png"), np.round(d * DEPTH_SCALE).astype(np.uint16))
+        cv2.imwrite(str(folder / "seg" / f"{s}.png"), np.maximum(lab + 1, 0).astype(np.uint16))
+
+
+def _write_table(path: Path, header: str, lines: list[str]) -> None:
+    path.write_text(f"# {header}\n" + "\n".join(lines) + "\n")
+
+
+def _write_laser(env, folder: Path, times: np.ndarray, poses: np.ndarray) -> None:
+    cfg = env.config.laser
+    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.laser_rays, cfg, p)))(jnp.asarray(poses))
+    angles = laser_dirs(cfg)
+    header = (f"laser ranges (m), {cfg.beams} beams from {angles[0]:.6f} to {angles[-1]:.6f} rad "
+              f"(increment {angles[1] - angles[0]:.6f}) in the robot frame, {cfg.height} m above the floor at the "
+              f"robot's centre; range {cfg.min_range}-{cfg.max_range} m, max_range = no return: timestamp r_0 ... r_K-1")
+    _write_table(folder / "scan.txt", header, [f"{t:.6f} " + " ".join(f"{r:.4f}" for r in row)
+                                               for t, row in zip(times, np.asarray(ranges))])
+
+
+def _write_odometry(folder: Path, times: np.ndarray, poses: np.ndarray, dt: float) -> None:
+    """Noise-free odometry (the simulated base pose) with forward and turn rates from the
+    pose differences (backward, 0 at the start)."""
+    d = np.diff(poses, axis=0, prepend=poses[:1])
+    yaw = poses[:, 2]
+    v = (d[:, 0] * np.cos(yaw) + d[:, 1] * np.sin(yaw)) / dt
+    w = np.angle(np.exp(1j * d[:, 2])) / dt
+    _write_table(folder / "odometry.txt", "base pose in the odom frame (= world, no drift): timestamp x y yaw v w",
+                 [f"{t:.6f} {x:.6f} {y:.6f} {a:.6f} {vv:.5f} {ww:.5f}"
+                  for t, (x, y, a), vv, ww in zip(times, poses, v, w)])

@@ -1,0 +1,183 @@
+"""The batched environment: ``env = make(world, **config)``, ``reset(key)``, ``step(state, action)``.
+
+In the style of gymnax / MuJoCo Playground: one small class, pure ``reset`` / ``step`` over
+a :class:`State` pytree for a single env; ``jax.vmap`` them over a batch of keys (B envs)
+and ``jax.jit`` once per configuration. One step is 0.1 s of simulated time: physics
+substeps in one ``lax.scan``, then the laser, the depth + segmentation camera, the
+occupancy map and the navigator.
+
+Action modes (``EnvConfig.action_mode``):
+- ``"velocity"``: action (2,) = (v, w), clipped to the platform's limits;
+- ``"target"``: action (3,) = target pose (x, y, yaw) for the navigator; a pose different
+  from the current target starts a new navigation, the same pose keeps driving to it.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.env.config import EnvConfig, body_dimensions
+from rosmeery_jax.env.world_data import Sizes, WorldData, near_physics_model, physics_model, truth_table, world_data
+from rosmeery_jax.sim import occupancy
+from rosmeery_jax.sim.knowledge import Knowledge, ObjectLog, SpatialKnowledge
+from rosmeery_jax.sim.mjx import mjx
+from rosmeery_jax.sim.navigation import IDLE, Navigator, NavState
+from rosmeery_jax.sim.robot import Platform, robot_model
+from rosmeery_jax.sim.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
+from rosmeery_jax.world import World, WorldConfig, load_world
+
+class State(NamedTuple):
+    """One env's state (add a leading B axis under vmap).
+
+    physics: MJX data; pose (3,) x, y, yaw; logodds (H, W) the robot's occupancy map;
+    nav: navigator state; ranges (K,) laser; depth (h, w) and seg (h, w) camera;
+    t int32 control steps since reset; key: PRNG key for stochastic consumers;
+    knowledge: the spatial knowledge (coverage of the ground-truth samples, labels).
+    """
+
+    physics: mjx.Data
+    pose: jax.Array
+    logodds: jax.Array
+    nav: NavState
+    ranges: jax.Array
+    depth: jax.Array
+    seg: jax.Array
+    t: jax.Array
+    key: jax.Array
+    knowledge: Knowledge
+
+
+class Env:
+    """The semantic-mapping robot in one world.
+
+    The world enters every pure method as data (:class:`WorldData`, ``env.data``); a session
+    compiles one function for several worlds by padding them to shared ``sizes`` and
+    calling ``env.with_data(world)`` on each env's world inside it.
+    """
+
+    def __init__(self, world: World, config: EnvConfig, sizes: Sizes | None = None):
+        self.world, self.config = world, config
+        self.sizes = sizes or Sizes.of(world, config)
+        self.truth = truth_table(world)
+        self.model = physics_model(world, config.robot, self.sizes)  # a constant in compiled code
+        self.near_model = near_physics_model(world, config.robot, self.sizes)  # likewise
+        self.beam_angles = jnp.asarray(laser_dirs(config.laser))
+        self.dt = config.robot.control_dt
+        self._bind(world_data(world, config, self.sizes, self.model))
+
+    def _bind(self, data: WorldData) -> None:
+        c, r = self.config, self.config.robot
+        self.data = data
+        self.platform = Platform(r, self.model.replace(**data.physics), data.spawn[:2], self.near_model)
+        self.rays, self.laser_rays, self.grid = data.rays, data.laser_rays, data.grid
+        self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate)
+        self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)
+
+    def with_data(self, data: WorldData) -> "Env":
+        """This env in the world ``data`` (same config and padded sizes; e.g. traced arrays
+        inside a jitted function)."""
+        env = copy.copy(self)
+        env._bind(data)
+        return env
+
+    @property
+    def mj_model(self):
+        """The C MuJoCo physics model of this env's own world (unpadded), for the bench."""
+        return robot_model(self.world, self.config.robot)
+
+    def reset(self, key: jax.Array) -> State:
+        pose = self.data.spawn
+        if self.config.start_yaw == "random":
+            key, sub = jax.random.split(key)
+            pose = pose.at[2].set(jax.random.uniform(sub, (), minval=-jnp.pi, maxval=jnp.pi))
+        state = State(self.platform.init(pose), pose, occupancy.empty_map(self.grid), self.navigator.init(),
+                      jnp.zeros(self.config.laser.beams, jnp.float32),
+                      jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.float32),
+                      jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.int32),
+                      jnp.int32(0), key, self.sk.init())
+        return self._sense(state)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        nav = state.nav
+        if self.config.action_mode == "target":
+            target = jnp.asarray(action, jnp.float32)
+            new = (nav.status == IDLE) | jnp.any(target != nav.target)
+            nav = self.navigator.set_target(nav, target, new)
+            occupied = occupancy.classify(state.logodds, self.config.mapping) == occupancy.OCCUPIED
+            nav, cmd = self.navigator.step(nav, state.pose, occupied)
+        else:
+            cmd = jnp.asarray(action, jnp.float32)
+        physics = self.platform.step(state.physics, cmd)
+        state = state._replace(physics=physics, pose=self.platform.pose(physics), nav=nav, t=state.t + 1)
+        return self._sense(state)
+
+    def _sense(self, state: State) -> State:
+        ranges, labels = laser(self.laser_rays, self.config.laser, state.pose)
+        logodds = occupancy.update(state.logodds, self.grid, self.config.mapping, state.pose[:2],
+                                 state.pose[2] + self.beam_angles, ranges, labels)
+        depth, seg = depth_seg(self.rays, self.config.camera, state.pose)
+        knowledge = self.sk.observe(state.knowledge, state.pose, depth)
+        return state._replace(ranges=ranges, logodds=logodds, depth=depth, seg=seg, knowledge=knowledge)
+
+    def camera_rgb(self, state: State) -> tuple[jax.Array, jax.Array]:
+        """The detector's frame: RGB (Hr, Wr, 3) uint8 and object labels (Hr, Wr) int32."""
+        return rgb(self.rays, self.config.camera, state.pose)
+
+    def camera_rgbd(self, state: State) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The detector's frame with its depth: RGB (Hr, Wr, 3) uint8, depth (Hr, Wr) (0 = no
+        return) and object labels (Hr, Wr) int32."""
+        return rgbd(self.rays, self.config.camera, state.pose)
+
+    def attach(self, state: State, obj: jax.Array, label: jax.Array, conf: jax.Array) -> State:
+        """Fold detections (D,) object index / category / confidence into the knowledge."""
+        return state._replace(knowledge=self.sk.attach(state.knowledge, obj, label, conf))
+
+    def labelled_knowledge(self, state: State) -> Knowledge:
+        """The knowledge with the label rule of ``config.labels`` applied."""
+        if self.config.labels == "observed":
+            return self.sk.label_observed(state.knowledge)
+        return state.knowledge
+
+    def log(self, state: State) -> ObjectLog:
+        """Per-object row for the metrics (one env; vmap for a batch)."""
+        return self.sk.log(self.labelled_knowledge(state))
+
+    def rollout(self, state: State, actions: jax.Array) -> tuple[State, ObjectLog]:
+        """Step through actions (T, A) in one ``lax.scan``, logging every step: returns the
+        final state and the per-object logs with (T, N) fields. One env; vmap for B."""
+
+        def body(s, a):
+            s = self.step(s, a)
+            return s, self.log(s)
+
+        return jax.lax.scan(body, state, actions)
+
+    def occupancy(self, state: State) -> jax.Array:
+        """(…, H, W) int8 UNKNOWN / FREE / OCCUPIED of the robot's own map."""
+        return occupancy.classify(state.logodds, self.config.mapping)
+
+
+def make(world: str | World, world_config: WorldConfig | None = None, source: str = "config",
+         sizes: Sizes | None = None, **overrides: Any) -> Env:
+    """An env for a built-in world name, an MJCF path or a loaded :class:`World`.
+
+    Keyword overrides set :class:`EnvConfig` fields at any depth as ``section__field``
+    (e.g. ``make("kitchen", action_mode="velocity", knowledge__coverage__soft=True)``).
+    ``sizes`` pads the world's data to a session's shared sizes (default: its own).
+    The robot's radius and height and the camera's mounting height are set here only
+    (``robot__radius``, ``robot__height``, ``camera__mount_height``): the world's free-space
+    map and observable samples are built with the same values.
+    """
+    cfg = EnvConfig().with_overrides(source, **overrides)
+    body = body_dimensions(cfg, world_config or (world.config if isinstance(world, World) else WorldConfig()))
+    if isinstance(world, World):
+        if world.config != body:
+            raise InputError(world.name, "world config", "was loaded with other robot or camera dimensions "
+                             "than the env's; load it with env.body_dimensions(...) or pass its name")
+        return Env(world, cfg, sizes)
+    return Env(load_world(world, body), cfg, sizes)

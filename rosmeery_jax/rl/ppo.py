@@ -1,0 +1,392 @@
+"""PPO for the exploration env (:mod:`rosmeery_jax.rl.env`), in the style of PureJaxRL: the
+actor-critic, the rollout, GAE and the clipped update in one file, each update one jitted
+call (rollout, advantages and every epoch and minibatch inside it).
+
+    cfg = load_config("experiments/learned/ppo.toml")
+    train(cfg, out="results/train")          # checkpoints, curve.csv, curve.png, policy.msgpack
+
+The network: three stride-2 3x3 convolutions (16, 32, 32 channels) over the map crops
+(C, C, 4), flattened, joined with the pose features, one 128-unit dense layer, then the
+policy logits (G*G goal cells) and the value. Actions are sampled from the softmax.
+
+Files in the output folder: ``config.json`` (the run's whole configuration; ``--resume``
+needs the same), ``checkpoint.msgpack`` (everything the next update needs: parameters,
+optimiser, envs, keys, the curve so far; written atomically every ``checkpoint_every``
+updates), ``curve.csv`` and ``curve.png`` (the learning curve), ``policy.msgpack`` (the
+parameters and the env settings the policy needs, for ``learned:PATH``). Checkpoints use
+flax's msgpack serialization of the state's leaves (the env state holds MuJoCo arrays,
+which orbax's and flax's pytree handlers do not know).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import serialization
+from flax.training.train_state import TrainState
+
+from rosmeery_jax.scoring import results
+
+from rosmeery_jax.core import xla
+from rosmeery_jax.core.errors import InputError, read_toml
+from rosmeery_jax.rl.env import ExplorationEnv, Obs, RLConfig
+
+POLICY_FORMAT = "rosmeery-learned-1"
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    num_envs: int = 16  # envs stepped together
+    num_steps: int = 32  # decisions per env per update
+    updates: int = 100
+    update_epochs: int = 4
+    minibatches: int = 4
+    gamma: float = 0.97
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    lr: float = 3e-4
+    anneal_lr: bool = True
+    seed: int = 0
+    checkpoint_every: int = 10
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """worlds: the training bank (names, paths or procedural ranges); env: EnvConfig
+    overrides (``section__field``)."""
+
+    worlds: tuple[str, ...] = ("procedural:office:0-15",)
+    ppo: PPOConfig = PPOConfig()
+    rl: RLConfig = RLConfig()
+    env: dict = field(default_factory=dict)
+
+
+def load_config(path: str | Path | None, **overrides) -> TrainConfig:
+    """The training configuration of a TOML file (``worlds``, tables ``[ppo]``, ``[rl]``,
+    ``[env]``), with ``overrides`` (``ppo__updates=5``) on top; one InputError naming the
+    file and field for anything wrong."""
+    from rosmeery_jax.core import overrides as ov
+
+    source = str(path) if path else "command line"
+    raw = read_toml(path) if path else {}
+    cfg = TrainConfig()
+    worlds = raw.pop("worlds", None)
+    if worlds is not None:
+        if not isinstance(worlds, list) or not worlds or not all(isinstance(w, str) and w for w in worlds):
+            raise InputError(source, "worlds", "must be a non-empty list of world names")
+        cfg = replace(cfg, worlds=tuple(worlds))
+    env = raw.pop("env", {})
+    if not isinstance(env, dict):
+        raise InputError(source, "env", "must be a table of EnvConfig overrides")
+    cfg = replace(ov.apply(cfg, {**raw, **overrides}, source), env=env)
+    _check(cfg, source)
+    return cfg
+
+
+def _check(cfg: TrainConfig, source: str) -> None:
+    from rosmeery_jax.env import EnvConfig
+    from rosmeery_jax.rl.env import REWARDS
+
+    EnvConfig().with_overrides(source, **cfg.env)
+    p = cfg.ppo
+    for section, names in (("ppo", ("num_envs", "num_steps", "updates", "update_epochs", "minibatches",
+                                    "checkpoint_every")), ("rl", ("goal_grid", "crop", "decide_every"))):
+        for name in names:
+            value = getattr(getattr(cfg, section), name)
+            if value < 1:
+                raise InputError(source, f"{section}.{name}", f"{value!r} must be a whole number >= 1")
+    for name in ("episode_s", "goal_spacing", "crop_resolution"):
+        if getattr(cfg.rl, name) <= 0:
+            raise InputError(source, f"rl.{name}", "must be > 0")
+    if (p.num_envs * p.num_steps) % p.minibatches:
+        raise InputError(source, "ppo.minibatches", f"must divide num_envs x num_steps ({p.num_envs * p.num_steps})")
+    if cfg.rl.reward not in REWARDS:
+        raise InputError(source, "rl.reward", f"{cfg.rl.reward!r} is not one of {', '.join(REWARDS)}")
+    for name in ("gamma", "gae_lambda"):
+        if not 0 < getattr(p, name) <= 1:
+            raise InputError(source, f"ppo.{name}", "must be in (0, 1]")
+
+
+class ActorCritic(nn.Module):
+    """(Obs with leading axes) -> (logits (..., A), value (...,))."""
+
+    actions: int
+
+    @nn.compact
+    def __call__(self, obs: Obs):
+        x = obs.maps
+        for features in (16, 32, 32):
+            x = nn.relu(nn.Conv(features, (3, 3), strides=2)(x))
+        x = jnp.concatenate([x.reshape(*x.shape[:-3], -1), obs.pose], -1)
+        x = nn.relu(nn.Dense(128)(x))
+        logits = nn.Dense(self.actions, kernel_init=nn.initializers.orthogonal(0.01))(x)
+        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(x)[..., 0]
+        return logits, value
+
+
+class Transition(NamedTuple):
+    obs: Obs
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    info: dict
+
+
+class Runner(NamedTuple):
+    """Everything one update reads and writes (the checkpoint)."""
+
+    train: TrainState
+    env_state: Any
+    obs: Obs
+    key: jax.Array
+
+
+def make_env(cfg: TrainConfig) -> ExplorationEnv:
+    from rosmeery_jax.env import EnvConfig
+    from rosmeery_jax.env.world_bank import world_bank
+
+    return ExplorationEnv(world_bank(cfg.worlds, EnvConfig().with_overrides("config", **cfg.env)), cfg.rl)
+
+
+def init_runner(cfg: TrainConfig, env: ExplorationEnv) -> Runner:
+    p = cfg.ppo
+    key = jax.random.key(p.seed)
+    key, k_net, k_env = jax.random.split(key, 3)
+    reset = xla.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    obs, state = reset(jax.random.split(k_env, p.num_envs), env.default_params())
+    net = ActorCritic(env.num_actions)
+    params = net.init(k_net, jax.tree.map(lambda a: a[0], obs))
+    steps_per_update = p.update_epochs * p.minibatches
+    lr = (optax.linear_schedule(p.lr, 0.0, p.updates * steps_per_update) if p.anneal_lr else p.lr)
+    tx = optax.chain(optax.clip_by_global_norm(p.max_grad_norm), optax.adam(lr, eps=1e-5))
+    train = TrainState.create(apply_fn=net.apply, params=params, tx=tx)
+    train = train.replace(step=jnp.array(0, jnp.int32))
+    # Committed to the device, as an update's results are: else the second update compiles again.
+    return jax.device_put(Runner(train, state, obs, key), jax.devices()[0])
+
+
+def make_update(cfg: TrainConfig, env: ExplorationEnv):
+    """The jitted ``update(runner) -> (runner, stats)``: one rollout of ``num_steps``
+    decisions in every env, GAE, then ``update_epochs`` x ``minibatches`` clipped PPO steps."""
+    p = cfg.ppo
+    params_env = env.default_params()
+    step_env = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def rollout(runner: Runner, _):
+        train, state, obs, key = runner
+        key, k_act, k_step = jax.random.split(key, 3)
+        logits, value = train.apply_fn(train.params, obs)
+        action = jax.random.categorical(k_act, logits)
+        log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[:, None], -1)[:, 0]
+        next_obs, state, reward, done, info = step_env(jax.random.split(k_step, p.num_envs), state, action, params_env)
+        return Runner(train, state, next_obs, key), Transition(obs, action, log_prob, value, reward, done, info)
+
+    def advantages(traj: Transition, last_value):
+        """GAE over the rollout (T, B), reversed scan."""
+
+        def back(carry, t):
+            gae, next_value = carry
+            delta = t.reward + p.gamma * next_value * (1 - t.done) - t.value
+            gae = delta + p.gamma * p.gae_lambda * (1 - t.done) * gae
+            return (gae, t.value), gae
+
+        _, adv = jax.lax.scan(back, (jnp.zeros_like(last_value), last_value), traj, reverse=True)
+        return adv, adv + traj.value
+
+    def loss(params, apply_fn, batch: Transition, adv, target):
+        logits, value = apply_fn(params, batch.obs)
+        logp_all = jax.nn.log_softmax(logits)
+        logp = jnp.take_along_axis(logp_all, batch.action[:, None], -1)[:, 0]
+        value_clipped = batch.value + jnp.clip(value - batch.value, -p.clip_eps, p.clip_eps)
+        value_loss = 0.5 * jnp.maximum((value - target) ** 2, (value_clipped - target) ** 2).mean()
+        ratio = jnp.exp(logp - batch.log_prob)
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        actor = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - p.clip_eps, 1 + p.clip_eps) * adv).mean()
+        entropy = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
+        total = actor + p.vf_coef * value_loss - p.ent_coef * entropy
+        return total, (value_loss, actor, entropy)
+
+    def epoch(carry, _):
+        train, traj, adv, target, key = carry
+        key, sub = jax.random.split(key)
+        n = p.num_envs * p.num_steps
+        flat = jax.tree.map(lambda a: a.reshape(n, *a.shape[2:]), (traj, adv, target))
+        order = jax.random.permutation(sub, n)
+        mini = jax.tree.map(lambda a: a[order].reshape(p.minibatches, n // p.minibatches, *a.shape[1:]), flat)
+
+        def minibatch(train, batch):
+            (total, parts), grads = jax.value_and_grad(loss, has_aux=True)(train.params, train.apply_fn, *batch)
+            return train.apply_gradients(grads=grads), (total, *parts)
+
+        train, losses = jax.lax.scan(minibatch, train, mini)
+        return (train, traj, adv, target, key), losses
+
+    @xla.jit
+    def update(runner: Runner):
+        runner, traj = jax.lax.scan(rollout, runner, None, length=p.num_steps)
+        _, last_value = runner.train.apply_fn(runner.train.params, runner.obs)
+        adv, target = advantages(traj, last_value)
+        key, sub = jax.random.split(runner.key)
+        (train, *_), losses = jax.lax.scan(epoch, (runner.train, traj, adv, target, sub), None,
+                                           length=p.update_epochs)
+        finished = traj.done.sum()
+        stats = {"episodes": finished,
+                 "return": jnp.where(finished > 0, traj.info["return"].sum() / jnp.maximum(finished, 1), jnp.nan),
+                 "final_score": jnp.where(finished > 0, traj.info["score"].sum() / jnp.maximum(finished, 1), jnp.nan),
+                 "reward": traj.reward.mean(), "loss": losses[0].mean(), "value_loss": losses[1].mean(),
+                 "actor_loss": losses[2].mean(), "entropy": losses[3].mean()}
+        return runner._replace(train=train, key=key), stats
+
+    return update
+
+
+# --- Checkpoints and the policy file -------------------------------------------------
+
+
+def _to_host(tree) -> dict:
+    """The pytree's leaves as numpy arrays (PRNG keys as their raw data), keyed by index."""
+    def host(a):
+        a = jnp.asarray(a)
+        return np.asarray(jax.random.key_data(a) if jnp.issubdtype(a.dtype, jax.dtypes.prng_key) else a)
+
+    return {str(i): host(a) for i, a in enumerate(jax.tree.leaves(tree))}
+
+
+def _from_host(template, saved: dict):
+    leaves, treedef = jax.tree.flatten(template)
+    if len(saved) != len(leaves):
+        raise ValueError("the checkpoint does not match this configuration")
+    out = []
+    for i, t in enumerate(leaves):
+        a = saved[str(i)]
+        t = jnp.asarray(t)
+        if jnp.issubdtype(t.dtype, jax.dtypes.prng_key):
+            out.append(jax.random.wrap_key_data(jnp.asarray(a), impl=jax.random.key_impl(t)))
+        else:
+            if a.shape != t.shape or a.dtype != t.dtype:
+                raise ValueError("the checkpoint does not match this configuration")
+            out.append(jnp.asarray(a))
+    return jax.device_put(jax.tree.unflatten(treedef, out), jax.devices()[0])
+
+
+def save_checkpoint(path: Path, runner: Runner, done: int, curve: list[dict]) -> None:
+    blob = serialization.msgpack_serialize({"update": done, "curve": json.dumps(curve), "state": _to_host(runner)})
+    results.write_atomic(path, blob)
+
+
+def load_checkpoint(path: Path, template: Runner) -> tuple[Runner, int, list[dict]]:
+    try:
+        saved = serialization.msgpack_restore(path.read_bytes())
+        return _from_host(template, saved["state"]), int(saved["update"]), json.loads(saved["curve"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(str(path), "file", f"not a checkpoint of this configuration ({err})") from None
+
+
+def save_policy(path: Path, cfg: TrainConfig, params) -> None:
+    """The trained policy: parameters plus the env settings it was trained with."""
+    blob = {"format": POLICY_FORMAT, "rl": json.dumps(asdict(cfg.rl)), "env": json.dumps(cfg.env),
+            "params": serialization.to_state_dict(jax.tree.map(np.asarray, params))}
+    results.write_atomic(path, serialization.msgpack_serialize(blob))
+
+
+def load_policy(path: str | Path) -> tuple[RLConfig, dict, Any]:
+    """(RLConfig, env overrides, params) of a policy file; one InputError if it is not one."""
+    path = Path(path)
+    try:
+        saved = serialization.msgpack_restore(path.read_bytes())
+        if saved.get("format") != POLICY_FORMAT:
+            raise ValueError(f"format {saved.get('format')!r}, expected {POLICY_FORMAT!r}")
+        rl = RLConfig(**json.loads(saved["rl"]))
+        return rl, json.loads(saved["env"]), jax.tree.map(jnp.asarray, saved["params"])
+    except FileNotFoundError:
+        raise InputError(str(path), "file", "not found") from None
+    except (OSError, KeyError, TypeError, ValueError, AttributeError) as err:
+        raise InputError(str(path), "file", f"not a rosmeery-jax policy file ({err})") from None
+
+
+# --- The training loop ---------------------------------------------------------------
+
+
+def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
+    """Train to ``cfg.ppo.updates`` updates, writing into ``out`` (module docstring)."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    record = json.loads(json.dumps(asdict(cfg)))
+    _check_out(out, record, resume)
+    out.mkdir(parents=True, exist_ok=True)
+    results.write_atomic(out / "config.json", json.dumps(record, indent=2))
+    env = make_env(cfg)
+    runner = init_runner(cfg, env)
+    done, curve = 0, []
+    if resume and (out / "checkpoint.msgpack").exists():
+        runner, done, curve = load_checkpoint(out / "checkpoint.msgpack", runner)
+    update = make_update(cfg, env)
+    p = cfg.ppo
+    steps_per_update = p.num_envs * p.num_steps * cfg.rl.decide_every
+    bar = tqdm(total=p.updates, initial=done, disable=not progress, unit="update")
+    t0 = time.perf_counter()
+    for u in range(done, p.updates):
+        runner, stats = update(runner)
+        stats = {k: float(v) for k, v in stats.items()}
+        elapsed = time.perf_counter() - t0
+        curve.append({"update": u + 1, "env_steps": (u + 1) * steps_per_update, **stats, "wall_s": elapsed})
+        bar.update(1)
+        bar.set_postfix_str(f"return {stats['return']:.3f}, {steps_per_update * (u + 1 - done) / elapsed:,.0f} env-steps/s")
+        if (u + 1) % p.checkpoint_every == 0 or u + 1 == p.updates:
+            save_checkpoint(out / "checkpoint.msgpack", runner, u + 1, curve)
+            _write_curve(out, curve)
+    bar.close()
+    save_policy(out / "policy.msgpack", cfg, runner.train.params)
+    _write_curve(out, curve)
+    return out
+
+
+def _check_out(out: Path, record: dict, resume: bool) -> None:
+    saved = out / "config.json"
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), "out", "is a file, not a folder")
+    if not saved.exists():
+        if out.exists() and any(out.iterdir()):
+            raise InputError(str(out), "out", "is not empty and has no config.json: choose another --out")
+        return
+    if not resume:
+        raise InputError(str(out), "out", "already holds a training run: pass --resume to continue it")
+    try:
+        old = json.loads(saved.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        raise InputError(str(saved), "file", "unreadable: cannot resume from it") from None
+    for key in ("worlds", "ppo", "rl", "env"):
+        if old.get(key) != record[key]:
+            raise InputError(str(saved), key, f"was {old.get(key)!r}, now {record[key]!r}: resume needs the same")
+
+
+def read_curve(out: str | Path):
+    """The learning curve of a training folder (pandas DataFrame)."""
+    import pandas as pd
+
+    return pd.read_csv(Path(out) / "curve.csv")
+
+
+def _write_curve(out: Path, curve: list[dict]) -> None:
+    import pandas as pd
+
+    from rosmeery_jax.scoring.plots import learning_curve
+
+    table = pd.DataFrame(curve)
+    results.write_atomic(out / "curve.csv", table.to_csv(index=False))
+    learning_curve(table, out / "curve.png")

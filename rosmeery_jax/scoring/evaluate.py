@@ -1,0 +1,228 @@
+"""Score a semantic map made by any mapper against a world's ground truth (docs/metrics.md).
+
+A map is the paper's SM = <R, M, P>: ``MAP.ply`` (vertices x, y, z and an instance id,
+``object_id`` or ``instance``; optional per-point ``label`` (taxonomy index, -1 none) and
+``confidence``) and, beside it, ``MAP.json`` (``frame``: ``world``, ``time_s``; ``objects``:
+``id`` (the instance id), ``label`` (a category name, or null), ``confidence``). The maps
+``rosmeery run`` exports (``maps/``) are valid input.
+
+Scoring, as in the paper but with the association a real mapper must make itself:
+
+1. Each point is tied to the nearest ground-truth surface sample within ``tolerance``
+   (scipy cKDTree). Counting is per sample, not per point, so a denser cloud cannot
+   inflate ps. A point near no sample lies on no object (walls, floor, or wrong places).
+2. Each map instance is matched to at most one object and each object to at most one
+   instance: the Hungarian assignment (scipy) maximising the samples they share.
+3. ps(n) counts the samples of n covered by the instance matched to n only: merged or
+   split instances lose what their unmatched parts hold.
+4. cORI weighs ps(n) by the instance's confidence when its label is n's category; OPI and
+   OPI-strict count the predicates the label declares through the taxonomy (3 per label),
+   of which those on the category -> macro -> root chain of n are correct.
+
+The result is one :class:`ObjectLog` per map, so the session's metric functions score it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import trimesh
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.sim.knowledge import ObjectLog, predicate_tables
+
+TOLERANCE = 0.05  # m: a point within this of a surface sample lies on it (samples are 5 cm apart)
+INSTANCE_FIELDS = ("object_id", "instance")
+
+
+class SemanticMap(NamedTuple):
+    """A map read from disk. points (P, 3) float64; instance (P,) int64; labels / confidence:
+    per instance id, the category name (None: unlabelled) and its confidence."""
+
+    path: Path
+    points: np.ndarray
+    instance: np.ndarray
+    labels: dict
+    confidence: dict
+    world: str | None
+    time_s: float | None
+
+
+class Score(NamedTuple):
+    """A map scored against a world: log (ObjectLog, fields (N,)); matched (N,) instance id of
+    each object (-1 none); off_object: share of points on no object; unmatched: instances
+    matched to no object."""
+
+    log: ObjectLog
+    matched: np.ndarray
+    off_object: float
+    unmatched: int
+
+
+def read_map(ply: str | Path, taxonomy) -> SemanticMap:
+    """``ply`` and the JSON beside it (optional); one InputError naming the file and field."""
+    ply = Path(ply)
+    vertex = _vertices(ply)
+    names = vertex.dtype.names
+    field = next((f for f in INSTANCE_FIELDS if f in names), None)
+    if field is None:
+        raise InputError(ply, "vertex", f"needs an instance id field ({' or '.join(INSTANCE_FIELDS)})")
+    points = np.stack([vertex[a].astype(np.float64) for a in "xyz"], -1)
+    bad = ~np.isfinite(points).all(1)
+    if bad.any():
+        raise InputError(ply, "vertex x, y, z", f"{int(bad.sum())} points are not finite numbers (first: row {int(np.argmax(bad))})")
+    instance = vertex[field].astype(np.int64)
+    labels, conf = _point_labels(ply, vertex, instance, taxonomy)
+    world = time_s = None
+    meta_path = ply.with_suffix(".json")
+    if meta_path.is_file():
+        world, time_s, extra_labels, extra_conf = _read_meta(meta_path, taxonomy)
+        labels.update(extra_labels)
+        conf.update(extra_conf)
+    return SemanticMap(ply, points, instance, labels, conf, world, time_s)
+
+
+def _vertices(ply: Path) -> np.ndarray:
+    try:
+        mesh = trimesh.load(str(ply), file_type="ply", process=False)
+        vertex = mesh.metadata["_ply_raw"]["vertex"]["data"]
+    except FileNotFoundError:
+        raise InputError(ply, "file", "not found") from None
+    except Exception as err:  # trimesh raises many kinds on a malformed file
+        raise InputError(ply, "file", f"not a readable PLY point cloud ({type(err).__name__}: {err})") from None
+    missing = [a for a in "xyz" if a not in (vertex.dtype.names or ())]
+    if missing:
+        raise InputError(ply, f"vertex {missing[0]}", "missing")
+    return vertex
+
+
+def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[dict, dict]:
+    """Per instance: its points' most common label (taxonomy index) and highest confidence."""
+    labels, conf = {}, {}
+    names = vertex.dtype.names
+    for i in np.unique(instance):
+        mine = instance == i
+        k = -1
+        if "label" in names:
+            vals, counts = np.unique(vertex["label"][mine].astype(np.int64), return_counts=True)
+            k = int(vals[np.argmax(counts)])
+            if not -1 <= k < len(taxonomy.names):
+                raise InputError(ply, "vertex label", f"{k} is not a category index of the taxonomy (0..{len(taxonomy.names) - 1}, -1 none)")
+        labels[int(i)] = taxonomy.names[k] if k >= 0 else None
+        conf[int(i)] = float(vertex["confidence"][mine].max()) if "confidence" in names else 1.0
+    return labels, conf
+
+
+def _read_meta(path: Path, taxonomy):
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(path, "file", f"not valid JSON ({err})") from None
+    frame = meta.get("frame", {}) if isinstance(meta, dict) else None
+    if not isinstance(frame, dict):
+        raise InputError(path, "frame", "must be an object")
+    time_s = frame.get("time_s")
+    if time_s is not None and not isinstance(time_s, (int, float)):
+        raise InputError(path, "frame.time_s", f"{time_s!r} is not a number")
+    labels, conf = {}, {}
+    for j, obj in enumerate(meta.get("objects", [])):
+        if not isinstance(obj, dict) or not isinstance(obj.get("id"), int):
+            raise InputError(path, f"objects[{j}].id", "each object needs an integer id (its points' instance id)")
+        label = obj.get("label")
+        if label is not None and label not in taxonomy:
+            raise InputError(path, f"objects[{j}].label", f"{label!r} is not a category of the taxonomy")
+        c = obj.get("confidence", 1.0)
+        if not isinstance(c, (int, float)) or not 0.0 <= c <= 1.0:
+            raise InputError(path, f"objects[{j}].confidence", f"{c!r} is not a number in [0, 1]")
+        labels[obj["id"]], conf[obj["id"]] = label, float(c)
+    return frame.get("world"), time_s, labels, conf
+
+
+def score(world, m: SemanticMap, tolerance: float = TOLERANCE) -> Score:
+    """Score map ``m`` against ``world``'s ground truth (see the module docstring)."""
+    if m.world is not None and m.world != world.name:
+        raise InputError(m.path.with_suffix(".json"), "frame.world", f"{m.world!r} is not the world scored ({world.name!r})")
+    s = tie(world, m.points, tolerance)
+    ids, inst = np.unique(m.instance, return_inverse=True)
+    shared = shared_samples(world, inst, s, len(ids))
+    names = [m.labels.get(int(i)) for i in ids]
+    label = np.array([world.taxonomy.index(k) if k else -1 for k in names], np.int32)
+    conf = np.array([m.confidence.get(int(i), 0.0) if k else 0.0 for i, k in zip(ids, names)], np.float32)
+    log, ix = score_shared(world, shared, label, conf)
+    on = s >= 0
+    off = float(1.0 - on.mean()) if len(on) else 0.0
+    return Score(log, np.where(ix >= 0, ids[np.maximum(ix, 0)], -1), off, int(len(ids) - (ix >= 0).sum()))
+
+
+def tie(world, points: np.ndarray, tolerance: float = TOLERANCE) -> np.ndarray:
+    """(P,) index of the surface sample each point (P, 3) lies on, -1 for none (step 1)."""
+    samples = np.asarray(world.truth.samples.points, np.float64)
+    _, s = cKDTree(samples).query(points, distance_upper_bound=tolerance)
+    return np.where(s < len(samples), s, -1)
+
+
+def shared_samples(world, instance: np.ndarray, sample: np.ndarray, instances: int) -> np.ndarray:
+    """(I, N) distinct samples of each object that each instance covers, from points'
+    instance index (P,) in [0, I) and tied sample (P,) (-1 none)."""
+    n_samples = len(world.truth.samples.object)
+    on = sample >= 0
+    pairs = np.unique(instance[on].astype(np.int64) * n_samples + sample[on])  # distinct (instance, sample)
+    shared = np.zeros((instances, world.truth.num_objects), np.int64)
+    np.add.at(shared, (pairs // n_samples, np.asarray(world.truth.samples.object)[pairs % n_samples]), 1)
+    return shared
+
+
+def score_shared(world, shared: np.ndarray, label: np.ndarray, conf: np.ndarray) -> tuple[ObjectLog, np.ndarray]:
+    """Steps 2-4 for instances with shared samples (I, N), label (I,) category index (-1
+    none) and its confidence (I,). Returns the ObjectLog (fields (N,)) and each object's
+    instance index (N,), -1 for none."""
+    truth, n_obj = world.truth, world.truth.num_objects
+    rows, cols = linear_sum_assignment(shared, maximize=True)
+    keep = shared[rows, cols] > 0
+    rows, cols = rows[keep], cols[keep]
+    ix = np.full(n_obj, -1, np.int64)
+    ix[cols] = rows
+    ps = np.zeros(n_obj, np.float32)
+    ps[cols] = shared[rows, cols]
+    lab = np.where(ix >= 0, np.asarray(label)[np.maximum(ix, 0)], -1).astype(np.int32)
+    c = np.where(lab >= 0, np.asarray(conf)[np.maximum(ix, 0)], 0.0).astype(np.float32)
+    declared_table, correct_table = predicate_tables(world.taxonomy, truth.categories)
+    has = lab >= 0
+    declared = np.where(has, declared_table[np.maximum(lab, 0)], 0).astype(np.int32)
+    correct = np.where(has, correct_table[np.arange(n_obj), np.maximum(lab, 0)], 0).astype(np.int32)
+    conf_true = np.where(lab == np.asarray(truth.category_index), c, 0.0).astype(np.float32)
+    return ObjectLog(ps, conf_true, c, lab, declared, correct), ix
+
+
+def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external"):
+    """Score maps of one run (curves over their ``time_s``, else their order).
+
+    Returns (metrics table, objects table of the last map, per-class table, summary dict),
+    the first two in the session's formats (policy = ``name``, detector = "own", seed 0)."""
+    from rosmeery_jax.scoring import metrics, results
+    from rosmeery_jax.sim.knowledge import GroundTruthTable
+
+    times = [m.time_s if m.time_s is not None else float(k) for k, m in enumerate(maps)]
+    order = np.argsort(times, kind="stable")
+    scores = [score(world, maps[k], tolerance) for k in order]
+    t = world.truth
+    table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))
+    log = ObjectLog(*(np.stack(f) for f in zip(*(sc.log for sc in scores))))
+    curves = metrics.compute(log, table)
+    tags = dict(policy=name, detector="own", mapper="own", seed=0)
+    metric_df = results.metric_frame(curves, np.asarray(times)[order], world=world.name, **tags)
+    objects = results.object_frame(world, scores[-1].log, **tags)
+    objects["instance"] = scores[-1].matched
+    classes = objects.groupby("category").agg(objects=("object", "size"), ps_G=("ps_G", "sum"), ps=("ps", "sum"),
+                                              coverage=("coverage", "mean")).reset_index()
+    classes["ori"] = classes.coverage  # ORI over a class's objects: ps <= ps_G, so 1 - mean(1 - coverage)
+    last = scores[-1]
+    summary = {"world": world.name, "maps": [str(maps[k].path) for k in order], "tolerance_m": tolerance,
+               **{k: float(v[-1]) for k, v in curves.items()}, "points_on_no_object": round(last.off_object, 6),
+               "unmatched_instances": last.unmatched}
+    return metric_df, objects, classes, summary

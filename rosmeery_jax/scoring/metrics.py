@@ -1,0 +1,123 @@
+"""Metrics over time, computed from per-object logs (docs/metrics.md), and their registry.
+
+Every metric is a function ``fn(log, truth) -> curve``: ``log`` an :class:`ObjectLog` whose
+fields are (..., T, N) (leading axes for envs), ``truth`` a :class:`GroundTruthTable`;
+the curve is (..., T). They are written with ``jax.numpy`` so they differentiate (soft
+coverage) and run on numpy input too. Register your own with ``@register("name")``; a
+session picks its active set by name.
+
+Built in:
+- ``ori``: 1 - min(1, mean_n |ps_G - ps_t| / ps_G)                        (paper Eq. 3)
+- ``cori``: the same with c_t(n) ps_t(n), c_t the best true-label confidence (Eq. 4)
+- ``cori_any``: label-agnostic cORI: the best confidence of any label
+- ``opi``: 1 - min(1, mean_n |P_G - p_t| / P_G), p_t predicates declared   (Eq. 5)
+- ``opi_strict``: only correct predicates count and each false one adds an error:
+  1 - min(1, mean_n (|P_G - correct_t| + (p_t - correct_t)) / P_G)
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
+
+MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
+REGISTRY: dict[str, MetricFn] = {}
+DEFAULT_METRICS = ("ori", "cori", "cori_any", "opi", "opi_strict")
+
+
+def register(name: str) -> Callable[[MetricFn], MetricFn]:
+    """Decorator: make ``fn(log, truth) -> (..., T)`` available as metric ``name``."""
+
+    def add(fn: MetricFn) -> MetricFn:
+        REGISTRY[name] = fn
+        return fn
+
+    return add
+
+
+def _index(errors, weights):
+    """1 - min(1, mean over objects of errors / weights). errors (..., T, N), weights (N,)."""
+    return 1.0 - jnp.minimum(1.0, jnp.mean(errors / weights, axis=-1))
+
+
+def _reconstruction(weighted_ps, truth: GroundTruthTable):
+    """ORI-style index of (possibly confidence-weighted) observed samples (..., T, N)."""
+    g = jnp.asarray(truth.ps_G, jnp.float32)
+    return _index(jnp.abs(g - weighted_ps), g)
+
+
+@register("ori")
+def ori(log: ObjectLog, truth: GroundTruthTable):
+    return _reconstruction(log.ps, truth)
+
+
+@register("cori")
+def cori(log: ObjectLog, truth: GroundTruthTable):
+    return _reconstruction(log.conf_true * log.ps, truth)
+
+
+@register("cori_any")
+def cori_any(log: ObjectLog, truth: GroundTruthTable):
+    return _reconstruction(log.conf_any * log.ps, truth)
+
+
+@register("opi")
+def opi(log: ObjectLog, truth: GroundTruthTable):
+    p = jnp.asarray(truth.P_G, jnp.float32)
+    return _index(jnp.abs(p - log.declared), p)
+
+
+@register("opi_strict")
+def opi_strict(log: ObjectLog, truth: GroundTruthTable):
+    p = jnp.asarray(truth.P_G, jnp.float32)
+    false = log.declared - log.correct
+    return _index(jnp.abs(p - log.correct) + false, p)
+
+
+def resolve(names) -> tuple[str, ...]:
+    """Check metric names against the registry (one-line error for an unknown one)."""
+    names = tuple(names)
+    for n in names:
+        if n not in REGISTRY:
+            raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))})")
+    return names
+
+
+def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:
+    """{metric name: (..., T) float64 numpy curve} for the chosen metrics, in one compiled
+    call per shape (op by op, a session paid a compile of every operation for every world)."""
+    log = ObjectLog(*(np.asarray(a) for a in log))
+    truth = GroundTruthTable(*(np.asarray(a) for a in truth))
+    names = resolve(names)
+    curves = _curves(log, truth, names)  # a jitted dict comes back in sorted key order
+    return {n: np.asarray(curves[n], np.float64) for n in names}
+
+
+@partial(jax.jit, static_argnums=2)
+def _curves(log: ObjectLog, truth: GroundTruthTable, names: tuple[str, ...]) -> dict:
+    return {n: REGISTRY[n](log, truth) for n in names}
+
+
+def summarize(times: np.ndarray, curve: np.ndarray) -> dict[str, float]:
+    """Summary figures of one curve (T,) over times (T,) in seconds: final value; area under
+    the curve divided by the duration (the curve's time average, in [0, 1]); first time the
+    curve reaches 50% and 90% of its final value (NaN when the final value is 0)."""
+    times, curve = np.asarray(times, float), np.asarray(curve, float)
+    final = float(curve[-1])
+    span = times[-1] - times[0]
+    auc = float(np.trapezoid(curve, times) / span) if span > 0 else final
+    out = {"final": final, "auc": auc}
+    for frac in (0.5, 0.9):
+        key = f"t{int(frac * 100)}_s"
+        if final <= 0:
+            out[key] = float("nan")
+        else:
+            out[key] = float(times[np.argmax(curve >= frac * final - 1e-12)])
+    return out

@@ -1,0 +1,100 @@
+"""Results tables: long-format metric curves and per-object states, written atomically.
+
+``metrics.csv``: world, policy, detector, mapper, seed, time_s, metric, value (one row per
+sample; ``mapper`` is who built the scored map: "oracle", "perceived", or "own" for a map
+scored by ``rosmeery evaluate``).
+``objects.csv``: world, policy, detector, mapper, seed, object, category, ps_G, ps, coverage,
+label, confidence, P_G, p (the final state of each object).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)  # read once: the process's umask, for the mode of files written atomically
+METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
+OBJECT_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "object", "category", "ps_G", "ps", "coverage",
+                  "label", "confidence", "P_G", "p"]
+
+
+def metric_frame(curves: dict[str, np.ndarray], times: np.ndarray, *, world: str, policy: str,
+                 detector: str, seed: int, mapper: str = "oracle") -> pd.DataFrame:
+    """Long table of curves {metric: (T,)} sampled at times (T,) seconds."""
+    parts = [pd.DataFrame({"time_s": np.asarray(times, float), "metric": name, "value": np.asarray(c, float)})
+             for name, c in curves.items()]
+    df = pd.concat(parts, ignore_index=True)
+    df.insert(0, "seed", int(seed))
+    df.insert(0, "mapper", mapper)
+    df.insert(0, "detector", detector)
+    df.insert(0, "policy", policy)
+    df.insert(0, "world", world)
+    return df[METRIC_COLUMNS]
+
+
+def object_frame(world, log, *, policy: str, detector: str, seed: int, mapper: str = "oracle") -> pd.DataFrame:
+    """Per-object final state from one env's :class:`ObjectLog` at one time (fields (N,))."""
+    truth = world.truth
+    names = world.taxonomy.names
+    label = np.asarray(log.label)
+    conf_held = np.where(label >= 0, np.asarray(log.conf_any), 0.0)
+    ps = np.asarray(log.ps)
+    ps = ps.astype(int) if np.all(ps == np.round(ps)) else ps.astype(float)
+    return pd.DataFrame({
+        "world": world.name, "policy": policy, "detector": detector, "mapper": mapper, "seed": int(seed),
+        "object": list(truth.names), "category": list(truth.categories),
+        "ps_G": np.asarray(truth.ps_G), "ps": ps, "coverage": ps / np.asarray(truth.ps_G),
+        "label": [names[k] if k >= 0 else "" for k in label], "confidence": conf_held,
+        "P_G": np.asarray(truth.num_predicates), "p": np.asarray(log.declared),
+    })[OBJECT_COLUMNS]
+
+
+def write_atomic(path: str | Path, data: bytes | str) -> Path:
+    """Write a file so readers never see it half-written (temp file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; results get the usual umask mode
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
+    return write_atomic(path, df.to_csv(index=False))
+
+
+def load(directory: str | Path) -> pd.DataFrame:
+    """The metric curves of a results folder as one long DataFrame (``metrics.csv``);
+    a missing or malformed file is one InputError naming the file and the column or row."""
+    from rosmeery_jax.core.errors import InputError
+
+    path = Path(directory) / "metrics.csv"
+    try:
+        df = pd.read_csv(path)
+    except FileNotFoundError:
+        raise InputError(str(path), "file", "not found: not a results folder") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as err:
+        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0][:120]})") from None
+    if "mapper" not in df.columns:  # results written before mappers were a column
+        df["mapper"] = "oracle"
+    missing = [c for c in METRIC_COLUMNS if c not in df.columns]
+    if missing:
+        raise InputError(str(path), "columns", f"missing {', '.join(missing)}")
+    for c in ("seed", "time_s", "value"):
+        values = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if len(bad):
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{df[c].iloc[bad[0]]!r} is not a number")
+        df[c] = values.astype(int) if c == "seed" else values
+    return df

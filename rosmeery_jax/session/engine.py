@@ -1,0 +1,562 @@
+"""The session engine: every (world, policy, seed) of a session in one batch, one compiled
+chunk function, the detector overlapped with the simulation.
+
+**Worlds are data.** The session's worlds are padded to shared sizes and stacked
+(:mod:`rosmeery_jax.env.world_data`); each env gathers its own world inside the compiled
+function, so adding a world adds rows, not a compile. A *group* is every entry that shares
+one env configuration: all built-in policies share one, so the default and paper sessions
+compile one chunk function; replayed recordings run in velocity mode and form a group of
+their own.
+
+**Blocks.** XLA compiles a different program for every batch shape, and programs of
+different shapes round differently. The batch is therefore cut into blocks of ``BLOCK``
+envs, each block one policy (a policy's entries are padded to whole blocks), and
+``lax.map`` runs one ``vmap``ped block program over them: an env's numbers are the same
+whatever runs beside it. The block's policy is chosen with ``lax.switch`` on a per-block
+index, so only that policy's decision runs (a per-env index under ``vmap`` would run every
+policy for every env).
+
+**Several devices.** With ``devices`` N > 1 (GPUs, or host devices made from the CPU's
+cores) the blocks are split evenly over the devices (padding blocks make the count a
+multiple of N) and every device runs the one-device block program on its share, all at
+once (:class:`Replicas`). An SPMD program (``jax.shard_map``) was tried and dropped: XLA
+fuses a partitioned program differently, so a robot's numbers changed with N.
+
+**The detector overlaps the simulation.** Chunk k's frames are detected in a worker thread
+while chunk k + 1 simulates. The robot's knowledge receives the detections on a fixed
+simulated-time schedule, part of the experiment: the frames of detector period p (one RGB
+frame per decision) are folded in at the start of period p + 2, so a label reaches the
+policy one to two periods after its frame, whatever the chunking. The metrics' label
+fields are rebuilt afterwards without that lag: a frame counts from the step after it, so
+the run's last frame never counts, and the final labels (objects table, exported maps)
+are those of the last logged step.
+
+Shapes: B envs in a group (a multiple of BLOCK), T steps, N objects (padded), F frames per
+chunk, D detections per frame.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from rosmeery_jax.env import world_data as wd
+from rosmeery_jax.core import xla
+from rosmeery_jax.env import Env, EnvConfig, body_dimensions
+from rosmeery_jax.sim.knowledge import ObjectLog
+
+BLOCK = 5  # envs per compiled block (module docstring): 5 seeds, the paper's and the default, fill one
+MAX_DET = 32  # detections kept per frame (the most confident)
+LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
+
+
+class Run(NamedTuple):
+    """One (world, policy) pair: its rows in the group's batch (one per seed or recording)."""
+
+    name: str
+    world: int
+    policy: int
+    rows: np.ndarray
+    host_policy: Any  # the policy built for this world (recordings, start checks)
+
+
+@dataclass
+class Group:
+    """Entries that share one env configuration, as one batch of B envs.
+
+    env: the template env (the group's first world at the padded sizes); envs: one per world
+    (host side: world, truth); data: the stacked worlds (W, ...); policies: one template per
+    policy entry; world / seed / real (B,) per env; blocks (B // BLOCK, 2) the policy and
+    world of each block (every run is padded to whole blocks)."""
+
+    config: EnvConfig
+    env: Env
+    envs: list[Env]
+    data: wd.WorldData
+    policies: list
+    world: np.ndarray
+    seed: np.ndarray
+    real: np.ndarray
+    blocks: np.ndarray
+    runs: list[Run]
+    devices: int = 1
+
+    @property
+    def size(self) -> int:
+        return len(self.world)
+
+
+def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: int,
+                 decide_every: int, total_steps: int, devices: int = 0) -> list[Group]:
+    """The groups of (world spec, policy spec) pairs; runs with no entries are left out.
+    ``devices`` 0 uses every device JAX has, or one per block when there are fewer blocks;
+    with more than one, padding blocks (copies of the last, no real env) make the number of
+    blocks a multiple of it."""
+    from rosmeery_jax.core.overrides import flatten
+    from rosmeery_jax.policies import make_policy, policy_class
+    from rosmeery_jax.world import WorldConfig, load_world
+
+    by_config: dict[EnvConfig, list] = {}
+    for world, spec in pairs:
+        name = load_world(world).name
+        overrides = {"labels": "detections" if detecting else "observed", **flatten(session_env),
+                     **policy_class(spec).env_overrides(spec, name)}
+        config = EnvConfig().with_overrides("config", **overrides)
+        by_config.setdefault(config, []).append((world, spec))
+    groups = []
+    for config, members in by_config.items():
+        specs = list(dict.fromkeys(w for w, _ in members))
+        worlds = [load_world(w, body_dimensions(config, WorldConfig())) for w in specs]
+        sizes = wd.Sizes.union([wd.Sizes.of(w, config) for w in worlds])
+        envs = [Env(w, config, sizes) for w in worlds]
+        policy_specs = list(dict.fromkeys(p for _, p in members))
+        policies = [make_policy(p, envs[0], decide_every, total_steps) for p in policy_specs]
+        world_ix, seed_ix, real, blocks, runs = [], [], [], [], []
+        for q, spec in enumerate(policy_specs):
+            for world, p in members:
+                if p != spec:
+                    continue
+                w = specs.index(world)
+                host = make_policy(spec, envs[w], decide_every, total_steps)
+                b = host.batch_size(seeds)
+                if not b:
+                    continue  # a replay with no recording in this world
+                rows = np.arange(len(world_ix), len(world_ix) + b)
+                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows, host))
+                padded = -(-b // BLOCK) * BLOCK
+                world_ix += [w] * padded
+                seed_ix += list(range(padded))
+                real += [True] * b + [False] * (padded - b)
+                blocks += [(q, w)] * (padded // BLOCK)
+        used = devices or max(1, min(len(jax.devices()), len(blocks)))  # auto: no device without a real block
+        for _ in range((-len(blocks)) % used if runs else 0):  # whole blocks per device
+            blocks.append(blocks[-1])
+            world_ix += [blocks[-1][1]] * BLOCK
+            seed_ix += list(range(BLOCK))
+            real += [False] * BLOCK
+        if runs:
+            groups.append(Group(config, envs[0], envs, wd.stack([e.data for e in envs]), policies,
+                                np.asarray(world_ix, np.int32), np.asarray(seed_ix, np.int32), np.asarray(real),
+                                np.asarray(blocks, np.int32), runs, used))
+    return groups
+
+
+def blocked(fn, devices: int = 1):
+    """jit of ``fn(shared, block, *env_args)`` over B = k * BLOCK envs: ``shared`` goes to
+    every env, ``block`` (k, ...) one row per block (the same for its envs, so not batched
+    inside it), ``env_args`` (B, ...) one row per env. vmap over a block, ``lax.map`` over
+    blocks (module docstring); with ``devices`` > 1, as :class:`Replicas`."""
+
+    def run(shared, block_arg, *env_args):
+        blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), env_args)
+        out = jax.lax.map(lambda x: jax.vmap(fn, in_axes=(None, None) + (0,) * len(env_args))(shared, x[0], *x[1]),
+                          (block_arg, blocks))
+        return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
+
+    return xla.jit(run) if devices == 1 else Replicas(xla.jit(run), devices)
+
+
+def shardings(devices: int) -> tuple[NamedSharding, NamedSharding]:
+    """(whole, split): a copy on each of the first ``devices`` devices, and the leading
+    (batch or block) axis split evenly over them."""
+    mesh = Mesh(np.asarray(jax.devices()[:devices]), ("d",))
+    return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("d"))
+
+
+class Replicas:
+    """A blocked function on N devices: each runs the one-device program on its share of
+    the blocks, all at once (JAX dispatches asynchronously). Called like the jitted function
+    with ``(shared, block_arg, *env_args)``; arguments are placed as global arrays (``shared``
+    whole on every device, the rest split over the leading axis) and results come back
+    split the same way, so one call's results feed the next without a copy. Follows jax's
+    ahead-of-time interface: ``lower(*args).compile()`` compiles every device's copy at once."""
+
+    def __init__(self, jitted, devices: int, executables: list | None = None):
+        self.jitted, self.devices, self.executables = jitted, devices, executables
+        self.whole, self.split = shardings(devices)
+
+    def _per_device(self, shared, block_arg, env_args) -> list[tuple]:
+        """Each device's arguments: its copy of ``shared``, its share of the rest."""
+        shared = jax.device_put(shared, self.whole)
+        rest = jax.device_put((block_arg, env_args), self.split)
+
+        def local(tree, device):
+            return jax.tree.map(lambda a: next(s.data for s in a.addressable_shards if s.device == device), tree)
+
+        return [(local(shared, d), local(rest[0], d), *local(rest[1], d)) for d in self.split.mesh.devices.flat]
+
+    def lower(self, shared, block_arg, *env_args):
+        def compile() -> Replicas:
+            with ThreadPoolExecutor(self.devices) as pool:  # XLA compiles without the GIL
+                return Replicas(self.jitted, self.devices, list(pool.map(lambda a: self.jitted.lower(*a).compile(), args)))
+
+        args = self._per_device(shared, block_arg, env_args)
+        return SimpleNamespace(compile=compile)
+
+    def __call__(self, shared, block_arg, *env_args):
+        calls = self.executables or [self.jitted] * self.devices
+        outs = [f(*args) for f, args in zip(calls, self._per_device(shared, block_arg, env_args))]
+        return jax.tree.map(lambda *parts: jax.make_array_from_single_device_arrays(
+            (sum(p.shape[0] for p in parts), *parts[0].shape[1:]), self.split, list(parts)), *outs)
+
+
+def _in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[Env, list]:
+    """The template env and policies, bound to the world of ``block`` (policy, world) (inside
+    a trace; the block's envs share it, so it is not batched under their vmap)."""
+    env = group.env.with_data(wd.pick(stacked, block[1]))
+    return env, [p.bind(env) for p in group.policies]
+
+
+def reset_fn(group: Group):
+    """(stacked, blocks, key (B,)) -> State (B, ...)."""
+
+    def one(stacked, block, key):
+        env, _ = _in_world(group, stacked, block)
+        return env.reset(key)
+
+    return blocked(one, group.devices)
+
+
+def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, depth: bool = False,
+             log_every: int = 1):
+    """One env per call of the returned function (blocked): fold the pending detections
+    (F, D) into the knowledge, then ``decisions`` policy decisions, each followed by
+    ``decide_every`` env steps. Returns state, policy states, key, logs (steps / log_every,
+    N) after every ``log_every``-th step (a divisor of ``decide_every``), poses (steps, 3)
+    and, with ``capture``, the frame after each decision: RGB (F, Hr, Wr, 3) uint8 and labels
+    (F, Hr, Wr) int16 (F = decisions), with ``depth`` also its depth (F, Hr, Wr) float32;
+    else None."""
+    per_step = group.policies[0].per_step
+    if decide_every % log_every:
+        raise ValueError(f"log_every {log_every} must divide decide_every {decide_every}")
+    spans = decide_every // log_every  # logged spans per decision
+
+    def one(stacked, block, state, pstates, key, pending):
+        env, policies = _in_world(group, stacked, block)
+        q = block[0]
+        if capture:
+            state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
+
+        def branch(i):
+            def decide(s, pss, k):
+                action, new = policies[i].decide(s, pss[i], k)
+                return action, pss[:i] + (new,) + pss[i + 1:]
+            return decide
+
+        def decide(carry, _):
+            s, pss, k = carry
+            k, sub = jax.random.split(k)
+            if len(policies) == 1:
+                action, pss = branch(0)(s, pss, sub)
+            else:
+                action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
+
+            def step(s, a):
+                s = env.step(s, a if per_step else action)
+                return s, s.pose
+
+            def span(s, a):  # log_every steps, then the log: the per-object log took 7 % of a
+                # paper session's step when taken every step, and metrics are written every sample_s
+                s, poses = jax.lax.scan(step, s, a, length=log_every)
+                return s, (env.log(s), poses)
+
+            actions = jax.tree.map(lambda a: a.reshape(spans, log_every, *a.shape[1:]), action) if per_step else None
+            s, logged = jax.lax.scan(span, s, actions, length=spans)
+            frame = None
+            if capture:
+                img, dep, lab = env.camera_rgbd(s)
+                frame = (img, lab.astype(jnp.int16)) + ((dep,) if depth else ())
+            return (s, pss, k), (logged, frame)
+
+        (state, pstates, key), ((logs, poses), frames) = jax.lax.scan(decide, (state, pstates, key), None,
+                                                                      length=decisions)
+        logs = jax.tree.map(lambda a: a.reshape(decisions * spans, *a.shape[2:]), logs)
+        return state, pstates, key, logs, poses.reshape(decisions * decide_every, 3), frames
+
+    return blocked(one, group.devices)
+
+
+def attach_frames(env: Env, knowledge, obj, label, conf):
+    """Fold detections (F, D) into ``knowledge`` frame by frame, in frame order."""
+
+    def body(k, d):
+        return env.sk.attach(k, *d), None
+
+    return jax.lax.scan(body, knowledge, (obj, label, conf))[0]
+
+
+def label_fn(group: Group):
+    """(stacked, blocks, labels, obj, label, conf (B, F, D)) -> labels after the frames and
+    the log's label fields after each frame (B, F, N) each."""
+
+    def one(stacked, block, k, obj, label, conf):
+        env, _ = _in_world(group, stacked, block)
+
+        def body(k, d):
+            k = env.sk.attach(k, *d)
+            return k, env.sk.label_fields(k)
+
+        return jax.lax.scan(body, k, (obj, label, conf))
+
+    return blocked(one, group.devices)
+
+
+class Compiled(NamedTuple):
+    reset: Any
+    chunk: Any
+    label: Any
+    log: Any
+    knowledge: Any
+
+
+class Simulation(NamedTuple):
+    """A group's results, real envs only, in row order. logs: ObjectLog (B, T / log_every +
+    1, N), at steps 0, log_every, 2 log_every, ...; poses (B, T + 1, 3) at every step;
+    knowledge: the final labelled knowledge (batched); timing; mappers: one PerceivedMapper
+    per env fed every detector frame, or None."""
+
+    logs: ObjectLog
+    poses: np.ndarray
+    knowledge: Any
+    timing: dict
+    mappers: list | None = None
+    log_every: int = 1
+
+
+def simulate(group: Group, total: int, per_call: int, decide_every: int, detectors: dict | None, bar,
+             clock: "CompileClock", perceive: bool = False, log_every: int = 1) -> Simulation:
+    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call, logging
+    every ``log_every`` steps (a divisor of ``decide_every``); with ``perceive`` (needs
+    detectors), also feed a perceived mapper per env."""
+    from rosmeery_jax.scoring.perceived import PerceivedMapper
+
+    b = group.size
+    capture = detectors is not None
+    mappers = [PerceivedMapper(group.config.camera) if real else None for real in group.real] if perceive else None
+    keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
+    k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
+    data, blocks = group.data, jnp.asarray(group.blocks)
+    if group.devices > 1:  # placed once: every call's arguments are then where they belong
+        whole, split = shardings(group.devices)
+        data, blocks = jax.device_put(data, whole), jax.device_put(blocks, split)
+    frames = per_call if capture else 0
+    empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1))[:3])
+    xla_before = dict(CompileClock._counts)
+    with clock:
+        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture, perceive, log_every),
+                       label_fn(group) if capture else None,
+                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st), group.devices),
+                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st), group.devices))
+        compiled_chunk = _compile_chunk(group, fns, data, blocks, (k_env, k_pol, k_run), empty)
+        state = fns.reset(data, blocks, k_env)
+        pstates = _init_policies(group, k_pol)
+        chunk = compiled_chunk(state, pstates)
+        first_log = fns.log(data, blocks, state)
+        labels = state.knowledge._replace(seen=jnp.zeros((b, 1), bool))  # the metrics' labels (no lag)
+        attach = fns.label.lower(data, blocks, labels, *empty).compile() if capture else None
+    pose0 = np.asarray(state.pose)
+    for run in group.runs:
+        run.host_policy.check_start(pose0[run.rows])
+    timing = {"envs": int(group.real.sum()), "padded_envs": b, "env_steps": 0, "frames": 0, "detector_s": 0.0, "mapper_s": 0.0,
+              "wait_s": 0.0}
+    holder = {"labels": labels}
+    pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
+    lock = threading.Lock()
+
+    def finish(c, logs, poses, shots):
+        """Worker: fetch chunk c, detect its frames, rebuild the log's label fields."""
+        logs, poses = jax.tree.map(np.asarray, logs), np.asarray(poses)
+        dets = None
+        if capture:
+            t0 = time.perf_counter()
+            dets = _detect(group, detectors, shots, c * per_call)
+            obj = dets[0]
+            if c == chunks - 1:  # the run's last frame counts from a step that never comes
+                obj = obj.copy()
+                obj[:, -1] = -1
+            holder["labels"], per_frame = attach(data, blocks, holder["labels"],
+                                                 *(jnp.asarray(d) for d in (obj, *dets[1:3])))
+            logs = _relabel(logs, per_frame, decide_every, log_every)
+            t1 = time.perf_counter()
+            if mappers:
+                _perceive(mappers, c * per_call, poses, shots[2], dets, decide_every)
+            with lock:
+                timing["detector_s"] += t1 - t0
+                timing["mapper_s"] += time.perf_counter() - t1
+                timing["frames"] += int(group.real.sum()) * per_call
+        bar.update(per_call * decide_every * group.env.dt)
+        done_steps = int(group.real.sum()) * (c + 1) * per_call * decide_every
+        bar.set_postfix_str(f"{done_steps / (time.perf_counter() - started):,.0f} env-steps/s")
+        return logs, poses, dets
+
+    started = time.perf_counter()
+    jobs, chunks = [], total // per_call
+    for c in range(chunks):
+        pending = empty
+        if capture and c >= 2:  # the detections of period c - 2 reach the robot now
+            jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
+            t1 = time.perf_counter()
+            pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2][:3])
+            timing["wait_s"] += time.perf_counter() - t1
+        state, pstates, k_run, logs, poses, shots = chunk(data, blocks, state, pstates, k_run, pending)
+        jobs.append(pool.submit(finish, c, logs, poses, shots))
+    done = [j.result() for j in jobs]
+    pool.shutdown()
+    timing["sim_s"] = time.perf_counter() - started
+    timing["env_steps"] = int(group.real.sum()) * total * decide_every
+    first = jax.tree.map(lambda a: np.asarray(a)[:, None], first_log)
+    logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d[0] for d in done])
+    poses = np.concatenate([pose0[:, None]] + [d[1] for d in done], axis=1)
+    knowledge = fns.knowledge(data, blocks, state)
+    timing["compiles"] = 1  # the chunk function: one per group
+    timing["xla_compiles"] = CompileClock._counts["compiles"] - xla_before["compiles"]
+    timing["cache_hits"] = CompileClock._counts["cache_hits"] - xla_before["cache_hits"]
+    if capture:
+        lab = holder["labels"]
+        knowledge = knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
+                                       conf_any=lab.conf_any)
+    keep = group.real
+    return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
+                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing,
+                      [m for m in mappers if m is not None] if mappers else None, log_every)
+
+
+def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: tuple, empty):
+    """A function (state, pstates) -> the compiled chunk function. On one device the compile
+    starts now, in a thread, from the arguments' shapes: XLA compiles without the GIL, so
+    the reset and the small helpers compile and run meanwhile (1-2 s less of a cold start).
+    On more, each device's copy compiles at the call (:class:`Replicas`, in parallel)."""
+    k_env, k_pol, k_run = keys
+    if group.devices > 1:
+        return lambda state, pstates: fns.chunk.lower(data, blocks, state, pstates, k_run, empty).compile()
+    state = jax.eval_shape(fns.reset, data, blocks, k_env)
+    strong = lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype)  # noqa: E731  (_init_policies gives numpy-made arrays)
+    pstates = tuple(jax.tree.map(strong, jax.eval_shape(p.init_batch, k_pol)) for p in group.policies)
+    pool = ThreadPoolExecutor(max_workers=1)
+    job = pool.submit(lambda: fns.chunk.lower(data, blocks, state, pstates, k_run, empty).compile())
+    pool.shutdown(wait=False)
+    return lambda *_: job.result()
+
+
+def _perceive(mappers: list, first_frame: int, poses: np.ndarray, depth, dets, decide_every: int) -> None:
+    """Feed each env's frames (F of this chunk; poses (B, steps, 3), depth (B, F, Hr, Wr))
+    and detections to its perceived mapper; a frame is taken at its decision's last step."""
+    depth = np.asarray(depth)
+    _, label, conf, box = dets
+    for r, mapper in enumerate(mappers):
+        if mapper is None:
+            continue
+        for f in range(depth.shape[1]):
+            mapper.add(first_frame + f, poses[r, (f + 1) * decide_every - 1], depth[r, f], box[r, f], label[r, f],
+                       conf[r, f])
+
+
+def _init_policies(group: Group, keys: jax.Array) -> tuple:
+    """The union of policy states (one slot per policy; B rows each): every row holds the
+    template's initial state, overwritten by its own run's policy in that policy's slot."""
+    out = []
+    for q, template in enumerate(group.policies):
+        full = jax.tree.map(np.array, template.init_batch(keys))
+        for run in group.runs:
+            if run.policy == q:
+                part = run.host_policy.init_batch(keys[run.rows])
+                jax.tree.map(lambda f, p: f.__setitem__(run.rows, np.asarray(p)), full, part)
+        out.append(jax.tree.map(jnp.asarray, full))
+    return tuple(out)
+
+
+def _no_detections(b: int, frames: int) -> tuple[np.ndarray, ...]:
+    """obj, label (B, F, D) int32 -1, conf (B, F, D) and box (B, F, D, 4) zeros: nothing."""
+    return (np.full((b, frames, MAX_DET), -1, np.int32), np.full((b, frames, MAX_DET), -1, np.int32),
+            np.zeros((b, frames, MAX_DET), np.float32), np.zeros((b, frames, MAX_DET, 4), np.float32))
+
+
+def _detect(group: Group, detectors: dict, shots, first_frame: int):
+    """Run each world's detector on its real envs' frames. Returns obj, label, conf
+    (B, F, D) and box (B, F, D, 4); padding envs get none. Worlds whose detectors share a
+    ``network`` (the YOLO weights) share one pass over all their frames: the last batch of
+    each world alone would be mostly padding."""
+    from rosmeery_jax.detector.detections import pad
+
+    rgb, seg = (np.asarray(a) for a in shots[:2])  # (B, F, H, W, 3), (B, F, H, W)
+    b, f = rgb.shape[:2]
+    obj, label, conf, box = _no_detections(b, f)
+    rows = {w: r for w in detectors if len(r := np.flatnonzero(group.real & (group.world == w)))}
+    images = {w: rgb[r].reshape(-1, *rgb.shape[2:]) for w, r in rows.items()}
+    frames = {w: seg[r].reshape(-1, *seg.shape[2:]).astype(np.int32) for w, r in rows.items()}
+    passes: dict = {}  # a shared network, or the world alone -> its worlds
+    for w in rows:
+        passes.setdefault(getattr(detectors[w], "network", None) or w, []).append(w)
+    found = {}
+    for worlds in passes.values():
+        if len(worlds) == 1:
+            w, r = worlds[0], rows[worlds[0]]
+            ids = np.stack(np.meshgrid(group.seed[r], first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
+            found[w] = detectors[w](images[w], frames[w], ids)
+            continue
+        raw = detectors[worlds[0]].raw(np.concatenate([images[w] for w in worlds]))
+        for w, start in zip(worlds, np.cumsum([0] + [len(images[w]) for w in worlds])):
+            found[w] = detectors[w].finish(raw[start:start + len(images[w])], frames[w])
+    for w, r in rows.items():
+        for i, row in enumerate(r):
+            obj[row], label[row], conf[row], box[row] = pad(found[w][i * f:(i + 1) * f], f, MAX_DET)
+    return obj, label, conf, box
+
+
+def _relabel(logs: ObjectLog, per_frame, decide_every: int, log_every: int = 1) -> ObjectLog:
+    """Rewrite the chunk's label fields (B, n, N), one row after every ``log_every``-th
+    step, from the step after each frame on: a frame taken at the end of decision f counts
+    from decision f + 1 (before the chunk's first frame, the labels the previous chunk
+    ended with)."""
+    step = (np.arange(logs.ps.shape[1]) + 1) * log_every - 1  # each row's step in the chunk, from 0
+    frame_of_step = step // decide_every - 1
+    take = frame_of_step >= 0
+    updates = {}
+    for name, values in zip(LABEL_FIELDS, per_frame):
+        new = getattr(logs, name).copy()
+        new[:, take] = np.asarray(values)[:, frame_of_step[take]].astype(new.dtype)
+        updates[name] = new
+    return logs._replace(**updates)
+
+
+class CompileClock:
+    """Seconds spent tracing and compiling inside ``with clock:`` (with the first calls of
+    the small helpers), and every XLA compile counted by JAX's monitoring events (hits of
+    the persistent compilation cache too)."""
+
+    _counts = {"compiles": 0, "cache_hits": 0}
+    _listening = False
+
+    def __init__(self):
+        self.seconds = 0.0
+        if not CompileClock._listening:
+            jax.monitoring.register_event_duration_secs_listener(CompileClock._on_duration)
+            jax.monitoring.register_event_listener(CompileClock._on_event)
+            CompileClock._listening = True
+
+    @staticmethod
+    def _on_duration(event: str, seconds: float, **kw) -> None:
+        if event == "/jax/core/compile/backend_compile_duration":
+            CompileClock._counts["compiles"] += 1
+
+    @staticmethod
+    def _on_event(event: str, **kw) -> None:
+        if event == "/jax/compilation_cache/cache_hits":
+            CompileClock._counts["cache_hits"] += 1
+
+    def __enter__(self):
+        self._t = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds += time.perf_counter() - self._t
+        return False
