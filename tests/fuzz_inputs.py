@@ -79,7 +79,7 @@ def load_world_file(path: Path):
 
 
 def load_session_config(path: Path):
-    from rosmeery_jax.session.runner import load_config
+    from rosmeery_jax.session import load_config
 
     return load_config(path, out=str(path.parent / "never_written"))
 

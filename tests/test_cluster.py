@@ -161,7 +161,7 @@ def test_more_devices_than_there_are_is_one_clear_line(world, tmp_path, capsys, 
 def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp_path):
     pytest.importorskip("ray")
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.session.runner import Session, SessionConfig
+    from rosmeery_jax.session import Session, SessionConfig
 
     cfg = SessionConfig(worlds=(world,), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
     with pytest.raises(InputError, match="--devices.*not with --cluster"):

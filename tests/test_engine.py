@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.session.runner import engine
+from rosmeery_jax.session import engine
 
 from rosmeery_jax.scoring import results
 from rosmeery_jax.apps.cli import compilation_cache, main

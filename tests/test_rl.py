@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import room_xml
+from rosmeery_jax.rl import network, ppo
 from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, goal, goal_offsets, score
 
 BODIES_A = """
@@ -172,7 +173,6 @@ def _train_config(worlds, **ppo):
 @pytest.fixture(scope="module")
 def trained(worlds, tmp_path_factory):
     """An uninterrupted run (its policy file serves the session test)."""
-    from rosmeery_jax.rl.env import ppo
 
     out = tmp_path_factory.mktemp("train") / "whole"
     ppo.train(_train_config(worlds), out, progress=False)
@@ -180,7 +180,6 @@ def trained(worlds, tmp_path_factory):
 
 
 def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_path, monkeypatch):
-    from rosmeery_jax.rl.env import ppo
 
     out = tmp_path / "interrupted"
     real = ppo.make_update
@@ -202,8 +201,8 @@ def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_pat
     assert len(ppo.read_curve(out)) == 2 and not (out / "policy.msgpack").exists()
     monkeypatch.setattr(ppo, "make_update", real)
     ppo.train(_train_config(worlds), out, resume=True, progress=False)
-    _, _, whole = ppo.load_policy(trained / "policy.msgpack")
-    _, _, resumed = ppo.load_policy(out / "policy.msgpack")
+    _, _, whole = network.load_policy(trained / "policy.msgpack")
+    _, _, resumed = network.load_policy(out / "policy.msgpack")
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     keep = ["update", "env_steps", "return", "loss", "entropy"]
@@ -213,7 +212,6 @@ def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_pat
 def test_resume_refuses_another_configuration(worlds, trained, tmp_path):
     import shutil
 
-    from rosmeery_jax.rl.env import ppo
     from rosmeery_jax.core.errors import InputError
 
     out = tmp_path / "copy"
@@ -227,7 +225,6 @@ def test_resume_refuses_another_configuration(worlds, trained, tmp_path):
 def test_a_short_training_run_raises_the_return(trained):
     """30 updates on the two rooms: the mean episode return of the last 8 updates beats the
     first 8 (the policy learns to pick goal cells it can reach and that show new surface)."""
-    from rosmeery_jax.rl.env import ppo
 
     curve = ppo.read_curve(trained)
     assert list(curve["update"]) == list(range(1, 31))
@@ -264,11 +261,10 @@ def test_a_bad_policy_file_is_one_line(worlds, tmp_path, capsys):
 
 
 def test_the_shipped_policy_loads():
-    from rosmeery_jax.rl.env import ppo
     from rosmeery_jax.policies.learned import SHIPPED
 
-    rl, _, params = ppo.load_policy(SHIPPED)
-    logits, value = ppo.ActorCritic(rl.actions).apply(params, _blank_obs(rl))
+    rl, _, params = network.load_policy(SHIPPED)
+    logits, value = network.ActorCritic(rl.actions).apply(params, _blank_obs(rl))
     assert logits.shape == (rl.actions,) and value.shape == ()
 
 

@@ -17,20 +17,31 @@ so the figure is that batch's alone.
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import mujoco
 import numpy as np
-
-from rosmeery_jax.sim import grid
+from mujoco import rollout
 
 from rosmeery_jax.core import xla
+from rosmeery_jax.env import make
+from rosmeery_jax.session import Session, SessionConfig
+from rosmeery_jax.session.engine import Replicas
+from rosmeery_jax.sim import grid, occupancy
+from rosmeery_jax.sim.navigation import IDLE
+from rosmeery_jax.sim.sensors import camera_rays, depth_seg, laser, laser_dirs
 
 
 @dataclass(frozen=True)
@@ -58,8 +69,6 @@ def random_targets(world, n: int, seed: int) -> np.ndarray:
 
 def _timed(fn, *args, repeats: int) -> tuple[float, list[float], object]:
     """(first-call seconds, steady-call seconds, last output) of a jitted fn."""
-    import jax
-
     t = time.perf_counter()
     out = jax.block_until_ready(fn(*args))
     first = time.perf_counter() - t
@@ -73,8 +82,6 @@ def _timed(fn, *args, repeats: int) -> tuple[float, list[float], object]:
 
 def _rollout(env, steps: int):
     """(state (B, ...), targets (B, 3)) -> state after ``steps`` full steps (not jitted)."""
-    import jax
-
     def run(state, targets):
         def body(s, _):
             return jax.vmap(env.step)(s, targets), None
@@ -92,11 +99,6 @@ def env_throughput(env, batch: int, cfg: BenchConfig, devices: int = 1) -> dict:
     """Full-step env-steps/s and compile time at one batch size, the batch split evenly over
     ``devices`` (each runs the one-device program on its share, as sessions do:
     ``engine.Replicas``); also returns the final state."""
-    import jax
-    import jax.numpy as jnp
-
-    from rosmeery_jax.session.engine import Replicas
-
     keys = jax.random.split(jax.random.key(cfg.seed), batch)
     state = xla.jit(jax.vmap(env.reset))(keys)
     targets = jnp.asarray(random_targets(env.world, batch, cfg.seed))
@@ -119,13 +121,6 @@ def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
     alone, fed the previous stage's output and waited for, for ``steps`` steps. The parts
     add up to a step done in pieces; set against the fused step they show what fusing the
     stages into one program gains or loses."""
-    import jax
-    import jax.numpy as jnp
-
-    from rosmeery_jax.sim import occupancy
-    from rosmeery_jax.sim.navigation import IDLE
-    from rosmeery_jax.sim.sensors import depth_seg, laser
-
     c = env.config
     targets = jnp.asarray(random_targets(env.world, state.pose.shape[0], cfg.seed + 1))
 
@@ -172,11 +167,6 @@ def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
 
 def cull_error(env, poses) -> float:
     """Share of camera pixels whose label differs between the culled and the all-box cast."""
-    import jax
-    from dataclasses import replace
-
-    from rosmeery_jax.sim.sensors import depth_seg
-
     full = replace(env.config.camera, cull=0)
     _, a = xla.jit(jax.vmap(lambda p: depth_seg(env.rays, env.config.camera, p)))(poses)
     _, b = xla.jit(jax.vmap(lambda p: depth_seg(env.rays, full, p)))(poses)
@@ -185,11 +175,6 @@ def cull_error(env, poses) -> float:
 
 def mujoco_peer(env, batch: int, cfg: BenchConfig, threads: int) -> dict:
     """C MuJoCo physics (rollout) + mj_multiRay for the same sensors: env-steps/s."""
-    import mujoco
-    from mujoco import rollout
-
-    from rosmeery_jax.sim.sensors import camera_rays, laser_dirs
-
     m = env.mj_model
     rc = env.config.robot
     nstep = cfg.steps * rc.substeps
@@ -250,11 +235,6 @@ def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.nd
     """Our env-steps/s on the peer's work: physics under controls of the same magnitudes as
     the peer's, then the same laser and camera rays from the peer's poses (no mapping,
     navigation or coverage)."""
-    import jax
-    import jax.numpy as jnp
-
-    from rosmeery_jax.sim.sensors import depth_seg, laser
-
     c = env.config
 
     @xla.jit
@@ -279,12 +259,6 @@ def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.nd
 def session_rate(world_names=None, duration: float = 20.0, detector: str = "yolo") -> dict:
     """End to end: a short default session (the four worlds x frontier, random x 5 seeds)
     including set-up and compile (the persistent cache counts as it would for a user)."""
-    import json
-    import tempfile
-    from pathlib import Path
-
-    from rosmeery_jax.session.runner import Session, SessionConfig
-
     try:
         import torch  # noqa: F401
     except ImportError:
@@ -321,8 +295,6 @@ def detector_bench(env, state, decide_every: int = 10, env_rate: float | None = 
     of B frames rendered from the batch's poses), the cost of rendering those frames, and the
     detector's estimated share of a default session's wall time (one frame per env per
     decision, ``decide_every`` steps at ``env_rate`` env-steps/s)."""
-    import jax
-
     try:
         from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
     except ImportError:
@@ -349,10 +321,6 @@ def detector_bench(env, state, decide_every: int = 10, env_rate: float | None = 
 
 
 def run_bench(cfg: BenchConfig, progress=print) -> dict:
-    import jax
-
-    from rosmeery_jax.env import make
-
     env = make(cfg.world)
     threads = os.cpu_count() or 1
     result: dict = {"world": cfg.world, "steps_per_chunk": cfg.steps, "cores": threads,

@@ -7,20 +7,41 @@ from __future__ import annotations
 
 import argparse
 import json
+import socket
 import sys
+import time
 from pathlib import Path
 
+import jax
+import numpy as np
+import pandas as pd
+
+from rosmeery_jax.apps.bench import BenchConfig, format_table, run_bench
+from rosmeery_jax.apps.record import RecordConfig, record
+from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.detector import dataset
+from rosmeery_jax.detector import evaluate as detector_eval
+from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+from rosmeery_jax.env import make
+from rosmeery_jax.rl import ppo
+from rosmeery_jax.scoring import evaluate as map_eval
+from rosmeery_jax.scoring import metrics, plots, results
+from rosmeery_jax.scoring.align import to_world
+from rosmeery_jax.scoring.pose_replay import read_poses, replay
+from rosmeery_jax.scoring.semantic_map import write_semantic_map
+from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
+from rosmeery_jax.session import Session, load_config
+from rosmeery_jax.world import load_world, world_names
+from rosmeery_jax.world.draw import save_world_picture
+from rosmeery_jax.world.generate import GenOptions, check_options, expand_names, generate, write_world
+from rosmeery_jax.world.stats import stats_table, summary, world_names_in
 
 
 def _cmd_worlds(args) -> int:
-    from rosmeery_jax.world import load_world, world_names
-
     worlds = [load_world(n) for n in world_names()]
     summaries = [w.summary() for w in worlds]
     if args.pictures:
-        from rosmeery_jax.world.draw import save_world_picture
-
         for w, s in zip(worlds, summaries):
             s["picture"] = str(save_world_picture(w, Path(args.pictures) / f"{w.name}.png"))
     if args.json:
@@ -38,10 +59,6 @@ def _cmd_worlds(args) -> int:
 
 
 def _cmd_worlds_generate(args) -> int:
-    import time
-
-    from rosmeery_jax.world.generate import GenOptions, check_options, generate, write_world
-
     if args.count < 1:
         raise InputError("command line", "--count", f"{args.count}: at least 1")
     check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter), "command line")
@@ -57,8 +74,6 @@ def _cmd_worlds_generate(args) -> int:
     print(f"wrote {len(paths)} {args.kind} worlds to {out}/ in {total_s:.2f} s "
           f"({1000 * gen_s / len(paths):.1f} ms per world to generate, the rest writing)")
     if args.check:
-        from rosmeery_jax.world import load_world
-
         t1 = time.perf_counter()
         for p in paths:
             load_world(p)  # a world that fails the loader's validation stops here, in one line
@@ -67,8 +82,6 @@ def _cmd_worlds_generate(args) -> int:
 
 
 def _cmd_worlds_stats(args) -> int:
-    from rosmeery_jax.world.stats import stats_table, summary, world_names_in
-
     names = world_names_in(args.worlds)
     table, cats = stats_table(names)
     if args.csv:
@@ -84,9 +97,6 @@ def _cmd_worlds_stats(args) -> int:
 
 
 def _cmd_world_show(args) -> int:
-    from rosmeery_jax.world import load_world
-    from rosmeery_jax.world.draw import save_world_picture
-
     world = load_world(args.world)
     out = save_world_picture(world, args.out)
     print(f"wrote {out} ({world.title}: {world.truth.num_objects} objects)")
@@ -104,10 +114,6 @@ def _int_list(text: str) -> tuple[int, ...]:
 
 
 def _cmd_bench(args) -> int:
-    from rosmeery_jax.apps.bench import BenchConfig, format_table, run_bench
-    from rosmeery_jax.session.runner import cores, host_devices
-    from rosmeery_jax.world import load_world
-
     if args.devices < 0:
         raise InputError("command line", "--devices", f"{args.devices} must be >= 0 (0: one per core)")
     host_devices(args.devices or cores())  # before JAX starts
@@ -121,13 +127,6 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    import jax
-
-    from rosmeery_jax.scoring import metrics, results
-    from rosmeery_jax.env import make
-    from rosmeery_jax.scoring.semantic_map import write_semantic_map
-    from rosmeery_jax.scoring.pose_replay import read_poses, replay
-
     times, poses = read_poses(args.poses)
     names = metrics.resolve(args.metrics.split(",")) if args.metrics else metrics.DEFAULT_METRICS
     out = Path(args.out)
@@ -155,8 +154,6 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_run(args) -> int:
-    from rosmeery_jax.session.runner import Session, load_config
-
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
@@ -169,10 +166,6 @@ def _cmd_run(args) -> int:
 
 
 def _print_summary(out: Path) -> None:
-    import pandas as pd
-
-    from rosmeery_jax.scoring import metrics, results
-
     df = results.load(out)
     df["policy"] = df.policy.where(df.mapper == "oracle", df.policy + " [" + df.mapper + "]")
     print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final':>14}{'auc':>8}{'t90 s':>8}")
@@ -197,16 +190,11 @@ def _print_summary(out: Path) -> None:
 
 
 def _cmd_detector_dataset(args) -> int:
-    from rosmeery_jax.detector.dataset import DatasetConfig, write
-    from rosmeery_jax.world import load_world
-
-    from rosmeery_jax.world.generate import expand_names
-
     worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
-    cfg = DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
-    summary = write(cfg, args.out, progress=not args.quiet)
+    cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
+    summary = dataset.write(cfg, args.out, progress=not args.quiet)
     print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
           f"{summary['boxes']['train']} / {summary['boxes']['val']} boxes")
     return 0
@@ -223,24 +211,19 @@ def _cmd_detector_train(args) -> int:
 
 
 def _cmd_detector_eval(args) -> int:
-    import numpy as np
-
     from rosmeery_jax.detector import checkpoint
-    from rosmeery_jax.detector.dataset import DatasetConfig, generate, read
-    from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
-    from rosmeery_jax.detector.evaluate import evaluate
 
     weights = Path(args.weights) if args.weights else DEFAULT_WEIGHTS
     model = checkpoint.load(weights)
     if args.data:
-        images, rows, _ = read(args.data, "val")
+        images, rows, _ = dataset.read(args.data, "val")
         source = f"{args.data} (val)"
     else:  # the held-out viewpoints of the default dataset, rendered now (deterministic)
-        frames = list(generate(DatasetConfig(), splits=("val",), progress=False))
+        frames = list(dataset.generate(dataset.DatasetConfig(), splits=("val",), progress=False))
         images = np.stack([f[3] for f in frames])
         rows = [f[4] for f in frames]
         source = "default dataset, held-out viewpoints (rendered now)"
-    r = evaluate(model, images, rows)
+    r = detector_eval.evaluate(model, images, rows)
     names = model.names
     if args.json:
         print(json.dumps({"weights": str(weights), "data": source, "images": len(images), "map50": r["map50"],
@@ -258,14 +241,8 @@ def _cmd_detector_eval(args) -> int:
 
 
 def _cmd_teleop(args) -> int:
-    import socket
-    import time as _time
-
-    from rosmeery_jax.apps.teleop.server import Teleop, serve
-    from rosmeery_jax.world import load_world
-
     load_world(args.world)  # a bad name fails here, in one line
-    record = Path(args.record or f"recordings/{Path(args.world).stem}-{_time.strftime('%Y%m%d-%H%M%S')}.jsonl")
+    record = Path(args.record or f"recordings/{Path(args.world).stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     if record.exists():
         raise InputError(str(record), "--record", "exists already: recordings are never overwritten")
     try:  # the port is checked before a minute of compiling, and before the recording exists
@@ -296,20 +273,15 @@ def _cmd_teleop(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    from rosmeery_jax.scoring import results
-    from rosmeery_jax.scoring.align import to_world
-    from rosmeery_jax.scoring.evaluate import evaluate, read_map
-    from rosmeery_jax.world import load_world
-
     if not args.tolerance > 0:
         raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
     world = load_world(args.world)
-    maps = [read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
+    maps = [map_eval.read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
     maps, frame = to_world(world, maps, args.transform, args.align)
     if frame and frame["source"] == "icp":
         print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
               f"{100 * frame['inliers']:.0f}% of points, {frame['iterations']} iterations")
-    metric_df, objects, classes, summary = evaluate(world, maps, args.tolerance, args.name)
+    metric_df, objects, classes, summary = map_eval.evaluate(world, maps, args.tolerance, args.name)
     if frame:
         summary["alignment"] = frame
     out = Path(args.out)
@@ -325,8 +297,6 @@ def _cmd_evaluate(args) -> int:
 
 
 def _cmd_record(args) -> int:
-    from rosmeery_jax.apps.record import RecordConfig, record
-
     seeds = args.seeds if args.seed is None else [args.seed]
     cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate)
     folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
@@ -337,8 +307,6 @@ def _cmd_record(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from rosmeery_jax.rl.env import ppo
-
     cfg = ppo.load_config(args.config)
     out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
     curve = ppo.read_curve(out)
@@ -350,8 +318,6 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_plot(args) -> int:
-    from rosmeery_jax.scoring import plots, results
-
     d = Path(args.dir)
     written = plots.plot_results(results.load(d), d / "plots")
     print(f"wrote {len(written)} plots to {d / 'plots'}")
@@ -526,23 +492,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", metavar="DIR")
     p.set_defaults(func=_cmd_plot)
     return parser
-
-
-def compilation_cache(enabled: bool) -> str | None:
-    """Turn JAX's persistent compilation cache on (a rerun loads its compiled functions in
-    seconds instead of compiling them again) in ``$JAX_COMPILATION_CACHE_DIR``, else
-    ``$XDG_CACHE_HOME/rosmeery-jax/jax`` (``~/.cache/...``); or off. Returns the folder."""
-    import os
-
-    import jax
-
-    if not enabled:
-        jax.config.update("jax_enable_compilation_cache", False)
-        return None
-    folder = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(
-        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rosmeery-jax" / "jax")
-    jax.config.update("jax_compilation_cache_dir", folder)
-    return folder
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,6 +39,8 @@ from scipy.spatial.transform import Rotation
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.env import make
+from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.sim.sensors import CameraConfig, laser, laser_dirs, rgbd
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
@@ -78,8 +80,6 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     """Record the runs of ``policy`` in ``world`` for ``seeds`` (a count: seeds 0..n-1, or a
     list of seeds) into ``out`` (module docstring); returns the seed folders. Seeds 0 to the
     largest are simulated in one batch (a seed's run does not depend on its batch-mates)."""
-    from rosmeery_jax.session.runner import Session, SessionConfig
-
     out = Path(out)
     wanted = list(range(seeds)) if isinstance(seeds, int) else sorted(set(seeds))
     if not wanted or min(wanted) < 0:
@@ -104,8 +104,6 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
 
 def _env(world: str, session):
     """The env the session drove (same camera, laser and robot settings)."""
-    from rosmeery_jax.env import make
-
     return make(world, **{"labels": "observed", **session.env})
 
 

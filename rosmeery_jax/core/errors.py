@@ -20,18 +20,3 @@ class InputError(ValueError):
         location = f"{self.source}: {where}" if where else self.source
         super().__init__(f"{location}: {problem}".replace("\n", " "))
 
-
-def read_toml(path: str | Path) -> dict:
-    """A TOML file as a dict; a missing, non-UTF-8 or malformed file is one InputError."""
-    import tomllib
-
-    try:
-        return tomllib.loads(Path(path).read_bytes().decode("utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "file", "not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "file", "is a folder, not a TOML file") from None
-    except UnicodeDecodeError as err:
-        raise InputError(path, "file", f"not UTF-8 text (byte {err.start})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(path, "file", f"not valid TOML ({err})") from None

@@ -25,7 +25,18 @@ import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import cv2
+import jax
+import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
+
+from rosmeery_jax.core import xla
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.sim.raycast import ray_scene
+from rosmeery_jax.sim.sensors import CameraConfig, rgb
+from rosmeery_jax.world import load_world
+from rosmeery_jax.world.taxonomy import load_taxonomy
 
 
 @dataclass(frozen=True)
@@ -85,13 +96,6 @@ def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, 
                  camera=None):
     """RGB (P, H, W, 3) uint8 and labels (P, H, W) at robot poses (P, 3); ``rgb_scale``
     (P, G + 1, 3) multiplies each box's colour (last row: the floor) per frame."""
-    import jax
-    import jax.numpy as jnp
-
-    from rosmeery_jax.core import xla
-    from rosmeery_jax.sim.raycast import ray_scene
-    from rosmeery_jax.sim.sensors import CameraConfig, rgb
-
     cam = camera or CameraConfig()
     rs = ray_scene(world.scene)
     g = rs.num_boxes
@@ -144,11 +148,6 @@ def yolo_rows(labels: np.ndarray, categories: np.ndarray, min_pixels: int) -> np
 
 def generate(cfg: DatasetConfig, splits: tuple[str, ...] = ("train", "val"), progress: bool = True):
     """Yield (split, world name, index, rgb (H, W, 3) uint8, rows (k, 5)) frame by frame."""
-    from tqdm.auto import tqdm
-
-    from rosmeery_jax.sim.raycast import ray_scene
-    from rosmeery_jax.world import load_world
-
     for w_i, name in enumerate(cfg.worlds):
         world = load_world(name)
         rng = np.random.default_rng([cfg.seed, w_i])
@@ -168,11 +167,6 @@ def generate(cfg: DatasetConfig, splits: tuple[str, ...] = ("train", "val"), pro
 
 def write(cfg: DatasetConfig, out: str | Path, progress: bool = True) -> dict:
     """Render the dataset into ``out`` (see the module docstring); returns its summary."""
-    import cv2
-
-    from rosmeery_jax.sim.sensors import CameraConfig
-    from rosmeery_jax.world.taxonomy import load_taxonomy
-
     out = Path(out)
     counts = {"train": 0, "val": 0}
     boxes = {"train": 0, "val": 0}
@@ -194,10 +188,6 @@ def write(cfg: DatasetConfig, out: str | Path, progress: bool = True) -> dict:
 
 def read(root: str | Path, split: str) -> tuple[np.ndarray, list[np.ndarray], dict]:
     """Load a written split: images (I, H, W, 3) uint8 RGB, label rows per image, data.json."""
-    import cv2
-
-    from rosmeery_jax.core.errors import InputError
-
     root = Path(root)
     meta_path = root / "data.json"
     if not meta_path.is_file():

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+from tqdm.auto import tqdm
 
 from rosmeery_jax.detector import checkpoint
 from rosmeery_jax.detector.dataset import read
@@ -100,8 +101,6 @@ def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator):
 def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), progress: bool = True) -> dict:
     """Train on ``data`` (a dataset folder), write ``out`` (weights) and ``out``'s log.csv
     beside it; returns the best validation result."""
-    from tqdm.auto import tqdm
-
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)

@@ -31,6 +31,7 @@ from rosmeery_jax.sim.robot import Platform, robot_model
 from rosmeery_jax.sim.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
 from rosmeery_jax.world import World, WorldConfig, load_world
 
+
 class State(NamedTuple):
     """One env's state (add a leading B axis under vmap).
 

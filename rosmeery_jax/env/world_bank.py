@@ -1,6 +1,6 @@
 """A world bank: many worlds padded to common sizes and stacked along a world axis, so one
 compiled function steps any of them (training on many procedural scenes, sweeps over
-held-out ones). The session engine does the same for a session's worlds.
+held-out ones, a session's worlds).
 
     bank = world_bank(["procedural:office:0-15"])
     step = rosmeery_jax.jit(jax.vmap(lambda i, s, a: bank.env_at(i).step(s, a)))   # W worlds, one compile
@@ -17,6 +17,7 @@ from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.environment import Env
 from rosmeery_jax.world import World, WorldConfig, load_world
+from rosmeery_jax.world.generate import expand_names
 
 
 class WorldBank(NamedTuple):
@@ -35,11 +36,14 @@ class WorldBank(NamedTuple):
         """The env in world ``index`` (an int or a traced int32 scalar)."""
         return self.env.with_data(wd.pick(self.data, index))
 
+    def envs(self) -> list[Env]:
+        """One host-side env per world at the bank's padded sizes (its world, truth and
+        model), for code that needs more than the world's data."""
+        return [self.env] + [Env(w, self.env.config, self.env.sizes) for w in self.worlds[1:]]
+
 
 def world_bank(names, config: EnvConfig | None = None) -> WorldBank:
     """Load ``names`` (built-in names, paths or ``procedural:KIND:A-B`` ranges) into a bank."""
-    from rosmeery_jax.world.generate import expand_names
-
     config = config or EnvConfig()
     names = tuple(expand_names(list(names)))
     if not names:

@@ -32,7 +32,6 @@ from rosmeery_jax.sim.raycast import CHUNK, RayScene, crosses_plane, ray_scene
 from rosmeery_jax.sim.robot import PROXY_FIELDS, RobotConfig, near_model, proxy_boxes, robot_model
 from rosmeery_jax.world import World
 
-
 NEVER = 2.0 ** 30  # ps_G of a padding object: no observed share ever names it
 # The MJX model fields that differ between worlds of one padded structure. Only these are
 # data; the rest of the model (the robot, solver settings) stays a compile-time constant,

@@ -17,10 +17,10 @@ trained explorer shipped in the package; ``learned:PATH`` for a policy file of
 from __future__ import annotations
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.policies import learned
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
-from rosmeery_jax.policies import learned
 from rosmeery_jax.policies.learned import LearnedPolicy
 from rosmeery_jax.policies.random_walk import RandomPolicy
 from rosmeery_jax.policies.replay import PREFIX as REPLAY_PREFIX

@@ -9,7 +9,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.sim.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE, IDLE
+from rosmeery_jax.sim.navigation import IDLE, REACHED, STUCK, TIMEOUT, UNREACHABLE
 
 
 class Policy(ABC):

@@ -40,10 +40,11 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from rosmeery_jax.sim import coverage, grid, occupancy
-from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
 from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
+from rosmeery_jax.rl.env import surface_maps
+from rosmeery_jax.sim import coverage, grid, occupancy
+from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
 
 
 class GradientNBVState(NamedTuple):
@@ -109,8 +110,6 @@ class GradientNBVPolicy(Policy):
     def belief(self, state) -> tuple[SampleTable, jax.Array]:
         """Belief points (a SampleTable of Hc * Wc points, one per coarse cell) and which
         cells hold one (Hc * Wc,) float: weight them by ``1 - viewed``."""
-        from rosmeery_jax.rl.env import surface_maps
-
         surface, labelled = surface_maps(self.env, self.env.labelled_knowledge(state))  # (H, W) observed / labelled object surface
         near = grid.block_any(labelled > 0, self.f)
         for _ in range(self.grow_object):

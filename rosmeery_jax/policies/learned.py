@@ -18,6 +18,8 @@ from pathlib import Path
 import jax
 
 from rosmeery_jax.policies.base import Policy
+from rosmeery_jax.rl.env import crop_offsets, goal, goal_offsets, observe
+from rosmeery_jax.rl.network import ActorCritic, load_policy
 
 PREFIX = "learned:"
 SHIPPED = Path(__file__).resolve().parent / "learned_policy.msgpack"
@@ -40,9 +42,6 @@ def label(spec: str) -> str:
 
 class LearnedPolicy(Policy):
     def __init__(self, env, spec: str = "learned"):
-        from rosmeery_jax.rl.ppo import ActorCritic, load_policy
-        from rosmeery_jax.rl.env import crop_offsets, goal_offsets
-
         super().__init__(env)
         self.name = label(spec)
         rl, _, self.params = load_policy(policy_file(spec))
@@ -50,7 +49,5 @@ class LearnedPolicy(Policy):
         self.offsets, self.crop_xy = goal_offsets(rl), crop_offsets(rl)
 
     def decide(self, state, pstate, key):
-        from rosmeery_jax.rl.env import goal, observe
-
         logits, _ = self.net.apply(self.params, observe(self.env, state, self.crop_xy))
         return goal(state.pose, jax.random.categorical(key, logits), self.offsets), pstate

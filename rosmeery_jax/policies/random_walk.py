@@ -13,8 +13,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.sim import occupancy
 from rosmeery_jax.policies.base import Policy, needs_target
+from rosmeery_jax.sim import occupancy
 
 
 class RandomPolicy(Policy):

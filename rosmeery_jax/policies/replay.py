@@ -20,6 +20,7 @@ import numpy as np
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
+from rosmeery_jax.policies.recording import check_world, read
 
 PREFIX = "replay:"
 
@@ -40,8 +41,6 @@ def replay_files(spec: str) -> list[Path]:
 
 def recordings_by_world(spec: str) -> dict:
     """{world name: [Recording, ...]} of a ``replay:`` entry (each file read and checked)."""
-    from rosmeery_jax.policies.recording import read
-
     by_world: dict = {}
     for f in replay_files(spec):
         rec = read(f)
@@ -54,8 +53,6 @@ class ReplayPolicy(Policy):
     per_step = True
 
     def __init__(self, env, spec: str, steps_per_decision: int, total_steps: int):
-        from rosmeery_jax.policies.recording import check_world
-
         super().__init__(env)
         self.recordings = recordings_by_world(spec).get(env.world.name, [])
         for rec in self.recordings:

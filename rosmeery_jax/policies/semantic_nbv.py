@@ -22,10 +22,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.sim import occupancy
-from rosmeery_jax.sim import grid
 from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
+from rosmeery_jax.sim import grid, occupancy
 
 
 class NBVState(NamedTuple):

@@ -39,12 +39,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.sim import coverage, occupancy
-from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env import Env, State
+from rosmeery_jax.env import world_data as wd
+from rosmeery_jax.env.world_bank import WorldBank
+from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.grid import wrap_angle
 from rosmeery_jax.sim.navigation import STUCK, TIMEOUT, UNREACHABLE
-from rosmeery_jax.env.world_bank import WorldBank
 
 REWARDS = ("ori", "cori", "coverage")
 

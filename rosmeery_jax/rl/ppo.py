@@ -5,9 +5,7 @@ call (rollout, advantages and every epoch and minibatch inside it).
     cfg = load_config("experiments/learned/ppo.toml")
     train(cfg, out="results/train")          # checkpoints, curve.csv, curve.png, policy.msgpack
 
-The network: three stride-2 3x3 convolutions (16, 32, 32 channels) over the map crops
-(C, C, 4), flattened, joined with the pose features, one 128-unit dense layer, then the
-policy logits (G*G goal cells) and the value. Actions are sampled from the softmax.
+The network and the policy file are in :mod:`.network`.
 
 Files in the output folder: ``config.json`` (the run's whole configuration; ``--resume``
 needs the same), ``checkpoint.msgpack`` (everything the next update needs: parameters,
@@ -22,25 +20,27 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import pandas as pd
 from flax import serialization
 from flax.training.train_state import TrainState
+from tqdm import tqdm
 
-from rosmeery_jax.scoring import results
-
+from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import xla
-from rosmeery_jax.core.errors import InputError, read_toml
-from rosmeery_jax.rl.env import ExplorationEnv, Obs, RLConfig
-
-POLICY_FORMAT = "rosmeery-learned-1"
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import claim_folder, require_same, write_atomic
+from rosmeery_jax.env import EnvConfig, world_bank
+from rosmeery_jax.rl.env import REWARDS, ExplorationEnv, Obs, RLConfig
+from rosmeery_jax.rl.network import ActorCritic, save_policy
+from rosmeery_jax.scoring.plots import learning_curve
 
 
 @dataclass(frozen=True)
@@ -77,28 +77,28 @@ def load_config(path: str | Path | None, **overrides) -> TrainConfig:
     """The training configuration of a TOML file (``worlds``, tables ``[ppo]``, ``[rl]``,
     ``[env]``), with ``overrides`` (``ppo__updates=5``) on top; one InputError naming the
     file and field for anything wrong."""
-    from rosmeery_jax.core import overrides as ov
-
     source = str(path) if path else "command line"
-    raw = read_toml(path) if path else {}
-    cfg = TrainConfig()
-    worlds = raw.pop("worlds", None)
-    if worlds is not None:
-        if not isinstance(worlds, list) or not worlds or not all(isinstance(w, str) and w for w in worlds):
-            raise InputError(source, "worlds", "must be a non-empty list of world names")
-        cfg = replace(cfg, worlds=tuple(worlds))
-    env = raw.pop("env", {})
-    if not isinstance(env, dict):
-        raise InputError(source, "env", "must be a table of EnvConfig overrides")
-    cfg = replace(ov.apply(cfg, {**raw, **overrides}, source), env=env)
+    cfg = config_loader.load(TrainConfig(), path or None, overrides, prepare=_prepare)
     _check(cfg, source)
     return cfg
 
 
-def _check(cfg: TrainConfig, source: str) -> None:
-    from rosmeery_jax.env import EnvConfig
-    from rosmeery_jax.rl.env import REWARDS
+def _prepare(values: dict, source: str) -> dict:
+    """``worlds`` (a non-empty list of names) and ``env`` (a free table), taken out of ``values``."""
+    given = {}
+    worlds = values.pop("worlds", None)
+    if worlds is not None:
+        if not isinstance(worlds, list) or not worlds or not all(isinstance(w, str) and w for w in worlds):
+            raise InputError(source, "worlds", "must be a non-empty list of world names")
+        given["worlds"] = tuple(worlds)
+    env = values.pop("env", {})
+    if not isinstance(env, dict):
+        raise InputError(source, "env", "must be a table of EnvConfig overrides")
+    given["env"] = env
+    return given
 
+
+def _check(cfg: TrainConfig, source: str) -> None:
     EnvConfig().with_overrides(source, **cfg.env)
     p = cfg.ppo
     for section, names in (("ppo", ("num_envs", "num_steps", "updates", "update_epochs", "minibatches",
@@ -117,23 +117,6 @@ def _check(cfg: TrainConfig, source: str) -> None:
     for name in ("gamma", "gae_lambda"):
         if not 0 < getattr(p, name) <= 1:
             raise InputError(source, f"ppo.{name}", "must be in (0, 1]")
-
-
-class ActorCritic(nn.Module):
-    """(Obs with leading axes) -> (logits (..., A), value (...,))."""
-
-    actions: int
-
-    @nn.compact
-    def __call__(self, obs: Obs):
-        x = obs.maps
-        for features in (16, 32, 32):
-            x = nn.relu(nn.Conv(features, (3, 3), strides=2)(x))
-        x = jnp.concatenate([x.reshape(*x.shape[:-3], -1), obs.pose], -1)
-        x = nn.relu(nn.Dense(128)(x))
-        logits = nn.Dense(self.actions, kernel_init=nn.initializers.orthogonal(0.01))(x)
-        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(x)[..., 0]
-        return logits, value
 
 
 class Transition(NamedTuple):
@@ -156,8 +139,6 @@ class Runner(NamedTuple):
 
 
 def make_env(cfg: TrainConfig) -> ExplorationEnv:
-    from rosmeery_jax.env import EnvConfig
-    from rosmeery_jax.env.world_bank import world_bank
 
     return ExplorationEnv(world_bank(cfg.worlds, EnvConfig().with_overrides("config", **cfg.env)), cfg.rl)
 
@@ -285,7 +266,7 @@ def _from_host(template, saved: dict):
 
 def save_checkpoint(path: Path, runner: Runner, done: int, curve: list[dict]) -> None:
     blob = serialization.msgpack_serialize({"update": done, "curve": json.dumps(curve), "state": _to_host(runner)})
-    results.write_atomic(path, blob)
+    write_atomic(path, blob)
 
 
 def load_checkpoint(path: Path, template: Runner) -> tuple[Runner, int, list[dict]]:
@@ -296,40 +277,16 @@ def load_checkpoint(path: Path, template: Runner) -> tuple[Runner, int, list[dic
         raise InputError(str(path), "file", f"not a checkpoint of this configuration ({err})") from None
 
 
-def save_policy(path: Path, cfg: TrainConfig, params) -> None:
-    """The trained policy: parameters plus the env settings it was trained with."""
-    blob = {"format": POLICY_FORMAT, "rl": json.dumps(asdict(cfg.rl)), "env": json.dumps(cfg.env),
-            "params": serialization.to_state_dict(jax.tree.map(np.asarray, params))}
-    results.write_atomic(path, serialization.msgpack_serialize(blob))
-
-
-def load_policy(path: str | Path) -> tuple[RLConfig, dict, Any]:
-    """(RLConfig, env overrides, params) of a policy file; one InputError if it is not one."""
-    path = Path(path)
-    try:
-        saved = serialization.msgpack_restore(path.read_bytes())
-        if saved.get("format") != POLICY_FORMAT:
-            raise ValueError(f"format {saved.get('format')!r}, expected {POLICY_FORMAT!r}")
-        rl = RLConfig(**json.loads(saved["rl"]))
-        return rl, json.loads(saved["env"]), jax.tree.map(jnp.asarray, saved["params"])
-    except FileNotFoundError:
-        raise InputError(str(path), "file", "not found") from None
-    except (OSError, KeyError, TypeError, ValueError, AttributeError) as err:
-        raise InputError(str(path), "file", f"not a rosmeery-jax policy file ({err})") from None
-
-
 # --- The training loop ---------------------------------------------------------------
 
 
 def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
     """Train to ``cfg.ppo.updates`` updates, writing into ``out`` (module docstring)."""
-    from tqdm import tqdm
-
     out = Path(out)
     record = json.loads(json.dumps(asdict(cfg)))
     _check_out(out, record, resume)
     out.mkdir(parents=True, exist_ok=True)
-    results.write_atomic(out / "config.json", json.dumps(record, indent=2))
+    write_atomic(out / "config.json", json.dumps(record, indent=2))
     env = make_env(cfg)
     runner = init_runner(cfg, env)
     done, curve = 0, []
@@ -351,42 +308,23 @@ def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: boo
             save_checkpoint(out / "checkpoint.msgpack", runner, u + 1, curve)
             _write_curve(out, curve)
     bar.close()
-    save_policy(out / "policy.msgpack", cfg, runner.train.params)
+    save_policy(out / "policy.msgpack", cfg.rl, cfg.env, runner.train.params)
     _write_curve(out, curve)
     return out
 
 
 def _check_out(out: Path, record: dict, resume: bool) -> None:
-    saved = out / "config.json"
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "out", "is a file, not a folder")
-    if not saved.exists():
-        if out.exists() and any(out.iterdir()):
-            raise InputError(str(out), "out", "is not empty and has no config.json: choose another --out")
-        return
-    if not resume:
-        raise InputError(str(out), "out", "already holds a training run: pass --resume to continue it")
-    try:
-        old = json.loads(saved.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise InputError(str(saved), "file", "unreadable: cannot resume from it") from None
-    for key in ("worlds", "ppo", "rl", "env"):
-        if old.get(key) != record[key]:
-            raise InputError(str(saved), key, f"was {old.get(key)!r}, now {record[key]!r}: resume needs the same")
+    old = claim_folder(out, resume, holds="a training run")
+    if old is not None:
+        require_same(out / "config.json", old, record, ("worlds", "ppo", "rl", "env"))
 
 
 def read_curve(out: str | Path):
     """The learning curve of a training folder (pandas DataFrame)."""
-    import pandas as pd
-
     return pd.read_csv(Path(out) / "curve.csv")
 
 
 def _write_curve(out: Path, curve: list[dict]) -> None:
-    import pandas as pd
-
-    from rosmeery_jax.scoring.plots import learning_curve
-
     table = pd.DataFrame(curve)
-    results.write_atomic(out / "curve.csv", table.to_csv(index=False))
+    write_atomic(out / "curve.csv", table.to_csv(index=False))
     learning_curve(table, out / "curve.png")

@@ -34,7 +34,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.sim.knowledge import ObjectLog, predicate_tables
+from rosmeery_jax.scoring import metrics, results
+from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 
 TOLERANCE = 0.05  # m: a point within this of a surface sample lies on it (samples are 5 cm apart)
 INSTANCE_FIELDS = ("object_id", "instance")
@@ -204,9 +205,6 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
 
     Returns (metrics table, objects table of the last map, per-class table, summary dict),
     the first two in the session's formats (policy = ``name``, detector = "own", seed 0)."""
-    from rosmeery_jax.scoring import metrics, results
-    from rosmeery_jax.sim.knowledge import GroundTruthTable
-
     times = [m.time_s if m.time_s is not None else float(k) for k, m in enumerate(maps)]
     order = np.argsort(times, kind="stable")
     scores = [score(world, maps[k], tolerance) for k in order]

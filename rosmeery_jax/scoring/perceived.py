@@ -35,6 +35,7 @@ from itertools import repeat
 
 import numpy as np
 
+from rosmeery_jax.scoring.evaluate import score_shared, tie
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.sim.sensors import CameraConfig, camera_rays
 
@@ -179,8 +180,6 @@ def frame_logs(world, mapper: PerceivedMapper, frames: int, tolerance: float) ->
     """The map scored after 0, 1, ..., ``frames`` frames: ObjectLog with (frames + 1, N)
     fields, one map_eval scoring per frame count (the cloud only grows, so each point is
     tied to a sample once)."""
-    from rosmeery_jax.scoring.evaluate import score_shared, tie
-
     points, instance, frame = mapper.cloud()
     sample = tie(world, points, tolerance) if len(points) else np.zeros(0, np.int64)
     n_samples = len(world.truth.samples.object)

@@ -9,6 +9,8 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")  # files only; no display needed
+import io
+
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
@@ -75,8 +77,6 @@ def learning_curve(curve: pd.DataFrame, path: str | Path) -> Path:
 
 def save_figure(fig, path: Path) -> Path:
     """Write ``fig`` as a PNG at ``path`` atomically and close it; returns ``path``."""
-    import io
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)

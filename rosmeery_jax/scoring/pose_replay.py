@@ -17,10 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.scoring import metrics
-
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.scoring import metrics
 from rosmeery_jax.sim.sensors import depth_seg
 
 POSE_COLUMNS = ("t", "x", "y", "yaw")

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rosmeery_jax.core.errors import InputError
+
 _UMASK = os.umask(0)
 os.umask(_UMASK)  # read once: the process's umask, for the mode of files written atomically
 METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
@@ -77,8 +79,6 @@ def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
 def load(directory: str | Path) -> pd.DataFrame:
     """The metric curves of a results folder as one long DataFrame (``metrics.csv``);
     a missing or malformed file is one InputError naming the file and the column or row."""
-    from rosmeery_jax.core.errors import InputError
-
     path = Path(directory) / "metrics.csv"
     try:
         df = pd.read_csv(path)

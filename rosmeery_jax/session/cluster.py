@@ -12,12 +12,11 @@ the padding (rosmeery_jax.session.engine). Ray retries a shard whose worker dies
 
 from __future__ import annotations
 
-import json
-import tempfile
-from dataclasses import replace
 from pathlib import Path
+from typing import Callable
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import write_atomic
 
 RETRIES = 3  # attempts after the first when a worker process or node dies
 INSTALL = "pip install 'rosmeery-jax[cluster]'"
@@ -26,7 +25,7 @@ INSTALL = "pip install 'rosmeery-jax[cluster]'"
 def require_ray():
     """The ray module, or one InputError naming the extra to install."""
     try:
-        import ray
+        import ray  # the optional [cluster] extra: imported only when a cluster is asked for
     except ImportError:
         raise InputError("command line", "--cluster", f"needs Ray: {INSTALL}") from None
     return ray
@@ -47,40 +46,18 @@ def connect(address: str):
     return ray
 
 
-def shard_config(cfg, world: str, policy: str, out: str):
-    """The session of one run (its world and policy), written to ``out``."""
-    return replace(cfg, worlds=(world,), policies=(policy,), out=out)
-
-
 def _absolute(world: str) -> str:
     """A world file's absolute path (on the driver, so workers find it wherever they start)."""
     return str(Path(world).resolve()) if Path(world).is_file() else world
 
 
-def run_shard(cfg, world: str, policy: str, cache: bool) -> tuple[dict[str, bytes], dict]:
-    """On a worker: simulate one run and return ({relative path: bytes}, timing)."""
-    from rosmeery_jax.apps.cli import compilation_cache
-    from rosmeery_jax.session.runner import Session, run_name
-
-    compilation_cache(cache)
-    with tempfile.TemporaryDirectory(prefix="rosmeery-shard-") as tmp:
-        out = Session(shard_config(cfg, world, policy, tmp), progress=False).run()
-        name = run_name(world, policy)
-        files = sorted(p for p in (out / "runs").glob(f"{name}.*")) + sorted((out / "maps").glob(f"{name}__seed*"))
-        return {str(p.relative_to(out)): p.read_bytes() for p in files}, _timing(out / "timing.json")
-
-
-def _timing(path: Path) -> dict:
-    return json.loads(path.read_text()) if path.exists() else {}
-
-
-def simulate_on_cluster(cfg, todo: list[tuple[str, str]], out: Path, address: str, bar, cache: bool) -> list[dict]:
-    """Run every (world, policy) of ``todo`` as a Ray task; write each finished run's
-    files as it arrives. Returns the shards' timings."""
-    from rosmeery_jax.scoring import results
-
+def simulate_on_cluster(cfg, todo: list[tuple[str, str]], out: Path, address: str, bar, cache: bool,
+                        shard: Callable) -> list[dict]:
+    """Run every (world, policy) of ``todo`` as a Ray task ``shard(cfg, world, policy,
+    cache) -> ({relative path: bytes}, timing)``; write each finished run's files as it
+    arrives. Returns the shards' timings."""
     ray = connect(address)
-    task = ray.remote(num_cpus=1, max_retries=RETRIES)(run_shard)
+    task = ray.remote(num_cpus=1, max_retries=RETRIES)(shard)
     pending = {task.remote(cfg, _absolute(w), p, cache): (w, p) for w, p in todo}
     timings = []
     while pending:
@@ -90,7 +67,7 @@ def simulate_on_cluster(cfg, todo: list[tuple[str, str]], out: Path, address: st
             files, timing = ray.get(ref)
             last = [k for k in files if k.endswith(".metrics.csv")]
             for rel in sorted(files, key=lambda k: k in last):  # the metrics file marks the run done
-                results.write_atomic(out / rel, files[rel])
+                write_atomic(out / rel, files[rel])
             timings.append(timing)
             bar.update(cfg.duration)
     return timings

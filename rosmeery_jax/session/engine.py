@@ -39,9 +39,8 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
-from types import SimpleNamespace
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import jax
@@ -49,10 +48,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.core import xla
-from rosmeery_jax.env import Env, EnvConfig, body_dimensions
+from rosmeery_jax.core.overrides import flatten
+from rosmeery_jax.detector.detections import pad
+from rosmeery_jax.env import Env, EnvConfig, world_bank
+from rosmeery_jax.env import world_data as wd
+from rosmeery_jax.policies import make_policy, policy_class
+from rosmeery_jax.scoring.perceived import PerceivedMapper
 from rosmeery_jax.sim.knowledge import ObjectLog
+from rosmeery_jax.world import load_world
 
 BLOCK = 5  # envs per compiled block (module docstring): 5 seeds, the paper's and the default, fill one
 MAX_DET = 32  # detections kept per frame (the most confident)
@@ -95,16 +99,41 @@ class Group:
         return len(self.world)
 
 
+@dataclass
+class _Rows:
+    """The batch being laid out: per env its world, seed and whether it is real; per block
+    its (policy, world)."""
+
+    world: list = field(default_factory=list)
+    seed: list = field(default_factory=list)
+    real: list = field(default_factory=list)
+    blocks: list = field(default_factory=list)
+
+    def add_block_run(self, policy: int, world: int, size: int) -> np.ndarray:
+        """Rows for ``size`` envs of one run, padded to whole blocks; returns the real rows."""
+        rows = np.arange(len(self.world), len(self.world) + size)
+        padded = -(-size // BLOCK) * BLOCK
+        self.world += [world] * padded
+        self.seed += list(range(padded))
+        self.real += [True] * size + [False] * (padded - size)
+        self.blocks += [(policy, world)] * (padded // BLOCK)
+        return rows
+
+    def add_padding_block(self) -> None:
+        """A copy of the last block with no real env (whole blocks per device)."""
+        policy, world = self.blocks[-1]
+        self.blocks.append((policy, world))
+        self.world += [world] * BLOCK
+        self.seed += list(range(BLOCK))
+        self.real += [False] * BLOCK
+
+
 def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: int,
                  decide_every: int, total_steps: int, devices: int = 0) -> list[Group]:
     """The groups of (world spec, policy spec) pairs; runs with no entries are left out.
     ``devices`` 0 uses every device JAX has, or one per block when there are fewer blocks;
     with more than one, padding blocks (copies of the last, no real env) make the number of
     blocks a multiple of it."""
-    from rosmeery_jax.core.overrides import flatten
-    from rosmeery_jax.policies import make_policy, policy_class
-    from rosmeery_jax.world import WorldConfig, load_world
-
     by_config: dict[EnvConfig, list] = {}
     for world, spec in pairs:
         name = load_world(world).name
@@ -112,42 +141,32 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
                      **policy_class(spec).env_overrides(spec, name)}
         config = EnvConfig().with_overrides("config", **overrides)
         by_config.setdefault(config, []).append((world, spec))
-    groups = []
-    for config, members in by_config.items():
-        specs = list(dict.fromkeys(w for w, _ in members))
-        worlds = [load_world(w, body_dimensions(config, WorldConfig())) for w in specs]
-        sizes = wd.Sizes.union([wd.Sizes.of(w, config) for w in worlds])
-        envs = [Env(w, config, sizes) for w in worlds]
-        policy_specs = list(dict.fromkeys(p for _, p in members))
-        policies = [make_policy(p, envs[0], decide_every, total_steps) for p in policy_specs]
-        world_ix, seed_ix, real, blocks, runs = [], [], [], [], []
-        for q, spec in enumerate(policy_specs):
-            for world, p in members:
-                if p != spec:
-                    continue
-                w = specs.index(world)
-                host = make_policy(spec, envs[w], decide_every, total_steps)
-                b = host.batch_size(seeds)
-                if not b:
-                    continue  # a replay with no recording in this world
-                rows = np.arange(len(world_ix), len(world_ix) + b)
-                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows, host))
-                padded = -(-b // BLOCK) * BLOCK
-                world_ix += [w] * padded
-                seed_ix += list(range(padded))
-                real += [True] * b + [False] * (padded - b)
-                blocks += [(q, w)] * (padded // BLOCK)
-        used = devices or max(1, min(len(jax.devices()), len(blocks)))  # auto: no device without a real block
-        for _ in range((-len(blocks)) % used if runs else 0):  # whole blocks per device
-            blocks.append(blocks[-1])
-            world_ix += [blocks[-1][1]] * BLOCK
-            seed_ix += list(range(BLOCK))
-            real += [False] * BLOCK
-        if runs:
-            groups.append(Group(config, envs[0], envs, wd.stack([e.data for e in envs]), policies,
-                                np.asarray(world_ix, np.int32), np.asarray(seed_ix, np.int32), np.asarray(real),
-                                np.asarray(blocks, np.int32), runs, used))
-    return groups
+    groups = [_group(config, members, seeds, decide_every, total_steps, devices) for config, members in by_config.items()]
+    return [g for g in groups if g.runs]
+
+
+def _group(config: EnvConfig, members: list, seeds: int, decide_every: int, total_steps: int, devices: int) -> Group:
+    """One group: its worlds as one padded bank, its policies, its runs laid out in blocks."""
+    specs = list(dict.fromkeys(w for w, _ in members))
+    bank = world_bank(specs, config)
+    envs = bank.envs()
+    policy_specs = list(dict.fromkeys(p for _, p in members))
+    policies = [make_policy(p, envs[0], decide_every, total_steps) for p in policy_specs]
+    rows, runs = _Rows(), []
+    for q, spec in enumerate(policy_specs):
+        for world, p in members:
+            if p != spec:
+                continue
+            w = specs.index(world)
+            host = make_policy(spec, envs[w], decide_every, total_steps)
+            b = host.batch_size(seeds)
+            if b:  # else a replay with no recording in this world
+                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows.add_block_run(q, w, b), host))
+    used = devices or max(1, min(len(jax.devices()), len(rows.blocks)))  # auto: no device without a real block
+    for _ in range((-len(rows.blocks)) % used if runs else 0):  # whole blocks per device
+        rows.add_padding_block()
+    return Group(config, envs[0], envs, bank.data, policies, np.asarray(rows.world, np.int32),
+                 np.asarray(rows.seed, np.int32), np.asarray(rows.real), np.asarray(rows.blocks, np.int32), runs, used)
 
 
 def blocked(fn, devices: int = 1):
@@ -194,19 +213,26 @@ class Replicas:
 
         return [(local(shared, d), local(rest[0], d), *local(rest[1], d)) for d in self.split.mesh.devices.flat]
 
-    def lower(self, shared, block_arg, *env_args):
-        def compile() -> Replicas:
-            with ThreadPoolExecutor(self.devices) as pool:  # XLA compiles without the GIL
-                return Replicas(self.jitted, self.devices, list(pool.map(lambda a: self.jitted.lower(*a).compile(), args)))
-
-        args = self._per_device(shared, block_arg, env_args)
-        return SimpleNamespace(compile=compile)
+    def lower(self, shared, block_arg, *env_args) -> "_Lowered":
+        return _Lowered(self, self._per_device(shared, block_arg, env_args))
 
     def __call__(self, shared, block_arg, *env_args):
         calls = self.executables or [self.jitted] * self.devices
         outs = [f(*args) for f, args in zip(calls, self._per_device(shared, block_arg, env_args))]
         return jax.tree.map(lambda *parts: jax.make_array_from_single_device_arrays(
             (sum(p.shape[0] for p in parts), *parts[0].shape[1:]), self.split, list(parts)), *outs)
+
+
+class _Lowered(NamedTuple):
+    """:meth:`Replicas.lower`'s result: every device's arguments, compiled together."""
+
+    replicas: Replicas
+    args: list
+
+    def compile(self) -> Replicas:
+        r = self.replicas
+        with ThreadPoolExecutor(r.devices) as pool:  # XLA compiles without the GIL
+            return Replicas(r.jitted, r.devices, list(pool.map(lambda a: r.jitted.lower(*a).compile(), self.args)))
 
 
 def _in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[Env, list]:
@@ -226,63 +252,105 @@ def reset_fn(group: Group):
     return blocked(one, group.devices)
 
 
-def chunk_fn(group: Group, decide_every: int, decisions: int, capture: bool, depth: bool = False,
-             log_every: int = 1):
+class Plan(NamedTuple):
+    """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
+    ``decide_every`` control steps per decision, a log row every ``log_every`` steps (a
+    divisor of ``decide_every``); ``perceive``: feed a perceived mapper per env (needs
+    detectors)."""
+
+    total: int
+    per_call: int
+    decide_every: int
+    log_every: int = 1
+    perceive: bool = False
+
+    @property
+    def spans(self) -> int:
+        """Logged spans per decision."""
+        return self.decide_every // self.log_every
+
+
+class Frames(NamedTuple):
+    """The frame after each decision, per env: rgb (F, Hr, Wr, 3) uint8, labels (F, Hr, Wr)
+    int16, depth (F, Hr, Wr) float32 (None unless the perceived mapper needs it)."""
+
+    rgb: jax.Array
+    labels: jax.Array
+    depth: jax.Array | None
+
+
+class Chunk(NamedTuple):
+    """One call of the chunk function, per env: the state, policy states and key after it,
+    logs (per_call * spans, N), poses (per_call * decide_every, 3), frames or None."""
+
+    state: Any
+    pstates: tuple
+    key: jax.Array
+    logs: ObjectLog
+    poses: jax.Array
+    frames: Frames | None
+
+
+def chunk_fn(group: Group, plan: Plan, capture: bool):
     """One env per call of the returned function (blocked): fold the pending detections
-    (F, D) into the knowledge, then ``decisions`` policy decisions, each followed by
-    ``decide_every`` env steps. Returns state, policy states, key, logs (steps / log_every,
-    N) after every ``log_every``-th step (a divisor of ``decide_every``), poses (steps, 3)
-    and, with ``capture``, the frame after each decision: RGB (F, Hr, Wr, 3) uint8 and labels
-    (F, Hr, Wr) int16 (F = decisions), with ``depth`` also its depth (F, Hr, Wr) float32;
-    else None."""
-    per_step = group.policies[0].per_step
-    if decide_every % log_every:
-        raise ValueError(f"log_every {log_every} must divide decide_every {decide_every}")
-    spans = decide_every // log_every  # logged spans per decision
+    (F, D) into the knowledge, then ``plan.per_call`` decisions (:func:`_decision`).
+    Returns a :class:`Chunk`; frames only with ``capture``, their depth only with
+    ``plan.perceive``."""
+    if plan.decide_every % plan.log_every:
+        raise ValueError(f"log_every {plan.log_every} must divide decide_every {plan.decide_every}")
 
     def one(stacked, block, state, pstates, key, pending):
         env, policies = _in_world(group, stacked, block)
-        q = block[0]
         if capture:
             state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
-
-        def branch(i):
-            def decide(s, pss, k):
-                action, new = policies[i].decide(s, pss[i], k)
-                return action, pss[:i] + (new,) + pss[i + 1:]
-            return decide
-
-        def decide(carry, _):
-            s, pss, k = carry
-            k, sub = jax.random.split(k)
-            if len(policies) == 1:
-                action, pss = branch(0)(s, pss, sub)
-            else:
-                action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
-
-            def step(s, a):
-                s = env.step(s, a if per_step else action)
-                return s, s.pose
-
-            def span(s, a):  # log_every steps, then the log: the per-object log took 7 % of a
-                # paper session's step when taken every step, and metrics are written every sample_s
-                s, poses = jax.lax.scan(step, s, a, length=log_every)
-                return s, (env.log(s), poses)
-
-            actions = jax.tree.map(lambda a: a.reshape(spans, log_every, *a.shape[1:]), action) if per_step else None
-            s, logged = jax.lax.scan(span, s, actions, length=spans)
-            frame = None
-            if capture:
-                img, dep, lab = env.camera_rgbd(s)
-                frame = (img, lab.astype(jnp.int16)) + ((dep,) if depth else ())
-            return (s, pss, k), (logged, frame)
-
+        decide = _decision(env, policies, block[0], plan, capture)
         (state, pstates, key), ((logs, poses), frames) = jax.lax.scan(decide, (state, pstates, key), None,
-                                                                      length=decisions)
-        logs = jax.tree.map(lambda a: a.reshape(decisions * spans, *a.shape[2:]), logs)
-        return state, pstates, key, logs, poses.reshape(decisions * decide_every, 3), frames
+                                                                      length=plan.per_call)
+        logs = jax.tree.map(lambda a: a.reshape(plan.per_call * plan.spans, *a.shape[2:]), logs)
+        return Chunk(state, pstates, key, logs, poses.reshape(plan.per_call * plan.decide_every, 3), frames)
 
     return blocked(one, group.devices)
+
+
+def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool):
+    """The scan body of one decision: block policy ``q`` decides (``lax.switch``, so only
+    its own decision runs), then ``decide_every`` env steps, logged every ``log_every``;
+    with ``capture``, the frame after them."""
+    per_step = policies[0].per_step
+
+    def branch(i):
+        def decide(s, pss, k):
+            action, new = policies[i].decide(s, pss[i], k)
+            return action, pss[:i] + (new,) + pss[i + 1:]
+        return decide
+
+    def step(s, a, action):
+        s = env.step(s, a if per_step else action)
+        return s, s.pose
+
+    def decide(carry, _):
+        s, pss, k = carry
+        k, sub = jax.random.split(k)
+        if len(policies) == 1:
+            action, pss = branch(0)(s, pss, sub)
+        else:
+            action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
+
+        def span(s, a):  # log_every steps, then the log: the per-object log took 7 % of a
+            # paper session's step when taken every step, and metrics are written every sample_s
+            s, poses = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
+            return s, (env.log(s), poses)
+
+        actions = jax.tree.map(lambda a: a.reshape(plan.spans, plan.log_every, *a.shape[1:]), action) \
+            if per_step else None
+        s, logged = jax.lax.scan(span, s, actions, length=plan.spans)
+        frame = None
+        if capture:
+            img, dep, lab = env.camera_rgbd(s)
+            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None)
+        return (s, pss, k), (logged, frame)
+
+    return decide
 
 
 def attach_frames(env: Env, knowledge, obj, label, conf):
@@ -332,117 +400,180 @@ class Simulation(NamedTuple):
     log_every: int = 1
 
 
-def simulate(group: Group, total: int, per_call: int, decide_every: int, detectors: dict | None, bar,
-             clock: "CompileClock", perceive: bool = False, log_every: int = 1) -> Simulation:
-    """Step the group to its end: ``total`` decisions, ``per_call`` per jitted call, logging
-    every ``log_every`` steps (a divisor of ``decide_every``); with ``perceive`` (needs
-    detectors), also feed a perceived mapper per env."""
-    from rosmeery_jax.scoring.perceived import PerceivedMapper
+class Keys(NamedTuple):
+    """Per env (B,): the reset's, the policies' and the run's keys, all from its seed."""
 
-    b = group.size
+    env: jax.Array
+    policy: jax.Array
+    run: jax.Array
+
+    @staticmethod
+    def of(group: Group) -> "Keys":
+        keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
+        return Keys(*(jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3)))
+
+
+class Start(NamedTuple):
+    """A group compiled and reset: its functions, the compiled chunk function, the first
+    state and policy states, the log at step 0, and (with a detector) the metrics' label
+    state with its compiled update."""
+
+    fns: Compiled
+    chunk: Any
+    state: Any
+    pstates: tuple
+    first_log: ObjectLog
+    labels: Any
+    attach: Any
+
+
+def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "CompileClock") -> Simulation:
+    """Step the group to its end: ``plan.total`` decisions, ``plan.per_call`` per jitted
+    call; chunk c's frames are detected in a worker thread (:class:`_Detection`) while
+    chunk c + 1 simulates, and reach the robot at the start of chunk c + 2."""
     capture = detectors is not None
-    mappers = [PerceivedMapper(group.config.camera) if real else None for real in group.real] if perceive else None
-    keys = jax.vmap(jax.random.key)(jnp.asarray(group.seed))
-    k_env, k_pol, k_run = (jax.vmap(lambda k, i=i: jax.random.fold_in(k, i))(keys) for i in range(3))
+    keys = Keys.of(group)
     data, blocks = group.data, jnp.asarray(group.blocks)
     if group.devices > 1:  # placed once: every call's arguments are then where they belong
         whole, split = shardings(group.devices)
         data, blocks = jax.device_put(data, whole), jax.device_put(blocks, split)
-    frames = per_call if capture else 0
-    empty = tuple(jnp.asarray(a) for a in _no_detections(b, max(frames, 1))[:3])
+    empty = tuple(jnp.asarray(a) for a in _no_detections(group.size, plan.per_call if capture else 1)[:3])
     xla_before = dict(CompileClock._counts)
     with clock:
-        fns = Compiled(reset_fn(group), chunk_fn(group, decide_every, per_call, capture, perceive, log_every),
-                       label_fn(group) if capture else None,
-                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st), group.devices),
-                       blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st), group.devices))
-        compiled_chunk = _compile_chunk(group, fns, data, blocks, (k_env, k_pol, k_run), empty)
-        state = fns.reset(data, blocks, k_env)
-        pstates = _init_policies(group, k_pol)
-        chunk = compiled_chunk(state, pstates)
-        first_log = fns.log(data, blocks, state)
-        labels = state.knowledge._replace(seen=jnp.zeros((b, 1), bool))  # the metrics' labels (no lag)
-        attach = fns.label.lower(data, blocks, labels, *empty).compile() if capture else None
-    pose0 = np.asarray(state.pose)
+        start = _start(group, plan, capture, data, blocks, keys, empty)
+    pose0 = np.asarray(start.state.pose)
     for run in group.runs:
         run.host_policy.check_start(pose0[run.rows])
-    timing = {"envs": int(group.real.sum()), "padded_envs": b, "env_steps": 0, "frames": 0, "detector_s": 0.0, "mapper_s": 0.0,
-              "wait_s": 0.0}
-    holder = {"labels": labels}
-    pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
-    lock = threading.Lock()
-
-    def finish(c, logs, poses, shots):
-        """Worker: fetch chunk c, detect its frames, rebuild the log's label fields."""
-        logs, poses = jax.tree.map(np.asarray, logs), np.asarray(poses)
-        dets = None
-        if capture:
-            t0 = time.perf_counter()
-            dets = _detect(group, detectors, shots, c * per_call)
-            obj = dets[0]
-            if c == chunks - 1:  # the run's last frame counts from a step that never comes
-                obj = obj.copy()
-                obj[:, -1] = -1
-            holder["labels"], per_frame = attach(data, blocks, holder["labels"],
-                                                 *(jnp.asarray(d) for d in (obj, *dets[1:3])))
-            logs = _relabel(logs, per_frame, decide_every, log_every)
-            t1 = time.perf_counter()
-            if mappers:
-                _perceive(mappers, c * per_call, poses, shots[2], dets, decide_every)
-            with lock:
-                timing["detector_s"] += t1 - t0
-                timing["mapper_s"] += time.perf_counter() - t1
-                timing["frames"] += int(group.real.sum()) * per_call
-        bar.update(per_call * decide_every * group.env.dt)
-        done_steps = int(group.real.sum()) * (c + 1) * per_call * decide_every
-        bar.set_postfix_str(f"{done_steps / (time.perf_counter() - started):,.0f} env-steps/s")
-        return logs, poses, dets
-
-    started = time.perf_counter()
-    jobs, chunks = [], total // per_call
-    for c in range(chunks):
+    worker = _Detection(group, plan, detectors, start, data, blocks, bar)
+    state, pstates, key, jobs, wait_s = start.state, start.pstates, keys.run, [], 0.0
+    for c in range(plan.total // plan.per_call):
         pending = empty
         if capture and c >= 2:  # the detections of period c - 2 reach the robot now
             jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
             t1 = time.perf_counter()
-            pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result()[2][:3])
-            timing["wait_s"] += time.perf_counter() - t1
-        state, pstates, k_run, logs, poses, shots = chunk(data, blocks, state, pstates, k_run, pending)
-        jobs.append(pool.submit(finish, c, logs, poses, shots))
+            pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result().dets[:3])
+            wait_s += time.perf_counter() - t1
+        out = start.chunk(data, blocks, state, pstates, key, pending)
+        state, pstates, key = out.state, out.pstates, out.key
+        jobs.append(worker.submit(c, out.logs, out.poses, out.frames))
     done = [j.result() for j in jobs]
-    pool.shutdown()
-    timing["sim_s"] = time.perf_counter() - started
-    timing["env_steps"] = int(group.real.sum()) * total * decide_every
-    first = jax.tree.map(lambda a: np.asarray(a)[:, None], first_log)
-    logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d[0] for d in done])
-    poses = np.concatenate([pose0[:, None]] + [d[1] for d in done], axis=1)
-    knowledge = fns.knowledge(data, blocks, state)
-    timing["compiles"] = 1  # the chunk function: one per group
-    timing["xla_compiles"] = CompileClock._counts["compiles"] - xla_before["compiles"]
-    timing["cache_hits"] = CompileClock._counts["cache_hits"] - xla_before["cache_hits"]
-    if capture:
-        lab = holder["labels"]
+    worker.close()
+    real = int(group.real.sum())
+    timing = {"envs": real, "padded_envs": group.size, "env_steps": real * plan.total * plan.decide_every,
+              **worker.timing, "wait_s": wait_s, "sim_s": time.perf_counter() - worker.started,
+              "compiles": 1,  # the chunk function: one per group
+              "xla_compiles": CompileClock._counts["compiles"] - xla_before["compiles"],
+              "cache_hits": CompileClock._counts["cache_hits"] - xla_before["cache_hits"]}
+    return _collect(group, start, state, data, blocks, pose0, done, worker, timing)
+
+
+def _start(group: Group, plan: Plan, capture: bool, data, blocks, keys: Keys, empty: tuple) -> Start:
+    """Compile the group's functions (the chunk function in a thread, meanwhile the
+    reset and the small helpers) and reset its envs."""
+    fns = Compiled(reset_fn(group), chunk_fn(group, plan, capture), label_fn(group) if capture else None,
+                   blocked(lambda s, blk, st: _in_world(group, s, blk)[0].log(st), group.devices),
+                   blocked(lambda s, blk, st: _in_world(group, s, blk)[0].labelled_knowledge(st), group.devices))
+    compiled_chunk = _compile_chunk(group, fns, data, blocks, keys, empty)
+    state = fns.reset(data, blocks, keys.env)
+    pstates = _init_policies(group, keys.policy)
+    chunk = compiled_chunk(state, pstates)
+    first_log = fns.log(data, blocks, state)
+    labels = state.knowledge._replace(seen=jnp.zeros((group.size, 1), bool))  # the metrics' labels (no lag)
+    attach = fns.label.lower(data, blocks, labels, *empty).compile() if capture else None
+    return Start(fns, chunk, state, pstates, first_log, labels, attach)
+
+
+class Finished(NamedTuple):
+    """Chunk c on the host: logs (B, n, N) with the label fields rebuilt, poses (B, steps, 3),
+    detections (obj, label, conf (B, F, D), box (B, F, D, 4)) or None."""
+
+    logs: ObjectLog
+    poses: np.ndarray
+    dets: tuple | None
+
+
+class _Detection:
+    """The worker thread: each chunk's frames are fetched, detected, folded into the
+    metrics' labels (no lag) and fed to the perceived mappers, one chunk at a time in
+    order. Its own counters are ``timing``."""
+
+    def __init__(self, group: Group, plan: Plan, detectors: dict | None, start: Start, data, blocks, bar):
+        self.group, self.plan, self.detectors, self.bar = group, plan, detectors, bar
+        self.attach, self.labels, self.data, self.blocks = start.attach, start.labels, data, blocks
+        self.mappers = [PerceivedMapper(group.config.camera) if real else None for real in group.real] \
+            if plan.perceive else None
+        self.chunks = plan.total // plan.per_call
+        self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0}
+        self.pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
+        self.lock = threading.Lock()
+        self.started = time.perf_counter()
+
+    def submit(self, c: int, logs, poses, frames) -> Future:
+        return self.pool.submit(self._finish, c, logs, poses, frames)
+
+    def close(self) -> None:
+        self.pool.shutdown()
+
+    def _finish(self, c: int, logs, poses, frames) -> Finished:
+        """Chunk c: fetch it, detect its frames, rebuild the log's label fields."""
+        logs, poses = jax.tree.map(np.asarray, logs), np.asarray(poses)
+        dets, plan = None, self.plan
+        if self.detectors is not None:
+            t0 = time.perf_counter()
+            dets = _detect(self.group, self.detectors, frames, c * plan.per_call)
+            logs = self._relabel(c, logs, dets)
+            t1 = time.perf_counter()
+            if self.mappers:
+                _perceive(self.mappers, c * plan.per_call, poses, frames.depth, dets, plan.decide_every)
+            with self.lock:
+                self.timing["detector_s"] += t1 - t0
+                self.timing["mapper_s"] += time.perf_counter() - t1
+                self.timing["frames"] += int(self.group.real.sum()) * plan.per_call
+        self.bar.update(plan.per_call * plan.decide_every * self.group.env.dt)
+        done_steps = int(self.group.real.sum()) * (c + 1) * plan.per_call * plan.decide_every
+        self.bar.set_postfix_str(f"{done_steps / (time.perf_counter() - self.started):,.0f} env-steps/s")
+        return Finished(logs, poses, dets)
+
+    def _relabel(self, c: int, logs: ObjectLog, dets: tuple) -> ObjectLog:
+        """Fold chunk c's detections into the metrics' labels; the log's label fields from them."""
+        obj = dets[0]
+        if c == self.chunks - 1:  # the run's last frame counts from a step that never comes
+            obj = obj.copy()
+            obj[:, -1] = -1
+        self.labels, per_frame = self.attach(self.data, self.blocks, self.labels,
+                                             *(jnp.asarray(d) for d in (obj, *dets[1:3])))
+        return _relabel(logs, per_frame, self.plan.decide_every, self.plan.log_every)
+
+
+def _collect(group: Group, start: Start, state, data, blocks, pose0, done: list[Finished], worker: _Detection,
+             timing: dict) -> Simulation:
+    """The group's logs, poses and final knowledge, real envs only, in row order."""
+    first = jax.tree.map(lambda a: np.asarray(a)[:, None], start.first_log)
+    logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d.logs for d in done])
+    poses = np.concatenate([pose0[:, None]] + [d.poses for d in done], axis=1)
+    knowledge = start.fns.knowledge(data, blocks, state)
+    if worker.detectors is not None:
+        lab = worker.labels
         knowledge = knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
                                        conf_any=lab.conf_any)
     keep = group.real
+    mappers = [m for m in worker.mappers if m is not None] if worker.mappers else None
     return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
-                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing,
-                      [m for m in mappers if m is not None] if mappers else None, log_every)
+                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, mappers, worker.plan.log_every)
 
 
-def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: tuple, empty):
+def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: Keys, empty):
     """A function (state, pstates) -> the compiled chunk function. On one device the compile
     starts now, in a thread, from the arguments' shapes: XLA compiles without the GIL, so
     the reset and the small helpers compile and run meanwhile (1-2 s less of a cold start).
     On more, each device's copy compiles at the call (:class:`Replicas`, in parallel)."""
-    k_env, k_pol, k_run = keys
     if group.devices > 1:
-        return lambda state, pstates: fns.chunk.lower(data, blocks, state, pstates, k_run, empty).compile()
-    state = jax.eval_shape(fns.reset, data, blocks, k_env)
+        return lambda state, pstates: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile()
+    state = jax.eval_shape(fns.reset, data, blocks, keys.env)
     strong = lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype)  # noqa: E731  (_init_policies gives numpy-made arrays)
-    pstates = tuple(jax.tree.map(strong, jax.eval_shape(p.init_batch, k_pol)) for p in group.policies)
+    pstates = tuple(jax.tree.map(strong, jax.eval_shape(p.init_batch, keys.policy)) for p in group.policies)
     pool = ThreadPoolExecutor(max_workers=1)
-    job = pool.submit(lambda: fns.chunk.lower(data, blocks, state, pstates, k_run, empty).compile())
+    job = pool.submit(lambda: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile())
     pool.shutdown(wait=False)
     return lambda *_: job.result()
 
@@ -480,19 +611,17 @@ def _no_detections(b: int, frames: int) -> tuple[np.ndarray, ...]:
             np.zeros((b, frames, MAX_DET), np.float32), np.zeros((b, frames, MAX_DET, 4), np.float32))
 
 
-def _detect(group: Group, detectors: dict, shots, first_frame: int):
+def _detect(group: Group, detectors: dict, frames: Frames, first_frame: int):
     """Run each world's detector on its real envs' frames. Returns obj, label, conf
     (B, F, D) and box (B, F, D, 4); padding envs get none. Worlds whose detectors share a
     ``network`` (the YOLO weights) share one pass over all their frames: the last batch of
     each world alone would be mostly padding."""
-    from rosmeery_jax.detector.detections import pad
-
-    rgb, seg = (np.asarray(a) for a in shots[:2])  # (B, F, H, W, 3), (B, F, H, W)
+    rgb, seg = np.asarray(frames.rgb), np.asarray(frames.labels)  # (B, F, H, W, 3), (B, F, H, W)
     b, f = rgb.shape[:2]
     obj, label, conf, box = _no_detections(b, f)
     rows = {w: r for w in detectors if len(r := np.flatnonzero(group.real & (group.world == w)))}
     images = {w: rgb[r].reshape(-1, *rgb.shape[2:]) for w, r in rows.items()}
-    frames = {w: seg[r].reshape(-1, *seg.shape[2:]).astype(np.int32) for w, r in rows.items()}
+    labels = {w: seg[r].reshape(-1, *seg.shape[2:]).astype(np.int32) for w, r in rows.items()}
     passes: dict = {}  # a shared network, or the world alone -> its worlds
     for w in rows:
         passes.setdefault(getattr(detectors[w], "network", None) or w, []).append(w)
@@ -501,11 +630,11 @@ def _detect(group: Group, detectors: dict, shots, first_frame: int):
         if len(worlds) == 1:
             w, r = worlds[0], rows[worlds[0]]
             ids = np.stack(np.meshgrid(group.seed[r], first_frame + np.arange(f), indexing="ij"), -1).reshape(-1, 2)
-            found[w] = detectors[w](images[w], frames[w], ids)
+            found[w] = detectors[w](images[w], labels[w], ids)
             continue
         raw = detectors[worlds[0]].raw(np.concatenate([images[w] for w in worlds]))
         for w, start in zip(worlds, np.cumsum([0] + [len(images[w]) for w in worlds])):
-            found[w] = detectors[w].finish(raw[start:start + len(images[w])], frames[w])
+            found[w] = detectors[w].finish(raw[start:start + len(images[w])], labels[w])
     for w, r in rows.items():
         for i, row in enumerate(r):
             obj[row], label[row], conf[row], box[row] = pad(found[w][i * f:(i + 1) * f], f, MAX_DET)

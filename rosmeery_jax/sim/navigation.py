@@ -24,8 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.sim.occupancy import GridGeometry
 from rosmeery_jax.sim import grid
+from rosmeery_jax.sim.occupancy import GridGeometry
 
 IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT = range(6)
 STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout")

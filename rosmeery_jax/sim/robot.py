@@ -21,10 +21,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+
 from rosmeery_jax.sim.mjx import mjx
-
 from rosmeery_jax.world import World
-
 
 PROXY_HALF_HEIGHT = 0.5
 

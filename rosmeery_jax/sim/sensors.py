@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.sim import grid
-
 from rosmeery_jax.sim.raycast import RayScene, cast, cast_columns, index_bits, materialized
 from rosmeery_jax.world.scene import NOTHING
 

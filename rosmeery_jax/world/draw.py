@@ -8,9 +8,9 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.patches import FancyArrow, Patch  # noqa: E402
-import numpy as np  # noqa: E402
 
 from rosmeery_jax.world.load import World  # noqa: E402
 from rosmeery_jax.world.scene import WALL  # noqa: E402

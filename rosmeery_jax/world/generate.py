@@ -45,7 +45,17 @@ from scipy import ndimage
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world import furniture as F
 from rosmeery_jax.world.mjcf import Body, Wall, world_xml
-from rosmeery_jax.world.recipes import KIND_DEFAULTS, KIND_ROOMS, PIECES, REPEAT, ROOMS, SMALL, SUPPORTS, Piece, room_types
+from rosmeery_jax.world.recipes import (
+    KIND_DEFAULTS,
+    KIND_ROOMS,
+    PIECES,
+    REPEAT,
+    ROOMS,
+    SMALL,
+    SUPPORTS,
+    Piece,
+    room_types,
+)
 
 KINDS = tuple(KIND_ROOMS)
 VERSION = 1  # bump when the same options would give a different file

@@ -24,10 +24,11 @@ import mujoco
 import numpy as np
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.world.taxonomy import Predicate, Taxonomy, load_taxonomy
 from rosmeery_jax.world.freespace import FreeSpace, build_free_space
+from rosmeery_jax.world.generate import procedural_path
 from rosmeery_jax.world.scene import WALL, Scene
 from rosmeery_jax.world.surface import SurfaceSamples, observable_samples
+from rosmeery_jax.world.taxonomy import Predicate, Taxonomy, load_taxonomy
 
 WORLDS_DIR = Path(__file__).resolve().parent / "builtin"  # packaged: works from a wheel
 PAPER_WORLDS = ("kitchen", "laboratory", "small_office", "large_office")
@@ -141,7 +142,6 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
     user's MJCF file."""
     text = str(name_or_path)
     if text.startswith("procedural:"):  # generated on first use (rosmeery_jax/world/generate.py)
-        from rosmeery_jax.world.generate import procedural_path
 
         return procedural_path(text)
     if "/" not in text and not text.endswith(".xml"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 WALL = -1  # walls and any other static structure that is not an object
 FLOOR = -2  # the plane z = 0
@@ -69,8 +70,6 @@ class Scene(NamedTuple):
 
         Cost grows with points near each box, not points x boxes: a KD-tree over the points
         gives each box the candidates within its bounding circle or sphere."""
-        from scipy.spatial import cKDTree
-
         dims = 2 if planar else 3
         out = np.zeros(points.shape[0], dtype=bool)
         if points.shape[0] == 0 or self.num_boxes == 0:

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.world.generate import expand_names
 from rosmeery_jax.world.load import World, load_world
 
 COLUMNS = ["world", "objects", "categories", "boxes", "floor_m2", "reachable_m2", "objects_per_10m2", "samples"]
@@ -16,8 +17,6 @@ COLUMNS = ["world", "objects", "categories", "boxes", "floor_m2", "reachable_m2"
 def world_names_in(args: list[str]) -> list[str]:
     """World names from folders (every ``*.xml`` in them, sorted), names, paths and
     comma-separated lists; ``procedural:KIND:A-B`` ranges expanded."""
-    from rosmeery_jax.world.generate import expand_names
-
     out: list[str] = []
     for arg in args:
         if Path(arg).is_dir():

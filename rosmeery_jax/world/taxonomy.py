@@ -15,7 +15,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
 
-from rosmeery_jax.core.errors import InputError, read_toml
+from rosmeery_jax.core.config import read_toml
+from rosmeery_jax.core.errors import InputError
 
 DEFAULT_TAXONOMY = Path(__file__).parent / "taxonomy.toml"
 

@@ -29,7 +29,16 @@ from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+from rosmeery_jax.apps.teleop import views
+from rosmeery_jax.core import xla
+from rosmeery_jax.detector.detections import make_detector, pad
+from rosmeery_jax.env import make
+from rosmeery_jax.policies.recording import Recorder
+from rosmeery_jax.scoring import metrics
 
 STATIC = Path(__file__).parent / "static"
 COMMAND_TIMEOUT_S = 0.5
@@ -55,13 +64,6 @@ class Teleop:
     def __init__(self, world: str, record: str | Path | None = None, detector: str = "off", seed: int = 0,
                  conf_threshold: float = 0.25, weights: str | None = None, detect_every: int = 10,
                  metric_names=None, view: str = "blind"):
-        import jax
-
-        from rosmeery_jax.scoring import metrics
-
-        from rosmeery_jax.core import xla
-        from rosmeery_jax.env import make
-
         self.overrides = {"action_mode": "velocity", "start_yaw": "spawn",
                           **({"labels": "detections"} if detector != "off" else {})}
         self.env = env = make(world, **self.overrides)
@@ -70,8 +72,6 @@ class Teleop:
         self.detector_name, self.detect_every = detector, detect_every
         self.detector = None
         if detector != "off":
-            from rosmeery_jax.detector.detections import make_detector
-
             self.detector = make_detector(detector, env.world, conf_threshold, weights)
         self._step = xla.jit(env.step)
         self._log = xla.jit(env.log)
@@ -83,8 +83,6 @@ class Teleop:
         jax.block_until_ready(self._step(self.state, jax.numpy.zeros(2, jax.numpy.float32)))
         self.recorder = None
         if record:
-            from rosmeery_jax.policies.recording import Recorder
-
             self.recorder = Recorder(record, env.world, np.asarray(self.state.pose), self.overrides, detector, seed,
                                      env.dt)
         self.cmd = np.zeros(2, np.float32)
@@ -123,8 +121,6 @@ class Teleop:
                 self._tick()
 
     def _tick(self) -> None:
-        import jax.numpy as jnp
-
         fresh = time.monotonic() - self.cmd_time <= COMMAND_TIMEOUT_S
         cmd = self.cmd if fresh else np.zeros(2, np.float32)
         self.state = self._step(self.state, jnp.asarray(cmd))
@@ -137,10 +133,6 @@ class Teleop:
         self.frame = self._snapshot(cmd, frame[0])
 
     def _detect(self, img: np.ndarray, lab: np.ndarray) -> None:
-        import jax.numpy as jnp
-
-        from rosmeery_jax.detector.detections import pad
-
         found = self.detector(img[None], lab[None].astype(np.int32), np.array([[0, self.frames]]))
         self.frames += 1
         obj, label, conf, _ = pad(found, 1, 32)
@@ -154,9 +146,6 @@ class Teleop:
 
     # --- what the page shows ---
     def _snapshot(self, cmd, img: np.ndarray | None = None) -> "Frame":
-        from rosmeery_jax.scoring import metrics
-        from rosmeery_jax.apps.teleop import views
-
         s, env = self.state, self.env
         log = self._log(s)
         values = {k: float(np.asarray(v)[0]) for k, v in

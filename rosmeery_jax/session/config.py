@@ -1,0 +1,270 @@
+"""A session's configuration: which worlds, policies and seeds, for how long, with which
+detector and mappers; loaded from defaults, a TOML file and the command line, and checked
+whole before anything runs or is written."""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rosmeery_jax.core import config as config_loader
+from rosmeery_jax.core import overrides
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
+from rosmeery_jax.policies.learned import policy_file
+from rosmeery_jax.policies.replay import recordings_by_world
+from rosmeery_jax.rl.network import load_policy
+from rosmeery_jax.scoring import metrics
+from rosmeery_jax.session.engine import BLOCK
+from rosmeery_jax.world import load_world, world_names
+from rosmeery_jax.world.generate import expand_names
+
+DETECTORS = ("yolo", "oracle", "off")
+MAPPERS = ("oracle", "perceived")
+LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
+LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
+DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
+# Settings that change results: resume refuses a change to any of them.
+RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
+                 "metrics", "env", "mappers")
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    worlds: tuple[str, ...] = ("kitchen", "laboratory", "small_office", "large_office")
+    policies: tuple[str, ...] = ("frontier", "random")
+    seeds: int = 5
+    duration: float = 300.0  # simulated seconds per run
+    detector: str = "yolo"  # "yolo" (torch), "oracle" (simulated from ground truth), "off"
+    conf_threshold: float = 0.25  # detections below it are dropped
+    weights: str = ""  # YOLO-v5 weights for "yolo" ("" = the shipped ones)
+    metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
+    decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
+    chunk_s: float = 30.0  # simulated seconds per jitted call without a detector (progress
+    # granularity only: results do not depend on it)
+    detector_period_s: float = 10.0  # labels from the frames of one period reach the robot's
+    # knowledge (what policies see) at the start of the period after next
+    sample_s: float = 1.0  # seconds between rows of metrics.csv
+    mappers: tuple[str, ...] = ("oracle",)  # who builds the scored map: "oracle" (the built-in
+    # knowledge: detections tied to objects by the ground-truth segmentation) and/or
+    # "perceived" (depth inside detector boxes, no ground truth: rosmeery_jax.scoring.perceived)
+    out: str = "results/session"
+    env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
+    devices: int = 0  # split each batch over this many devices (speed only: results are the same);
+    # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
+    # the YOLO detector runs), at most one per block
+
+    @property
+    def env_config(self) -> EnvConfig:
+        """The env configuration of the session's robots (its ``env`` overrides applied)."""
+        return EnvConfig().with_overrides("config", **overrides.flatten(self.env))
+
+    @property
+    def dt(self) -> float:
+        """The control period in seconds (one env step): the robot's, never restated here."""
+        return self.env_config.robot.control_dt
+
+    def validate(self, source: str = "config") -> "SessionConfig":
+        """Every check that can be made before a run starts; one InputError naming ``source``.
+        Pure: it changes nothing (devices are set up by the runner)."""
+        _check_values(self, source)
+        for name in LIST_FIELDS:
+            if not getattr(self, name):
+                raise InputError(source, name, "is empty: name at least one")
+        with _as_source(source):
+            metrics.resolve(self.metrics)
+            self.env_config  # noqa: B018  (type-checks the overrides)
+            for w in self.worlds:
+                _check_world_name(w)
+            worlds = [load_world(w) for w in self.worlds]
+            for p in self.policies:
+                _check_policy(p, worlds)
+            decisions(self)
+        _check_unique(self, worlds, source)
+        if self.weights and not Path(self.weights).is_file():
+            raise InputError(source, "weights", f"{self.weights!r}: no such file")
+        if self.detector == "yolo":
+            try:
+                import torch  # noqa: F401  (the detector's optional dependency)
+            except ImportError:
+                raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
+                                 "(or use --detector oracle / off)") from None
+        _check_size(self, worlds, source)
+        return self
+
+
+class _as_source:
+    """Name ``source`` in InputErrors that checks deeper down raise with the generic source
+    "config" (they do not know which file the value came from)."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, err, tb):
+        if isinstance(err, InputError) and err.source == "config":
+            raise InputError(self.source, err.where, err.problem) from None
+        return False
+
+
+def _check_values(cfg: SessionConfig, source: str) -> None:
+    if cfg.detector not in DETECTORS:
+        raise InputError(source, "detector", f"{cfg.detector!r} is not available (available: {', '.join(DETECTORS)})")
+    if not 0 <= cfg.conf_threshold <= 1:
+        raise InputError(source, "conf_threshold", f"{cfg.conf_threshold!r} must be a number in [0, 1]")
+    for name in ("seeds", "decide_every"):
+        if getattr(cfg, name) < 1:
+            raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
+    if cfg.devices < 0:
+        raise InputError(source, "devices", f"{cfg.devices!r} must be a whole number >= 0 (0: every device)")
+    for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):
+        if not getattr(cfg, name) > 0:
+            raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
+    for m in cfg.mappers:
+        if m not in MAPPERS:
+            raise InputError(source, "mappers", f"{m!r} is not a mapper (mappers: {', '.join(MAPPERS)})")
+    if "perceived" in cfg.mappers and cfg.detector == "off":
+        raise InputError(source, "mappers", "'perceived' builds its map from detector boxes: use --detector yolo "
+                         "or oracle")
+
+
+def _check_world_name(name: str) -> None:
+    """A name that is neither a built-in world nor an existing file is the config's error."""
+    if name not in world_names() and not Path(name).is_file() and not name.startswith("procedural:"):
+        raise InputError("config", "worlds", f"{name!r} is neither a built-in world ({', '.join(world_names())}) "
+                         "nor an MJCF file nor procedural:KIND:SEED")
+
+
+def _check_policy(spec: str, worlds) -> None:
+    if policy_class(spec) is LearnedPolicy:
+        load_policy(policy_file(spec))  # one line naming the file if it is not a policy file
+    if spec.startswith(REPLAY_PREFIX):
+        recorded = recordings_by_world(spec)
+        if not set(recorded) & {w.name for w in worlds}:
+            raise InputError("config", "policies", f"no recording in {spec!r} is of a session world "
+                             f"(recorded in: {', '.join(sorted(recorded))})")
+        for recs in recorded.values():  # one batch per world: one set of env settings
+            for rec in recs:
+                EnvConfig().with_overrides(f"{rec.path}: line 1: env", **overrides.flatten(rec.header.get("env", {})))
+                if rec.header.get("env", {}) != recs[0].header.get("env", {}):
+                    raise InputError(str(rec.path), "line 1: env", f"differs from {recs[0].path}'s: recordings "
+                                     "replayed together need the same env settings")
+
+
+def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
+    """Two entries that would write the same run files are refused, not merged or overwritten."""
+    seen: dict[str, str] = {}
+    for spec, w in zip(cfg.worlds, worlds):
+        if w.name in seen:
+            raise InputError(source, "worlds", f"{seen[w.name]!r} and {spec!r} are both named {w.name!r}: their "
+                             "results would share files (rename one file)")
+        seen[w.name] = spec
+    labels = [policy_label(p) for p in cfg.policies]
+    for label in labels:
+        if labels.count(label) > 1:
+            raise InputError(source, "policies", f"{label!r} appears twice (join replay files with '+' in one entry)")
+
+
+def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
+    """Refuse a session whose logs or batch cannot fit in this machine's memory (the whole
+    session is one batch: every world x policy x seed, each policy padded to whole blocks)."""
+    steps = cfg.duration / cfg.dt / log_every(cfg)  # logged steps; floats: a huge duration must give
+    # a huge estimate, not an overflow
+    per_policy = -(-cfg.seeds // BLOCK) * BLOCK * len(worlds)
+    batch = float(per_policy * len(cfg.policies))
+    need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
+    need_device = batch * DEVICE_BYTES_PER_ENV
+    have = _memory_bytes()
+    for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
+        if need > 0.8 * have:
+            raise InputError(source, "seeds" if what.startswith("the batch") else "duration",
+                             f"{cfg.seeds} seeds x {len(worlds)} worlds x {len(cfg.policies)} policies x "
+                             f"{cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, more than this "
+                             f"machine's {have / 1e9:.1f} GB allows (fewer seeds, worlds or a shorter duration)")
+
+
+def _memory_bytes() -> float:
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 8e9
+
+
+def load_config(path: str | Path | None, **cli) -> SessionConfig:
+    """Built-in defaults, then the TOML file (its top level or a ``[session]`` table), then
+    command-line values (None = unset); validated."""
+    source = str(path) if path is not None else "command line"
+    return config_loader.load(SessionConfig(), path, cli, table="session", prepare=_prepare).validate(source)
+
+
+def _prepare(values: dict, source: str) -> dict:
+    """The lists (a TOML list or a comma-separated string) and the ``env`` table, taken out
+    of ``values`` and normalised: procedural ranges expanded, replay files re-joined."""
+    given = {}
+    for key in LIST_FIELDS:
+        if key not in values:
+            continue
+        value = values.pop(key)
+        if isinstance(value, str):
+            value = [x.strip() for x in value.split(",") if x.strip()]
+        if not isinstance(value, (list, tuple)) or not all(isinstance(x, str) for x in value):
+            raise InputError(source, key, f"{value!r} must be a list of names or a comma-separated string")
+        given[key] = tuple(value)
+    if "worlds" in given:  # procedural:KIND:A-B is one world per seed
+        given["worlds"] = tuple(expand_names(given["worlds"]))
+    if "policies" in given:
+        given["policies"] = _group_replay(given["policies"])
+    if "env" in values:
+        if not isinstance(values["env"], dict):
+            raise InputError(source, "env", f"{values['env']!r} must be a table of EnvConfig overrides")
+        given["env"] = values.pop("env")
+    return given
+
+
+def _group_replay(tokens: tuple[str, ...]) -> tuple[str, ...]:
+    """``replay:a.jsonl,b.jsonl,random`` splits on commas: re-attach the files to their entry."""
+    out: list[str] = []
+    for tok in tokens:
+        if out and out[-1].startswith(REPLAY_PREFIX) and tok not in POLICIES and not tok.startswith(REPLAY_PREFIX):
+            out[-1] += "+" + tok
+        else:
+            out.append(tok)
+    return tuple(out)
+
+
+def decisions(cfg: SessionConfig) -> int:
+    """Policy decisions in one run; the duration must be a whole number of them."""
+    period = cfg.dt * cfg.decide_every
+    if not math.isfinite(cfg.duration):
+        raise InputError("config", "duration", f"{cfg.duration} must be a finite number of seconds")
+    n = int(round(cfg.duration / period))
+    if n < 1 or abs(n * period - cfg.duration) > 1e-6:
+        raise InputError("config", "duration", f"{cfg.duration} s is not a whole number of decision periods "
+                         f"({period:g} s = decide_every x {cfg.dt:g} s)")
+    return n
+
+
+def per_call(cfg: SessionConfig, total: int) -> int:
+    """Decisions per jitted call: the detector period with a detector (the label schedule
+    is cut at its boundaries), else ``chunk_s`` (progress granularity only); the largest
+    that divides the run, so one compiled function serves."""
+    want = cfg.detector_period_s if cfg.detector != "off" else cfg.chunk_s
+    want = max(1, int(round(want / (cfg.dt * cfg.decide_every))))
+    return max(d for d in range(1, min(want, total) + 1) if total % d == 0)
+
+
+def log_every(cfg: SessionConfig) -> int:
+    """Steps between the engine's per-object logs: a divisor of ``sample_s`` in steps (the
+    rows metrics.csv keeps) and of ``decide_every`` (the chunk function logs within each
+    decision's steps)."""
+    return math.gcd(sample_steps(cfg), cfg.decide_every)
+
+
+def sample_steps(cfg: SessionConfig) -> int:
+    """Control steps between the rows of metrics.csv."""
+    return max(1, int(round(cfg.sample_s / cfg.dt)))

@@ -1,0 +1,123 @@
+"""A session's output files, each written atomically:
+
+    OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
+    OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
+    OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end (mapper "oracle";
+        ``__seed<k>__perceived`` for the perceived mapper's: rosmeery_jax.scoring.perceived)
+    OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
+    OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
+    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged once at the end
+    OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
+    OUT/timing.json                           compile (``compiles``), simulation, detector and wall times
+
+A run's metrics file is written last: its presence marks the run done (``--resume``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+
+from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.policies import policy_label
+from rosmeery_jax.scoring import metrics, plots, results
+from rosmeery_jax.scoring.evaluate import TOLERANCE
+from rosmeery_jax.scoring.perceived import frame_logs
+from rosmeery_jax.scoring.semantic_map import build_map, write_map, write_semantic_map
+from rosmeery_jax.session.config import SessionConfig, sample_steps
+from rosmeery_jax.world import load_world
+
+
+def run_name(world: str, policy: str) -> str:
+    return f"{load_world(world).name}__{policy_label(policy)}"
+
+
+def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> None:
+    """One run's files, each atomically; the metrics file last (its presence marks the run
+    done). ``sim`` holds the group's real envs in row order; padding objects are cut off."""
+    env = group.envs[run.world]
+    world, policy = env.world, group.policies[run.policy].name
+    n, s = world.truth.num_objects, len(world.truth.samples.object)
+    rows = np.searchsorted(np.flatnonzero(group.real), run.rows)
+    logs = jax.tree.map(lambda a: a[rows][..., :n], sim.logs)
+    poses = sim.poses[rows]
+    step = np.arange(logs.ps.shape[1]) * sim.log_every  # each log row's step
+    times = step * env.dt
+    every = sample_steps(cfg) // sim.log_every
+    keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
+    tags = dict(world=world.name, policy=policy, detector=cfg.detector)
+    curves, objects, paths = [], [], []
+    for seed in range(len(rows)):  # per seed, so a seed's numbers never depend on the batch shape
+        log = jax.tree.map(lambda a: a[seed], logs)
+        mapped = {}
+        if "oracle" in cfg.mappers:
+            mapped["oracle"] = log
+            k = jax.tree.map(lambda a: a[rows[seed]], sim.knowledge)
+            k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
+                                                                                "conf_any")})
+            write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
+        if "perceived" in cfg.mappers:
+            mapped["perceived"] = _perceived_log(env, sim.mappers[rows[seed]], step, cfg.decide_every,
+                                                 out / "maps" / f"{run.name}__seed{seed}__perceived", times[-1])
+        for mapper, mlog in mapped.items():
+            c = metrics.compute(mlog, env.truth, cfg.metrics)  # {name: (T,)}
+            curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
+                                               mapper=mapper, **tags))
+            final = jax.tree.map(lambda a: a[-1], mlog)
+            objects.append(results.object_frame(world, final, seed=seed, mapper=mapper, policy=policy,
+                                                detector=cfg.detector))
+        paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
+                                   "time_s": np.round(times[keep], 6), "x": poses[seed, step[keep], 0],
+                                   "y": poses[seed, step[keep], 1], "yaw": poses[seed, step[keep], 2]}))
+    runs = out / "runs"
+    results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{run.name}.objects.csv")
+    write_atomic(runs / f"{run.name}.timing.json", json.dumps(
+        {**timing, "note": "simulated in one batch with the other runs of its group: the times are the group's"},
+        indent=2))
+    results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{run.name}.trajectory.csv")
+    results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
+
+
+def _perceived_log(env, mapper, steps: np.ndarray, decide_every: int, stem: Path, time_s: float):
+    """The perceived mapper's ObjectLog (T, N) at ``steps`` (T,): the map of the frames
+    taken before each step (a frame counts from the step after it, as labels do); its final
+    map is written to ``stem``.ply / .json."""
+    counted = np.maximum(steps - 1, 0) // decide_every  # frames counted at each step
+    per_frame = frame_logs(env.world, mapper, int(counted[-1]), TOLERANCE)
+    points, instance, label, conf = mapper.snapshot(int(counted[-1]))
+    names = [f"instance_{i}" for i in range(len(label))]
+    write_map(stem.parent, stem.name, *build_map(env.world, points, instance, names, label, conf, float(time_s)))
+    return type(per_frame)(*(a[counted] for a in per_frame))
+
+
+def merge(out: Path) -> None:
+    """The merged tables and plots of every finished run in ``out``."""
+    runs = sorted((out / "runs").glob("*.metrics.csv")) if (out / "runs").exists() else []
+    if not runs:
+        return
+    df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
+    results.write_csv(df, out / "metrics.csv")
+    for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv")):
+        parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
+        parts = [pd.read_csv(p) for p in parts if p.exists()]
+        if parts:
+            results.write_csv(pd.concat(parts, ignore_index=True), out / merged)
+    plots.plot_results(df, out / "plots")
+
+
+TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "wait_s", "compile_s", "compiles", "xla_compiles",
+               "cache_hits", "sim_s")
+
+
+def sum_timing(parts: list[dict], t_start: float) -> dict:
+    """This invocation's figures: the groups' (or cluster shards') times summed, and the wall
+    time from ``t_start`` to now (set-up, compile, simulation, detection, writing)."""
+    total = {k: sum(g.get(k, 0) for g in parts) for k in TIMING_KEYS}
+    wall = time.perf_counter() - t_start
+    return {**total, "wall_s": wall, "env_steps_per_s": total["env_steps"] / wall,
+            "sim_env_steps_per_s": total["env_steps"] / max(total["sim_s"], 1e-9)}
