@@ -39,8 +39,7 @@ from rosmeery_jax.core import xla
 from rosmeery_jax.env import make
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.engine import Replicas
-from rosmeery_jax.sim import grid, occupancy
-from rosmeery_jax.sim.navigation import IDLE
+from rosmeery_jax.sim import grid
 from rosmeery_jax.sim.sensors import camera_rays, depth_seg, laser, laser_dirs
 
 
@@ -121,25 +120,10 @@ def stage_chain(env, state, cfg: BenchConfig) -> dict[str, float]:
     alone, fed the previous stage's output and waited for, for ``steps`` steps. The parts
     add up to a step done in pieces; set against the fused step they show what fusing the
     stages into one program gains or loses."""
-    c = env.config
     targets = jnp.asarray(random_targets(env.world, state.pose.shape[0], cfg.seed + 1))
-
-    def navigate(s, target):
-        nav = env.navigator.set_target(s.nav, target, (s.nav.status == IDLE) | jnp.any(target != s.nav.target))
-        return env.navigator.step(nav, s.pose, env.occupancy(s) == occupancy.OCCUPIED)
-
-    def physics(d, cmd):
-        d = env.platform.step(d, cmd)
-        return d, env.platform.pose(d)
-
-    def update_map(lo, p, r, lab):
-        return occupancy.update(lo, env.grid, c.mapping, p[:2], p[2] + env.beam_angles, r, lab)
-
-    fns = {"navigation": xla.jit(jax.vmap(navigate)), "physics": xla.jit(jax.vmap(physics)),
-           "laser": xla.jit(jax.vmap(lambda p: laser(env.laser_rays, c.laser, p))),
-           "mapping": xla.jit(jax.vmap(update_map)),
-           "camera": xla.jit(jax.vmap(lambda p: depth_seg(env.rays, c.camera, p))),
-           "coverage": xla.jit(jax.vmap(env.sk.observe))}
+    fns = {name: xla.jit(jax.vmap(stage)) for name, stage in (
+        ("navigation", env.navigate), ("physics", env.move), ("laser", env.scan), ("mapping", env.update_map),
+        ("camera", env.look), ("coverage", env.sk.observe))}
     times: dict[str, list] = {}
 
     def timed(name, *args):

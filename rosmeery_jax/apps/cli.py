@@ -20,6 +20,7 @@ from rosmeery_jax.apps.bench import BenchConfig, format_table, run_bench
 from rosmeery_jax.apps.record import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
@@ -288,7 +289,7 @@ def _cmd_evaluate(args) -> int:
     results.write_csv(metric_df, out / "metrics.csv")
     results.write_csv(objects, out / "objects.csv")
     results.write_csv(classes, out / "classes.csv")
-    results.write_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2))
     print(", ".join(f"{k} {summary[k]:.3f}" for k in ("ori", "cori", "opi", "opi_strict")) +
           f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
           f"{summary['unmatched_instances']} instances matched to no object")

@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import atomic_path
 
 FORMAT = "rosmeery-yolov5"
 
@@ -145,9 +146,6 @@ def load(path: str | Path, device: str = "cpu"):
 def save(model, path: str | Path, imgsz: tuple[int, int], meta: dict | None = None) -> None:
     """Our format, fp16 parameters (BatchNorm counters stay integer), written atomically."""
     sd = {k: v.detach().half() if v.is_floating_point() else v.detach() for k, v in model.state_dict().items()}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save({"format": FORMAT, "size": model.size, "names": list(model.names), "imgsz": list(imgsz),
-                "meta": meta or {}, "state_dict": sd}, tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        torch.save({"format": FORMAT, "size": model.size, "names": list(model.names), "imgsz": list(imgsz),
+                    "meta": meta or {}, "state_dict": sd}, tmp)

@@ -14,7 +14,7 @@ import io
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from rosmeery_jax.scoring.results import write_atomic  # noqa: E402
+from rosmeery_jax.core.files import write_atomic  # noqa: E402
 
 LABELS = {"ori": "ORI", "cori": "cORI", "cori_any": "cORI (any label)", "opi": "OPI", "opi_strict": "OPI (strict)"}
 

@@ -9,17 +9,14 @@ label, confidence, P_G, p (the final state of each object).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import write_atomic
 
-_UMASK = os.umask(0)
-os.umask(_UMASK)  # read once: the process's umask, for the mode of files written atomically
 METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
 OBJECT_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "object", "category", "ps_G", "ps", "coverage",
                   "label", "confidence", "P_G", "p"]
@@ -54,22 +51,6 @@ def object_frame(world, log, *, policy: str, detector: str, seed: int, mapper: s
         "label": [names[k] if k >= 0 else "" for k in label], "confidence": conf_held,
         "P_G": np.asarray(truth.num_predicates), "p": np.asarray(log.declared),
     })[OBJECT_COLUMNS]
-
-
-def write_atomic(path: str | Path, data: bytes | str) -> Path:
-    """Write a file so readers never see it half-written (temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; results get the usual umask mode
-        with os.fdopen(fd, "wb") as f:
-            f.write(data.encode() if isinstance(data, str) else data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from rosmeery_jax.scoring.results import write_atomic
+from rosmeery_jax.core.files import write_atomic
 
 SCHEMA_PATH = resources.files("rosmeery_jax.scoring") / "semantic_map.schema.json"
 

@@ -4,6 +4,7 @@ whole before anything runs or is written."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 from dataclasses import dataclass, field
@@ -86,12 +87,9 @@ class SessionConfig:
         _check_unique(self, worlds, source)
         if self.weights and not Path(self.weights).is_file():
             raise InputError(source, "weights", f"{self.weights!r}: no such file")
-        if self.detector == "yolo":
-            try:
-                import torch  # noqa: F401  (the detector's optional dependency)
-            except ImportError:
-                raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
-                                 "(or use --detector oracle / off)") from None
+        if self.detector == "yolo" and importlib.util.find_spec("torch") is None:  # found, not imported
+            raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
+                             "(or use --detector oracle / off)")
         _check_size(self, worlds, source)
         return self
 

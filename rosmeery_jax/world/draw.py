@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.patches import FancyArrow, Patch  # noqa: E402
 
+from rosmeery_jax.core.files import atomic_path  # noqa: E402
 from rosmeery_jax.world.load import World  # noqa: E402
 from rosmeery_jax.world.scene import WALL  # noqa: E402
 
@@ -65,8 +66,7 @@ def save_world_picture(world: World, out: str | Path, dpi: int = 130) -> Path:
     fig, ax = plt.subplots(figsize=(9, 7.5))
     draw_world(world, ax)
     fig.tight_layout()
-    tmp = out.with_name(f".{out.name}.tmp")
-    fig.savefig(tmp, dpi=dpi, format=out.suffix.lstrip(".") or "png")
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=out.suffix.lstrip(".") or "png")
     plt.close(fig)
-    tmp.replace(out)
     return out

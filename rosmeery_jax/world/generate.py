@@ -43,6 +43,7 @@ import numpy as np
 from scipy import ndimage
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.world import furniture as F
 from rosmeery_jax.world.mjcf import Body, Wall, world_xml
 from rosmeery_jax.world.recipes import (
@@ -715,11 +716,7 @@ def write_world(layout: Layout, folder: Path) -> Path:
     path = Path(folder) / f"{layout.options.name}.xml"
     if path.is_file() and path.read_text(encoding="utf-8") == text:
         return path
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, text)
 
 
 def procedural_path(text: str) -> Path:

@@ -1,0 +1,70 @@
+"""The package's architecture: layers that import one way, no cycles, torch out of the JAX
+core (import-linter's contracts in pyproject.toml), and the public API."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import rosmeery_jax
+
+ROOT = Path(__file__).resolve().parents[1]
+LINT = Path(sys.executable).with_name("lint-imports")
+
+
+def _lint(tree: Path) -> subprocess.CompletedProcess:
+    """import-linter on the package under ``tree`` (its own pyproject.toml and sources)."""
+    env = {"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin", "HOME": str(tree)}
+    return subprocess.run([str(LINT), "--no-cache"], cwd=tree, capture_output=True, text=True, env=env, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def copy(tmp_path_factory) -> Path:
+    tree = tmp_path_factory.mktemp("tree")
+    shutil.copytree(ROOT / "rosmeery_jax", tree / "rosmeery_jax", ignore=shutil.ignore_patterns("__pycache__", "*.pt",
+                                                                                               "*.msgpack"))
+    shutil.copy(ROOT / "pyproject.toml", tree / "pyproject.toml")
+    return tree
+
+
+def test_the_import_contracts_hold(copy):
+    out = _lint(copy)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-2000:]
+    assert "3 kept, 0 broken" in out.stdout
+
+
+@pytest.mark.parametrize("module, line, broken", [
+    # a lower layer reaching up: the world loader importing the command line
+    ("world/load.py", "from rosmeery_jax.apps import cli  # noqa", "Layers point one way"),
+    # a cycle between two sibling modules of one layer
+    ("session/engine.py", "from rosmeery_jax.session import runner  # noqa", "No import cycles"),
+    # torch in the JAX core
+    ("env/environment.py", "import torch  # noqa", "torch stays out"),
+])
+def test_a_deliberate_back_import_breaks_a_contract(copy, tmp_path, module, line, broken):
+    tree = tmp_path / "tree"
+    shutil.copytree(copy, tree)
+    path = tree / "rosmeery_jax" / module
+    path.write_text(path.read_text() + f"\n{line}\n")
+    out = _lint(tree)
+    assert out.returncode != 0
+    assert f"{broken}" in out.stdout and "BROKEN" in out.stdout
+
+
+def test_the_public_api_resolves_every_name():
+    for name in rosmeery_jax.__all__:
+        assert getattr(rosmeery_jax, name) is not None, name
+    assert "Session" in dir(rosmeery_jax)
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        rosmeery_jax.nope  # noqa: B018
+
+
+def test_the_api_page_lists_every_public_name():
+    page = (ROOT / "docs" / "api.md").read_text()
+    missing = [n for n in rosmeery_jax.__all__ if not re.search(rf"`{n}[`(]", page)]
+    assert not missing, f"docs/api.md does not list {missing}"
