@@ -25,7 +25,7 @@ from rosmeery_jax.detector.yolo import YOLOv5, nms  # noqa: E402
 from rosmeery_jax.core.errors import InputError  # noqa: E402
 
 # The official yolov5n.pt is not shipped (no downloads at run time): point this variable at
-# a copy to run the test (README, "Tests").
+# a copy to run the test (docs/architecture.md, "Tests").
 OFFICIAL = Path(os.environ.get("ROSMEERY_YOLOV5N", "") or "/nonexistent/yolov5n.pt")
 
 

@@ -90,7 +90,7 @@ def test_the_reset_key_sets_the_start_heading_bitwise():
 def test_bad_configs_are_refused_before_writing(tmp_path, capsys, toml, field):
     (tmp_path / "x").mkdir()
     (tmp_path / "x" / "small_office.xml").write_bytes(
-        (Path(__file__).parents[1] / "rosmeery_jax" / "worlds" / "small_office.xml").read_bytes())
+        (Path(__file__).parents[1] / "rosmeery_jax" / "world" / "builtin" / "small_office.xml").read_bytes())
     path = tmp_path / "session.toml"
     path.write_text(toml.replace("x/", f"{tmp_path}/x/"))
     assert main(["run", "--config", str(path), "--out", str(tmp_path / "o"), "--detector", "off"]) == 2
@@ -201,12 +201,12 @@ def test_kill_9_then_resume_gives_the_files_of_an_uninterrupted_run(tmp_path):
     # A session writes its runs one after another once the batch is simulated: this one is
     # killed (SIGKILL, no clean-up) right after its first run's files are written.
     killer = ("import os, signal, sys\n"
-              "from rosmeery_jax import session\n"
-              "write = session.write_run\n"
+              "from rosmeery_jax.session import runner\n"
+              "write = runner.write_run\n"
               "def write_then_die(*a, **k):\n"
               "    write(*a, **k)\n"
               "    os.kill(os.getpid(), signal.SIGKILL)\n"
-              "session.write_run = write_then_die\n"
+              "runner.write_run = write_then_die\n"
               "from rosmeery_jax.apps.cli import main\n"
               "sys.exit(main(sys.argv[1:]))\n")
     proc = subprocess.run([sys.executable, "-c", killer, "run", *args, "--out", str(cut)],
@@ -271,3 +271,8 @@ def test_declared_requirements_and_docs_stand_alone():
         text = path.read_text(encoding="utf-8")
         for outside in ("SPEC section", "PERF-NOTES", "../shared"):
             assert outside not in text, (path, outside)  # users have only this repository
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    assert len(readme.splitlines()) < 300  # a user's guide; topics live in docs/
+    for page in (root / "docs").glob("*.md"):
+        assert page.name in readme or any(page.name in p.read_text() for p in root.joinpath("docs").glob("*.md")
+                                          if p != page), f"{page.name} is linked from nowhere"

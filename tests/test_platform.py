@@ -63,7 +63,7 @@ def test_laser_on_the_boxes_crossing_its_plane_is_the_full_cast(name):
     labels as against every box, at the default height and at heights where furniture tops
     and bottoms lie exactly on the plane."""
     from rosmeery_jax.apps.bench import random_targets
-    from rosmeery_jax.raycast import sensors
+    from rosmeery_jax.sim import sensors
 
     w = load_world(name)
     poses = jnp.asarray(random_targets(w, 64, 4))
@@ -85,7 +85,7 @@ def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
     from dataclasses import replace
 
     from rosmeery_jax.apps.bench import random_targets
-    from rosmeery_jax.raycast import sensors
+    from rosmeery_jax.sim import sensors
 
     w = load_world(name)
     rs = ray_scene(w.scene)
@@ -114,7 +114,7 @@ def test_wide_vectors_change_no_sensor_or_coverage_value():
     """``rosmeery_jax.core.xla`` lets LLVM use 512-bit vectors as a speed choice: the laser, the
     depth and label images and the coverage counts are bitwise those of XLA's default."""
     from rosmeery_jax.apps.bench import random_targets
-    from rosmeery_jax.raycast import sensors
+    from rosmeery_jax.sim import sensors
 
     env = _env("target")
     poses = jnp.asarray(random_targets(env.world, 16, seed=5))

@@ -17,6 +17,7 @@ so the figure is that batch's alone.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import resource
@@ -36,6 +37,7 @@ import numpy as np
 from mujoco import rollout
 
 from rosmeery_jax.core import xla
+from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
 from rosmeery_jax.env import make
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.engine import Replicas
@@ -243,9 +245,7 @@ def equal_work(env, batch: int, cfg: BenchConfig, ctrl: np.ndarray, poses: np.nd
 def session_rate(world_names=None, duration: float = 20.0, detector: str = "yolo") -> dict:
     """End to end: a short default session (the four worlds x frontier, random x 5 seeds)
     including set-up and compile (the persistent cache counts as it would for a user)."""
-    try:
-        import torch  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("torch") is None:  # the optional detector extra
         detector = "oracle"
     with tempfile.TemporaryDirectory() as tmp:
         kw = {"worlds": tuple(world_names)} if world_names else {}
@@ -279,9 +279,7 @@ def detector_bench(env, state, decide_every: int = 10, env_rate: float | None = 
     of B frames rendered from the batch's poses), the cost of rendering those frames, and the
     detector's estimated share of a default session's wall time (one frame per env per
     decision, ``decide_every`` steps at ``env_rate`` env-steps/s)."""
-    try:
-        from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
-    except ImportError:
+    if importlib.util.find_spec("torch") is None:  # the optional detector extra
         return {"skipped": "torch is not installed"}
     if not DEFAULT_WEIGHTS.is_file():
         return {"skipped": f"no weights at {DEFAULT_WEIGHTS}"}

@@ -32,7 +32,7 @@ from rosmeery_jax.scoring.align import to_world
 from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
 from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
-from rosmeery_jax.session import Session, load_config
+from rosmeery_jax.session import Session, SessionConfig, load_config
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import save_world_picture
 from rosmeery_jax.world.generate import GenOptions, check_options, expand_names, generate, write_world
@@ -202,7 +202,7 @@ def _cmd_detector_dataset(args) -> int:
 
 
 def _cmd_detector_train(args) -> int:
-    from rosmeery_jax.detector.train import TrainConfig, train
+    from rosmeery_jax.detector.train import TrainConfig, train  # torch (the detector extra): only here
 
     cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
                       max_images=args.max_images)
@@ -212,7 +212,7 @@ def _cmd_detector_train(args) -> int:
 
 
 def _cmd_detector_eval(args) -> int:
-    from rosmeery_jax.detector import checkpoint
+    from rosmeery_jax.detector import checkpoint  # torch (the detector extra): only here
 
     weights = Path(args.weights) if args.weights else DEFAULT_WEIGHTS
     model = checkpoint.load(weights)
@@ -328,7 +328,22 @@ def _cmd_plot(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
     sub = parser.add_subparsers(dest="command", required=True)
+    d = SessionConfig()  # the help texts state the defaults of the config classes themselves
+    _worlds_parser(sub, d)
+    _world_parser(sub, d)
+    _bench_parser(sub, d)
+    _replay_parser(sub, d)
+    _run_parser(sub, d)
+    _record_parser(sub, d)
+    _detector_parser(sub, d)
+    _teleop_parser(sub, d)
+    _evaluate_parser(sub, d)
+    _train_parser(sub, d)
+    _plot_parser(sub, d)
+    return parser
 
+
+def _worlds_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("worlds", help="list the built-in worlds with object and sample counts")
     p.add_argument("--json", action="store_true", help="print one JSON list instead of a table")
     p.add_argument("--pictures", metavar="DIR", help="also draw every world's top-down map into DIR")
@@ -351,6 +366,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--csv", action="store_true", help="print the per-world table as CSV")
     s.set_defaults(func=_cmd_worlds_stats)
 
+
+def _world_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("world", help="commands on one world")
     wsub = p.add_subparsers(dest="world_command", required=True)
     s = wsub.add_parser("show", help="draw a world's top-down map with labelled objects")
@@ -358,6 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, metavar="FILE.png")
     s.set_defaults(func=_cmd_world_show)
 
+
+def _bench_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("bench", help="env-steps/s by batch size, stage breakdown, and the C MuJoCo peer")
     p.add_argument("--world", default="large_office", metavar="NAME_OR_PATH")
     p.add_argument("--batches", type=_int_list, default=(1, 16, 64, 256), metavar="B,B,...")
@@ -372,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_bench)
 
+
+def _replay_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("replay", help="score a recorded trajectory (CSV of t, x, y, yaw) without physics")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
     p.add_argument("--poses", required=True, metavar="FILE.csv")
@@ -380,36 +401,43 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_replay)
 
+
+def _run_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("run", help="run a benchmark session (worlds x policies x seeds) and write results")
     p.add_argument("--config", metavar="FILE.toml", help="session options (the same names as below)")
-    p.add_argument("--worlds", metavar="A,B", help="built-in names or MJCF paths (default: the four paper worlds)")
-    p.add_argument("--policies", metavar="P,Q", help="default: frontier,random")
-    p.add_argument("--seeds", type=int, metavar="N", help="runs per world and policy, batched (default 5)")
-    p.add_argument("--duration", type=float, metavar="S", help="simulated seconds per run (default 300)")
-    p.add_argument("--detector", help="yolo (default: the torch YOLO-v5), oracle (simulated from ground truth) "
-                   "or off (ground-truth labels of observed objects)")
-    p.add_argument("--conf-threshold", type=float, metavar="C", help="drop detections below C (default 0.25)")
+    p.add_argument("--worlds", metavar="A,B", help=f"built-in names, MJCF paths or procedural:KIND:A-B (default: "
+                   f"{','.join(d.worlds)})")
+    p.add_argument("--policies", metavar="P,Q", help=f"default: {','.join(d.policies)}")
+    p.add_argument("--seeds", type=int, metavar="N", help=f"runs per world and policy, batched (default {d.seeds})")
+    p.add_argument("--duration", type=float, metavar="S", help=f"simulated seconds per run (default {d.duration:g})")
+    p.add_argument("--detector", help=f"yolo (the torch YOLO-v5), oracle (simulated from ground truth) or off "
+                   f"(ground-truth labels of observed objects); default {d.detector}")
+    p.add_argument("--conf-threshold", type=float, metavar="C", help=f"drop detections below C (default "
+                   f"{d.conf_threshold:g})")
     p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
-    p.add_argument("--metrics", metavar="M,N", help="active metrics (default: all built-in)")
-    p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (default: the built-in "
-                   "knowledge, ground-truth association) and/or perceived (depth inside detector boxes)")
-    p.add_argument("--out", metavar="DIR", help="results folder (default results/session)")
+    p.add_argument("--metrics", metavar="M,N", help=f"active metrics (default: {','.join(d.metrics)})")
+    p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (the built-in knowledge, "
+                   "ground-truth association) and/or perceived (depth inside detector boxes); default "
+                   f"{','.join(d.mappers)}")
+    p.add_argument("--out", metavar="DIR", help=f"results folder (default {d.out})")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
     p.add_argument("--devices", type=int, metavar="N", help="split each batch over N devices (GPUs, or N host "
-                   "devices made from the CPU's cores); results are the same (default 0: every device; on a "
-                   "CPU one host device per core, less one for torch with --detector yolo; at most one "
+                   f"devices made from the CPU's cores); results are the same (default {d.devices}: every device; "
+                   "on a CPU one host device per core, less one for torch with --detector yolo; at most one "
                    "per block)")
     p.add_argument("--chunk-s", type=float, metavar="S", help="simulated seconds per jitted call without a "
-                   "detector (progress granularity only; default 30)")
+                   f"detector (progress granularity only; default {d.chunk_s:g})")
     p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "
-                   "the robot at the start of the period after next (default 10)")
+                   f"the robot at the start of the period after next (default {d.detector_period_s:g})")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_run)
 
+
+def _record_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("record", help="drive the robot with a policy and write what it saw: TUM RGB-D, laser, "
                        "odometry (docs/record.md)")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
@@ -417,15 +445,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, default=1, metavar="N", help="record seeds 0..N-1, batched (default 1)")
     p.add_argument("--seed", type=int, metavar="S", help="record seed S only (instead of --seeds)")
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="simulated seconds (default 60)")
-    p.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
-    p.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
-    p.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="RGB-D frames per simulated second "
-                   "(a divisor of 10; default 5); laser, odometry and poses are written every 0.1 s")
+    rec = RecordConfig()
+    p.add_argument("--width", type=int, default=rec.width, help=f"image width in pixels (default {rec.width})")
+    p.add_argument("--height", type=int, default=rec.height, help=f"image height in pixels (default {rec.height})")
+    p.add_argument("--rate", type=float, default=rec.rate_hz, metavar="HZ", help="RGB-D frames per simulated second "
+                   f"(a divisor of the control rate; default {rec.rate_hz:g}); laser, odometry and poses are written "
+                   "every control step")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_record)
 
+
+def _detector_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
     dsub = p.add_subparsers(dest="detector_command", required=True)
     s = dsub.add_parser("dataset", help="render a YOLO-format dataset from the simulator")
@@ -451,13 +483,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=_cmd_detector_eval)
 
+
+def _teleop_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("teleop", help="drive the robot from a local web page; the session is recorded")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default: loopback only)")
     p.add_argument("--port", type=int, default=8765)
     p.add_argument("--record", metavar="FILE.jsonl", help="default: recordings/<world>-<time>.jsonl")
     p.add_argument("--detector", default="yolo", choices=("yolo", "oracle", "off"))
-    p.add_argument("--conf-threshold", type=float, default=0.25, metavar="C")
+    p.add_argument("--conf-threshold", type=float, default=d.conf_threshold, metavar="C")
     p.add_argument("--weights", metavar="FILE.pt")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--view", default="blind", choices=("blind", "full"),
@@ -466,19 +500,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_teleop)
 
+
+def _evaluate_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("evaluate", help="score your own semantic map(s) (PLY + JSON) against a world's ground truth")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
     p.add_argument("--map", required=True, nargs="+", metavar="MAP.ply", help="one or more maps of one run "
                    "(with MAP.json beside each: frame, labels; several maps with times give curves)")
     p.add_argument("--out", default="out/evaluate", metavar="DIR")
-    p.add_argument("--tolerance", type=float, default=0.05, metavar="M",
-                   help="a point within M metres of a surface sample lies on it (default 0.05)")
+    p.add_argument("--tolerance", type=float, default=map_eval.TOLERANCE, metavar="M",
+                   help=f"a point within M metres of a surface sample lies on it (default {map_eval.TOLERANCE:g})")
     p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
     frame = p.add_mutually_exclusive_group()
     frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")
     frame.add_argument("--transform", metavar="FILE", help="a 4 x 4 map-to-world transform (JSON or text) to apply first")
     p.set_defaults(func=_cmd_evaluate)
 
+
+def _train_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("train", help="train the learned explorer with PPO (flax + optax) on a world bank")
     p.add_argument("--config", metavar="FILE.toml", help="training options (default: the built-in defaults; "
                    "experiments/learned/ppo.toml trains the shipped policy)")
@@ -489,10 +527,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_train)
 
+
+def _plot_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
     p.add_argument("dir", metavar="DIR")
     p.set_defaults(func=_cmd_plot)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

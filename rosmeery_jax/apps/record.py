@@ -59,8 +59,9 @@ class RecordConfig:
         return int(round(1.0 / (self.rate_hz * dt)))
 
 
-def check(cfg: RecordConfig, out: Path, resume: bool, dt: float = 0.1) -> None:
-    """Every check on the recorder's own options before anything is written."""
+def check(cfg: RecordConfig, out: Path, resume: bool, dt: float) -> None:
+    """Every check on the recorder's own options before anything is written (``dt``: the
+    control period)."""
     for name in ("width", "height"):
         if not 16 <= getattr(cfg, name) <= 4096:
             raise InputError("command line", f"--{name}", f"{getattr(cfg, name)!r} must be a whole number of "
@@ -84,9 +85,10 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     wanted = list(range(seeds)) if isinstance(seeds, int) else sorted(set(seeds))
     if not wanted or min(wanted) < 0:
         raise InputError("command line", "--seeds", f"{seeds!r}: name at least one seed, none negative")
-    check(cfg, out, resume)
+    dt = SessionConfig().dt
+    check(cfg, out, resume, dt)
     session = SessionConfig(worlds=(world,), policies=(policy,), seeds=max(wanted) + 1, duration=duration,
-                            detector="off", decide_every=cfg.decide_every, sample_s=0.1, out=str(out / "session"))
+                            detector="off", decide_every=cfg.decide_every, sample_s=dt, out=str(out / "session"))
     session = session.validate("command line")
     folders = [out / f"seed{k}" for k in wanted]
     todo = [(k, f) for k, f in zip(wanted, folders) if not f.is_dir()]

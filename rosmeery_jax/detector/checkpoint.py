@@ -20,6 +20,7 @@ import torch
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import atomic_path
+from rosmeery_jax.detector.yolo import YOLOv5
 
 FORMAT = "rosmeery-yolov5"
 
@@ -109,8 +110,6 @@ def read_official(path: str | Path) -> dict:
 def load(path: str | Path, device: str = "cpu"):
     """A ready :class:`~rosmeery_jax.detector.yolo.YOLOv5` (eval mode, float32) from our
     state-dict format or an official checkpoint; one clear error for anything else."""
-    from rosmeery_jax.detector.yolo import YOLOv5
-
     path = Path(path)
     if not path.is_file():
         raise InputError(str(path), "file", "not found")

@@ -64,9 +64,9 @@ class YoloDetector:
 
     def __init__(self, categories: tuple[str, ...], weights: str | Path | None = None, conf: float = 0.25,
                  batch: int = 32, threads: int | None = None, memory: int = 50_000):
-        import torch
+        import torch  # the detector extra: imported only when YOLO runs
 
-        from rosmeery_jax.detector import checkpoint
+        from rosmeery_jax.detector import checkpoint  # imports torch
 
         if threads:
             torch.set_num_threads(threads)
@@ -101,7 +101,7 @@ class YoloDetector:
 
     def forward(self, images: np.ndarray) -> list[np.ndarray]:
         """:meth:`raw` without the memory: the network on every frame."""
-        import torch
+        import torch  # the detector extra: imported only when YOLO runs
 
         out = []
         h, w = images.shape[1:3]

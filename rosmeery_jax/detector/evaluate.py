@@ -74,7 +74,7 @@ def mean_ap(dets: list[np.ndarray], gts: list[np.ndarray], nc: int, iou_thr: flo
 
 def evaluate(model, images: np.ndarray, rows: list[np.ndarray], batch: int = 64) -> dict:
     """mAP of a model on images (I, H, W, 3) uint8 with YOLO rows per image."""
-    import torch
+    import torch  # the detector extra: imported only when a model is scored
 
     h, w = images.shape[1:3]
     dets = []

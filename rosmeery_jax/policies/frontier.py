@@ -133,3 +133,36 @@ class FrontierPolicy(Policy):
         renew = needs_target(state) | ~still_frontier
         target = jnp.where(renew, fresh, ps.target)
         return target, FrontierState(target, failed, nfailed, ~any_left)
+
+
+class ViewPolicy(Policy):
+    """A policy that plans views of its own and, with none worth taking, explores like
+    ``frontier`` (the biggest frontier): the fallback the two NBV policies share. Its state
+    has ``target``, ``frontier`` (a :class:`FrontierState`) and ``exploring``."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.frontier = FrontierPolicy(env, choose="biggest")
+
+    def bind(self, env) -> "ViewPolicy":
+        policy = super().bind(env)
+        policy.frontier = self.frontier.bind(env)
+        return policy
+
+    def choose(self, state, ps, key, have_view: jax.Array, view: jax.Array):
+        """The next target (3,): a view is driven to until the navigator is done with it; at a
+        renewal the planned ``view`` if ``have_view``, else the frontier's target. Returns
+        (target, frontier state, exploring, renew)."""
+        f_target, f_state = self.frontier.decide(state, ps.frontier._replace(target=ps.target), key)
+        renew = needs_target(state) | ps.exploring
+        target = jnp.where(renew, jnp.where(have_view, view, f_target), ps.target)
+        exploring = jnp.where(renew, ~have_view, ps.exploring)
+        return target, f_state, exploring, renew
+
+
+def blocked_within(occupied: jax.Array, cells: int) -> jax.Array:
+    """(H, W) bool: occupied cells grown by ``cells`` (4-neighbourhood), where a view would
+    stand too close to an obstacle."""
+    for _ in range(cells):
+        occupied = grid.grow(occupied, diagonal=False)
+    return occupied

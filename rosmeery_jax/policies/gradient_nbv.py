@@ -40,8 +40,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from rosmeery_jax.policies.base import Policy, needs_target
-from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
+from rosmeery_jax.policies.base import needs_target
+from rosmeery_jax.policies.frontier import FrontierState, ViewPolicy, blocked_within
 from rosmeery_jax.rl.env import surface_maps
 from rosmeery_jax.sim import coverage, grid, occupancy
 from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
@@ -54,7 +54,7 @@ class GradientNBVState(NamedTuple):
     exploring: jax.Array  # bool: the current target came from the frontier fallback
 
 
-class GradientNBVPolicy(Policy):
+class GradientNBVPolicy(ViewPolicy):
     name = "gradient_nbv"
 
     def __init__(self, env, resolution: float = 0.2, object_radius: float = 0.6, point_height: float = 0.4,
@@ -81,13 +81,7 @@ class GradientNBVPolicy(Policy):
         self.far = float(self.steps[-1] + march)
         ang = np.arange(candidates) * 2 * np.pi / candidates
         self.ring = jnp.asarray(np.stack([np.cos(ang), np.sin(ang)], -1) * ring_radius, jnp.float32)
-        self.frontier = FrontierPolicy(env, choose="biggest")
         self.shape = env.grid.coarse(self.f).shape
-
-    def bind(self, env) -> "GradientNBVPolicy":
-        policy = super().bind(env)
-        policy.frontier = self.frontier.bind(env)
-        return policy
 
     @property
     def coarse(self):
@@ -186,9 +180,7 @@ class GradientNBVPolicy(Policy):
         views, gains = self.refine(opacity, table, weight, state.pose, jnp.concatenate([xy, face[:, None]], 1))
         views = views.at[:, 2].set(grid.wrap_angle(views[:, 2]))
         occ = env.occupancy(state)
-        blocked = occ == occupancy.OCCUPIED
-        for _ in range(self.grow_clear):
-            blocked = grid.grow(blocked, diagonal=False)
+        blocked = blocked_within(occ == occupancy.OCCUPIED, self.grow_clear)
         i, j = env.grid.cell(views[:, :2])
         ok = (occ[i, j] == occupancy.FREE) & ~blocked[i, j] & occupancy.in_extent(env.grid, views[:, :2])
         ok = ok & (gains >= self.min_gain)
@@ -197,10 +189,7 @@ class GradientNBVPolicy(Policy):
         best = jnp.argmax(score)
         have_view = score[best] > 0
 
-        f_target, f_state = self.frontier.decide(state, ps.frontier._replace(target=ps.target), key)
-        renew = needs_target(state) | ps.exploring
-        target = jnp.where(renew, jnp.where(have_view, views[best], f_target), ps.target)
-        exploring = jnp.where(renew, ~have_view, ps.exploring)
+        target, f_state, exploring, _ = self.choose(state, ps, key, have_view, views[best])
         return target, GradientNBVState(target, viewed, f_state, exploring)
 
 

@@ -22,9 +22,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.policies.base import Policy, needs_target
-from rosmeery_jax.policies.frontier import FrontierPolicy, FrontierState
-from rosmeery_jax.sim import grid, occupancy
+from rosmeery_jax.policies.base import needs_target
+from rosmeery_jax.policies.frontier import FrontierState, ViewPolicy, blocked_within
+from rosmeery_jax.sim import occupancy
 
 
 class NBVState(NamedTuple):
@@ -36,22 +36,16 @@ class NBVState(NamedTuple):
     view: jax.Array  # (2,) int32 (object, sector) of the current view target
 
 
-class SemanticNBVPolicy(Policy):
+class SemanticNBVPolicy(ViewPolicy):
     name = "semantic_nbv"
 
     def __init__(self, env, views: int = 8, radius: float = 1.0, clearance: float = 0.3):
         super().__init__(env)
         self.v, self.radius = views, radius
-        self.frontier = FrontierPolicy(env, choose="biggest")
         self.n = env.sk.table.num_objects
         ang = np.arange(views) * 2 * np.pi / views
         self.ring = jnp.asarray(np.stack([np.cos(ang), np.sin(ang)], -1) * radius, jnp.float32)  # (V, 2)
         self.grow = max(1, int(round(clearance / env.grid.resolution)))
-
-    def bind(self, env) -> "SemanticNBVPolicy":
-        policy = super().bind(env)
-        policy.frontier = self.frontier.bind(env)
-        return policy
 
     def init(self, key):
         return NBVState(jnp.zeros(3, jnp.float32), jnp.zeros((self.n, self.v), bool), jnp.zeros(self.n, jnp.float32),
@@ -92,9 +86,7 @@ class SemanticNBVPolicy(Policy):
         cand = centroid[:, None, :] + self.ring[None]
         occ = env.occupancy(state)
         free = occ == occupancy.FREE
-        blocked = occ == occupancy.OCCUPIED
-        for _ in range(self.grow):
-            blocked = grid.grow(blocked, diagonal=False)
+        blocked = blocked_within(occ == occupancy.OCCUPIED, self.grow)
         i, j = env.grid.cell(cand)
         ok = free[i, j] & ~blocked[i, j] & labelled[:, None] & ~seen_from
         dist = jnp.linalg.norm(cand - state.pose[:2], axis=-1)
@@ -105,11 +97,6 @@ class SemanticNBVPolicy(Policy):
         face = jnp.arctan2(centroid[n_best, 1] - goal[1], centroid[n_best, 0] - goal[0])
         have_view = score.ravel()[best] > 0
 
-        f_target, f_state = self.frontier.decide(state, ps.frontier._replace(target=ps.target), key)
-        # Keep driving to an object view until the navigator is done with it.
-        renew = needs_target(state) | ps.exploring
-        view_target = jnp.concatenate([goal, face[None]])
-        target = jnp.where(renew, jnp.where(have_view, view_target, f_target), ps.target)
-        exploring = jnp.where(renew, ~have_view, ps.exploring)
+        target, f_state, exploring, renew = self.choose(state, ps, key, have_view, jnp.concatenate([goal, face[None]]))
         view = jnp.where(renew & have_view, jnp.stack([n_best, v_best]).astype(jnp.int32), ps.view)
         return target, NBVState(target, seen_from, count, f_state, exploring, view)

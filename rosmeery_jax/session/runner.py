@@ -39,7 +39,11 @@ class Session:
 
     def __init__(self, cfg: SessionConfig, progress: bool = True, cluster: str | None = None, cache: bool = True):
         self.cfg, self.progress, self.cluster, self.cache = cfg, progress, cluster, cache
-        prepare_devices(cfg)
+        if cluster and cfg.devices > 1:
+            raise InputError("command line", "--devices", "not with --cluster: each Ray worker runs its shard on "
+                             "one device")
+        if not cluster:  # a cluster's workers make their own
+            prepare_devices(cfg)
 
     def run(self, resume: bool = False) -> Path:
         """Run every unfinished (world, policy) pair in one batch per env configuration, or
@@ -48,9 +52,6 @@ class Session:
         out = Path(cfg.out)
         if self.cluster:
             cluster.require_ray()  # before anything is written
-            if cfg.devices > 1:
-                raise InputError("command line", "--devices", "not with --cluster: each Ray worker runs its "
-                                 "shard on one device")
         record = check_out(cfg, resume)
         write_atomic(out / "config.json", json.dumps({**record, "versions": versions()}, indent=2))
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies

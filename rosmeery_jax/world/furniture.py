@@ -6,7 +6,7 @@ extent (``size``, full lengths in the object frame) and the offset of that box's
 the object origin (``center``), and returns the parts in the object frame. Parts never leave
 the given box, so ground-truth bounding boxes equal the measured ones.
 
-Used by ``tools/author_paper_worlds.py`` (the four paper worlds) and available to anyone
+Used by ``scripts/author_paper_worlds.py`` (the four paper worlds) and available to anyone
 authoring a world by script.
 """
 

@@ -1,6 +1,6 @@
 """Write a world in the format of ``rosmeery_jax/world/builtin/`` (docs in :mod:`.load`).
 
-One writer serves the paper worlds (``tools/author_paper_worlds.py``) and the procedural
+One writer serves the paper worlds (``scripts/author_paper_worlds.py``) and the procedural
 generator (:mod:`.generate`), so every world file has the same header, materials, defaults
 and number formatting (4 decimals, trailing zeros dropped: the text is the same on any
 machine for the same numbers).
