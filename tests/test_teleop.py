@@ -169,6 +169,14 @@ def _post(port, body: bytes, headers: dict) -> int:
     return conn.getresponse().status
 
 
+def _get(port, path: str, headers: dict) -> int:
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    conn.request("GET", path, headers=headers)
+    return conn.getresponse().status
+
+
 def test_commands_are_validated_and_only_the_page_may_drive():
     import threading
     from http.server import ThreadingHTTPServer
@@ -188,6 +196,12 @@ def test_commands_are_validated_and_only_the_page_may_drive():
         # another site's page: text/plain (a "simple" request), or a foreign Origin
         assert _post(port, b'{"v": 1, "w": 0}', {"Content-Type": "text/plain"}) == 415
         assert _post(port, b'{"v": 1, "w": 0}', {**own, "Origin": "http://evil.example"}) == 403
+        # DNS rebinding: another site's name resolved to this machine, Origin matching its Host
+        rebound = {**own, "Host": f"evil.example:{port}", "Origin": f"http://evil.example:{port}"}
+        assert _post(port, b'{"v": 1, "w": 0}', rebound) == 403
+        assert _post(port, b'{"v": 1, "w": 0}', {**own, "Host": "127.0.0.1:1"}) == 403  # another port
+        assert _get(port, "/state", {"Host": f"evil.example:{port}"}) == 403
+        assert _get(port, "/state", {"Host": f"localhost:{port}"}) == 200
         assert app.cmd is None
         assert _post(port, b'{"v": 1e308, "w": -1e308}', own) == 200
         assert app.cmd.tolist() == [app.robot.max_speed, -app.robot.max_turn_rate]  # clipped to the limits

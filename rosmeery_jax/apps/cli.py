@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import socket
 import sys
 import time
@@ -20,7 +21,7 @@ from rosmeery_jax.apps.bench import BenchConfig, format_table, run_bench
 from rosmeery_jax.apps.record import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
@@ -35,11 +36,14 @@ from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.session import Session, SessionConfig, load_config
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import save_world_picture
-from rosmeery_jax.world.generate import GenOptions, check_options, expand_names, generate, write_world
+from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
+                                         generate, write_world)
 from rosmeery_jax.world.stats import stats_table, summary, world_names_in
 
 
 def _cmd_worlds(args) -> int:
+    if args.pictures and Path(args.pictures).exists() and not Path(args.pictures).is_dir():
+        raise InputError(args.pictures, "--pictures", "is a file, not a folder")
     worlds = [load_world(n) for n in world_names()]
     summaries = [w.summary() for w in worlds]
     if args.pictures:
@@ -63,14 +67,21 @@ def _cmd_worlds_generate(args) -> int:
     if args.count < 1:
         raise InputError("command line", "--count", f"{args.count}: at least 1")
     check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter), "command line")
+    if args.count > MAX_WORLDS:
+        raise InputError("command line", "--count", f"{args.count}: at most {MAX_WORLDS:,} worlds at once")
     out = Path(args.out)
+    if out.is_symlink() and not out.exists():
+        raise InputError(str(out), "--out", "is a broken or looping symbolic link")
     if out.exists() and not out.is_dir():
-        raise InputError(out, "", "exists and is not a folder")
+        raise InputError(str(out), "--out", "exists and is not a folder")
     t0 = time.perf_counter()
     layouts = [generate(GenOptions(args.kind, s, args.rooms, args.objects, args.clutter))
                for s in range(args.seed, args.seed + args.count)]  # all or nothing: generate, then write
     gen_s = time.perf_counter() - t0
-    paths = [write_world(layout, out) for layout in layouts]
+    for layout in layouts:  # an edited world in --out refuses the whole command, before any write
+        check_unchanged(out / f"{layout.options.name}.xml", layout.xml())
+    with output_folder(out):
+        paths = [write_world(layout, out) for layout in layouts]
     total_s = time.perf_counter() - t0
     print(f"wrote {len(paths)} {args.kind} worlds to {out}/ in {total_s:.2f} s "
           f"({1000 * gen_s / len(paths):.1f} ms per world to generate, the rest writing)")
@@ -98,6 +109,8 @@ def _cmd_worlds_stats(args) -> int:
 
 
 def _cmd_world_show(args) -> int:
+    if Path(args.out).is_dir():
+        raise InputError(args.out, "--out", "is a folder: name the picture to write (FILE.png)")
     world = load_world(args.world)
     out = save_world_picture(world, args.out)
     print(f"wrote {out} ({world.title}: {world.truth.num_objects} objects)")
@@ -128,23 +141,18 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    times, poses = read_poses(args.poses)
+    out = require_new(args.out)
+    times, poses = read_poses(args.poses, load_world(args.world))
     names = metrics.resolve(args.metrics.split(",")) if args.metrics else metrics.DEFAULT_METRICS
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "--out", "is a file, not a folder")
-    taken = [f for f in ("config.json", "metrics.csv", "objects.csv", "semantic_map.ply") if (out / f).exists()]
-    if taken:
-        raise InputError(str(out), "--out", f"already holds {taken[0]}: results are never overwritten; "
-                         "choose another --out")
     env = make(args.world)
     run = replay(env, times, poses)
     curves = metrics.compute(run.logs, env.sk.truth, names)
     tags = dict(policy="replay", detector="off", seed=0)
-    results.write_csv(results.metric_frame(curves, times, world=env.world.name, **tags), out / "metrics.csv")
     final = jax.tree.map(lambda a: a[-1], run.logs)
-    results.write_csv(results.object_frame(env.world, final, **tags), out / "objects.csv")
-    write_semantic_map(out, "semantic_map", env.world, run.knowledge, float(times[-1]))
+    with output_folder(out):
+        results.write_csv(results.metric_frame(curves, times, world=env.world.name, **tags), out / "metrics.csv")
+        results.write_csv(results.object_frame(env.world, final, **tags), out / "objects.csv")
+        write_semantic_map(out, "semantic_map", env.world, run.knowledge, float(times[-1]))
     print(f"{env.world.title}: {len(times)} poses over {times[-1] - times[0]:.1f} s")
     print(f"{'metric':<12}{'final':>8}{'auc':>8}{'t50 s':>8}{'t90 s':>8}")
     for name, c in curves.items():
@@ -191,11 +199,14 @@ def _print_summary(out: Path) -> None:
 
 
 def _cmd_detector_dataset(args) -> int:
+    _positive(args, "per_world", "seed")
+    out = require_new(args.out)  # an existing dataset is never mixed with a new one
     worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
     cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
-    summary = dataset.write(cfg, args.out, progress=not args.quiet)
+    with output_folder(out):
+        summary = dataset.write(cfg, out, progress=not args.quiet)
     print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
           f"{summary['boxes']['train']} / {summary['boxes']['val']} boxes")
     return 0
@@ -204,11 +215,26 @@ def _cmd_detector_dataset(args) -> int:
 def _cmd_detector_train(args) -> int:
     from rosmeery_jax.detector.train import TrainConfig, train  # torch (the detector extra): only here
 
+    _positive(args, "epochs", "batch", "max_images", "seed")
+    out = require_new(args.out, kind="file")  # earlier weights are never replaced
+    for name in ("images/train", "images/val"):
+        if not Path(args.data, name).is_dir():
+            raise InputError(str(Path(args.data, name)), "--data", "not found: make the dataset with "
+                             "`rosmeery detector dataset`")
     cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
-                      max_images=args.max_images)
-    best = train(args.data, args.out, cfg, progress=not args.quiet)
+                      max_images=args.max_images or 0)
+    with output_folder(out.parent):
+        best = train(args.data, out, cfg, progress=not args.quiet)
     print(f"best validation mAP@0.5 {best['map50']:.3f} at epoch {best['epoch']}; wrote {args.out}")
     return 0
+
+
+def _positive(args, *names: str) -> None:
+    """Whole-number options that must be >= 1 (a seed >= 0); None is unset."""
+    for name in names:
+        value, least = getattr(args, name), 0 if name == "seed" else 1
+        if value is not None and value < least:
+            raise InputError("command line", "--" + name.replace("_", "-"), f"{value} must be a whole number >= {least}")
 
 
 def _cmd_detector_eval(args) -> int:
@@ -242,6 +268,8 @@ def _cmd_detector_eval(args) -> int:
 
 
 def _cmd_teleop(args) -> int:
+    if not 1 <= args.port <= 65535:
+        raise InputError("command line", "--port", f"{args.port} is not a TCP port (1-65535)")
     load_world(args.world)  # a bad name fails here, in one line
     record = Path(args.record or f"recordings/{Path(args.world).stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     if record.exists():
@@ -274,8 +302,9 @@ def _cmd_teleop(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    if not args.tolerance > 0:
+    if not args.tolerance > 0 or not math.isfinite(args.tolerance):
         raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
+    out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
     world = load_world(args.world)
     maps = [map_eval.read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
     maps, frame = to_world(world, maps, args.transform, args.align)
@@ -285,11 +314,11 @@ def _cmd_evaluate(args) -> int:
     metric_df, objects, classes, summary = map_eval.evaluate(world, maps, args.tolerance, args.name)
     if frame:
         summary["alignment"] = frame
-    out = Path(args.out)
-    results.write_csv(metric_df, out / "metrics.csv")
-    results.write_csv(objects, out / "objects.csv")
-    results.write_csv(classes, out / "classes.csv")
-    write_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    with output_folder(out):
+        results.write_csv(metric_df, out / "metrics.csv")
+        results.write_csv(objects, out / "objects.csv")
+        results.write_csv(classes, out / "classes.csv")
+        write_atomic(out / "summary.json", json.dumps(summary, indent=2))
     print(", ".join(f"{k} {summary[k]:.3f}" for k in ("ori", "cori", "opi", "opi_strict")) +
           f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
           f"{summary['unmatched_instances']} instances matched to no object")
@@ -298,7 +327,9 @@ def _cmd_evaluate(args) -> int:
 
 
 def _cmd_record(args) -> int:
-    seeds = args.seeds if args.seed is None else [args.seed]
+    if args.seed is not None and args.seeds is not None:
+        raise InputError("command line", "--seed", "give --seed S (one seed) or --seeds N (seeds 0..N-1), not both")
+    seeds = [args.seed] if args.seed is not None else args.seeds or 1
     cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate)
     folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
                      progress=not args.quiet)
@@ -442,7 +473,7 @@ def _record_parser(sub, d: SessionConfig) -> None:
                        "odometry (docs/record.md)")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
     p.add_argument("--policy", default="frontier", metavar="P", help="default: frontier")
-    p.add_argument("--seeds", type=int, default=1, metavar="N", help="record seeds 0..N-1, batched (default 1)")
+    p.add_argument("--seeds", type=int, metavar="N", help="record seeds 0..N-1, batched (default 1)")
     p.add_argument("--seed", type=int, metavar="S", help="record seed S only (instead of --seeds)")
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="simulated seconds (default 60)")
     rec = RecordConfig()
@@ -474,7 +505,7 @@ def _detector_parser(sub, d: SessionConfig) -> None:
     s.add_argument("--epochs", type=int, default=40)
     s.add_argument("--batch", type=int, default=32)
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--max-images", type=int, default=0, metavar="N", help="use only the first N training images")
+    s.add_argument("--max-images", type=int, metavar="N", help="use only the first N training images (default: all)")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_detector_train)
     s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
@@ -544,8 +575,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rosmeery: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("rosmeery: interrupted", file=sys.stderr)
+        print("rosmeery: interrupted" + (" (finished runs are kept: the same command with --resume continues)"
+                                         if args.command == "run" else ""), file=sys.stderr)
         return 130
+    except OSError as err:  # a full disk, a folder that cannot be written: atomic writes left no part file
+        where = err.filename or "a file"
+        print(f"rosmeery: error: {where}: cannot write ({err.strerror or err})", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ plus the laser and odometry (docs/record.md has every convention)::
     OUT/seed<k>/odometry.txt         "timestamp x y yaw v w" base pose and velocities, every step
     OUT/seed<k>/objects.json         seg ids -> object name and category
     OUT/session/                     the session that drove the robot (its own scores)
+    OUT/record.json                  the settings every seed was recorded with (a resume keeps them)
 
 Timestamps are simulated seconds from the start. Each seed's folder is written under a
 temporary name and renamed when complete, so a folder that exists is whole, and
@@ -27,7 +28,7 @@ from __future__ import annotations
 import json
 import shutil
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -39,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import require_same, write_atomic
 from rosmeery_jax.env import make
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.sim.sensors import CameraConfig, laser, laser_dirs, rgbd
@@ -87,9 +89,13 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
         raise InputError("command line", "--seeds", f"{seeds!r}: name at least one seed, none negative")
     dt = SessionConfig().dt
     check(cfg, out, resume, dt)
+    settings = {"world": world, "policy": policy, "duration": duration, **asdict(cfg)}
+    _check_settings(out, settings)
     session = SessionConfig(worlds=(world,), policies=(policy,), seeds=max(wanted) + 1, duration=duration,
                             detector="off", decide_every=cfg.decide_every, sample_s=dt, out=str(out / "session"))
     session = session.validate("command line")
+    if not (out / SETTINGS).exists():
+        write_atomic(out / SETTINGS, json.dumps(settings, indent=2))
     folders = [out / f"seed{k}" for k in wanted]
     todo = [(k, f) for k, f in zip(wanted, folders) if not f.is_dir()]
     if not todo:
@@ -102,6 +108,26 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
         _write_seed(env, cfg, poses.time_s.to_numpy(), poses[["x", "y", "yaw"]].to_numpy(np.float32), folder,
                     {"world": env.world.name, "policy": policy, "seed": k, "duration_s": duration})
     return folders
+
+
+SETTINGS = "record.json"  # what every seed of a recording folder was recorded with
+
+
+def _check_settings(out: Path, settings: dict) -> None:
+    """A resumed recording keeps its world, policy, duration, resolution and rate: seeds
+    recorded otherwise would sit beside the old ones as if they were alike."""
+    saved = out / SETTINGS
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    try:
+        old = json.loads(saved.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(str(out), "--out", f"holds no {SETTINGS}: not a recording folder; choose another") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        old = None
+    if not isinstance(old, dict):
+        raise InputError(str(saved), "file", "unreadable: cannot resume from it")
+    require_same(saved, old, settings, list(settings))
 
 
 def _env(world: str, session):

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import tempfile
@@ -21,6 +22,7 @@ from rosmeery_jax.core.errors import InputError
 _UMASK = os.umask(0)
 os.umask(_UMASK)  # read once: the process's umask, for the mode of files written atomically
 RECORD = "config.json"  # the file that marks a folder as one run's and holds its settings
+LOCK = ".rosmeery.lock"  # held while a command writes into a folder
 
 
 @contextmanager
@@ -47,6 +49,46 @@ def write_atomic(path: str | Path, data: bytes | str) -> Path:
     return Path(path)
 
 
+def require_new(out: str | Path, flag: str = "--out", kind: str = "folder") -> Path:
+    """An output that must not exist yet, or (a folder) exist and be empty: anything else is
+    refused in one line, so nothing the user has is ever replaced."""
+    out = Path(out)
+    if kind == "file":
+        if out.is_dir():
+            raise InputError(str(out), flag, "is a folder: name the file to write")
+        if out.exists() or out.is_symlink():
+            raise InputError(str(out), flag, "exists already: it is never overwritten; choose another name")
+        return out
+    if out.is_symlink() and not out.exists():
+        raise InputError(str(out), flag, "is a broken or looping symbolic link")
+    if out.exists() and not out.is_dir():
+        raise InputError(str(out), flag, "is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        raise InputError(str(out), flag, "is not empty: results are never overwritten; choose another")
+    return out
+
+
+@contextmanager
+def output_folder(out: str | Path, flag: str = "--out") -> Iterator[Path]:
+    """Create ``out`` (and its parents) for a command's outputs; if the command fails before
+    writing anything there, remove what was created, so a refused command leaves nothing."""
+    out = Path(out)
+    made = [p for p in (out, *out.parents) if not p.exists()]
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(str(out), flag, f"cannot be created ({err.strerror or err})") from None
+    try:
+        yield out
+    except BaseException:
+        for p in made:  # deepest first; only folders this call made and that are still empty
+            try:
+                p.rmdir()
+            except OSError:
+                break
+        raise
+
+
 def claim_folder(out: str | Path, resume: bool, holds: str = "results") -> dict | None:
     """Check the output folder ``out`` before anything is written. Returns None for a new or
     empty folder, or the saved record (its ``config.json``) of a folder being resumed;
@@ -56,7 +98,7 @@ def claim_folder(out: str | Path, resume: bool, holds: str = "results") -> dict 
         raise InputError(str(out), "out", "is a file, not a results folder")
     saved = out / RECORD
     if not saved.exists():
-        if out.exists() and any(out.iterdir()):
+        if out.exists() and any(p.name != LOCK for p in out.iterdir()):
             raise InputError(str(out), "out", f"is not empty and has no {RECORD}: choose another --out")
         return None
     if not resume:
@@ -68,6 +110,25 @@ def claim_folder(out: str | Path, resume: bool, holds: str = "results") -> dict 
     if not isinstance(old, dict):
         raise InputError(str(saved), "file", "unreadable or not a run's config: cannot resume from it")
     return old
+
+
+@contextmanager
+def folder_lock(out: str | Path) -> Iterator[None]:
+    """Hold ``out``'s lock while writing into it: a second command on the same folder (two
+    ``--resume`` at once) is refused instead of doing the same work beside the first."""
+    path = Path(out) / LOCK
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666 & ~_UMASK)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise InputError(str(out), "out", "is in use by another rosmeery command: wait for it, or choose another "
+                         "--out") from None
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)  # under the lock: the next command makes its own
+        os.close(fd)
 
 
 def require_same(saved: str | Path, old: dict, new: dict, keys) -> None:

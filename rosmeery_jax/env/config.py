@@ -16,6 +16,9 @@ from rosmeery_jax.sim.sensors import CameraConfig, LaserConfig
 from rosmeery_jax.world import WorldConfig
 
 
+MAX_PIXELS = 4096  # image sides and laser beams: larger is never a robot's sensor, and would not fit
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     action_mode: str = "target"
@@ -38,6 +41,11 @@ class EnvConfig:
         if near < 0 or 0 < near < pairs:
             raise InputError(source, "robot__near_proxies", f"{near} must be 0 (every proxy) or at least "
                              f"robot__max_pairs ({pairs})")
+        for name, value in (("camera__width", cfg.camera.width), ("camera__height", cfg.camera.height),
+                            ("camera__rgb_width", cfg.camera.rgb_width), ("camera__rgb_height", cfg.camera.rgb_height),
+                            ("laser__beams", cfg.laser.beams)):
+            if not 1 <= value <= MAX_PIXELS:
+                raise InputError(source, name, f"{value} must be a whole number in [1, {MAX_PIXELS}]")
         for name, value, allowed in (("start_yaw", cfg.start_yaw, ("spawn", "random")),
                                      ("labels", cfg.labels, ("observed", "detections")),
                                      ("action_mode", cfg.action_mode, ("velocity", "target"))):

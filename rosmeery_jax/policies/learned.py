@@ -16,6 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.rl.env import crop_offsets, goal, goal_offsets, observe
@@ -44,7 +45,8 @@ class LearnedPolicy(Policy):
     def __init__(self, env, spec: str = "learned"):
         super().__init__(env)
         self.name = label(spec)
-        rl, _, self.params = load_policy(policy_file(spec))
+        rl, _, params = load_policy(policy_file(spec))
+        self.params = jax.tree.map(jnp.asarray, params)
         self.net = ActorCritic(rl.actions)
         self.offsets, self.crop_xy = goal_offsets(rl), crop_offsets(rl)
 

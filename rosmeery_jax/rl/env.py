@@ -32,6 +32,7 @@ Shapes: C crop cells a side, G goal cells a side, W worlds in the bank, S sample
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -39,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Env, State
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import WorldBank
@@ -68,6 +70,28 @@ class RLConfig:
     def horizon(self, dt: float) -> int:
         """Decisions per episode."""
         return max(1, int(round(self.episode_s / (dt * self.decide_every))))
+
+
+MAX_CROP = 256  # crop cells a side: larger is no egocentric view and would not fit a batch
+MAX_GOAL_GRID = 64
+
+
+def check_rl(rl: RLConfig, source: str, prefix: str = "rl.") -> None:
+    """Every RL setting in range; one InputError naming ``source`` and the field."""
+    for name, top in (("goal_grid", MAX_GOAL_GRID), ("crop", MAX_CROP), ("decide_every", None)):
+        value = getattr(rl, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1 or (top and value > top):
+            raise InputError(source, prefix + name, f"{value!r} must be a whole number in [1, {top or 'inf'}]")
+    for name in ("episode_s", "goal_spacing", "crop_resolution"):
+        value = getattr(rl, name)
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise InputError(source, prefix + name, f"{value!r} must be a finite number > 0")
+    for name in ("reward_scale", "fail_penalty"):
+        value = getattr(rl, name)
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise InputError(source, prefix + name, f"{value!r} must be a finite number")
+    if rl.reward not in REWARDS:
+        raise InputError(source, prefix + "reward", f"{rl.reward!r} is not one of {', '.join(REWARDS)}")
 
 
 class Params(NamedTuple):

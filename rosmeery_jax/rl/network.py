@@ -24,7 +24,7 @@ from flax import serialization
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.rl.env import Obs, RLConfig
+from rosmeery_jax.rl.env import Obs, RLConfig, check_rl
 
 POLICY_FORMAT = "rosmeery-learned-1"
 
@@ -55,15 +55,44 @@ def save_policy(path: str | Path, rl: RLConfig, env: dict, params) -> None:
 
 
 def load_policy(path: str | Path) -> tuple[RLConfig, dict, Any]:
-    """(RLConfig, env overrides, params) of a policy file; one InputError if it is not one."""
+    """(RLConfig, env overrides, params as numpy arrays) of a policy file, checked whole:
+    its settings in range, its network's shapes those the settings imply, every parameter
+    finite. One InputError naming the file for anything else."""
     path = Path(path)
     try:
         saved = serialization.msgpack_restore(path.read_bytes())
-        if saved.get("format") != POLICY_FORMAT:
-            raise ValueError(f"format {saved.get('format')!r}, expected {POLICY_FORMAT!r}")
+        if not isinstance(saved, dict) or saved.get("format") != POLICY_FORMAT:
+            raise ValueError(f"format {saved.get('format') if isinstance(saved, dict) else None!r}, expected "
+                             f"{POLICY_FORMAT!r}")
         rl = RLConfig(**json.loads(saved["rl"]))
-        return rl, json.loads(saved["env"]), jax.tree.map(jnp.asarray, saved["params"])
+        env = json.loads(saved["env"])
+        params = jax.tree.map(np.asarray, saved["params"])
     except FileNotFoundError:
         raise InputError(str(path), "file", "not found") from None
-    except (OSError, KeyError, TypeError, ValueError, AttributeError) as err:
+    except (OSError, KeyError, TypeError, ValueError, AttributeError, RecursionError) as err:
         raise InputError(str(path), "file", f"not a rosmeery-jax policy file ({err})") from None
+    check_rl(rl, str(path))
+    if not isinstance(env, dict):
+        raise InputError(str(path), "env", "must be a table of EnvConfig overrides")
+    _check_params(path, rl, params)
+    return rl, env, params
+
+
+def _check_params(path: Path, rl: RLConfig, params) -> None:
+    """The parameters have the network's structure and shapes for ``rl`` and are finite."""
+    blank = Obs(jax.ShapeDtypeStruct((rl.crop, rl.crop, 4), jnp.float32), jax.ShapeDtypeStruct((4,), jnp.float32))
+    want = jax.eval_shape(ActorCritic(rl.actions).init, jax.random.key(0), blank)
+    got = jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), np.asarray(a).dtype), params)
+    if jax.tree.structure(got) != jax.tree.structure(want):
+        raise InputError(str(path), "params", "are not those of the learned explorer's network")
+    for (where, w), g in zip(jax.tree_util.tree_flatten_with_path(want)[0], jax.tree.leaves(got)):
+        name = jax.tree_util.keystr(where)
+        if g.shape != w.shape:
+            raise InputError(str(path), f"params{name}", f"shape {g.shape}, but its settings (crop {rl.crop}, goal "
+                             f"grid {rl.goal_grid}) need {w.shape}")
+        if not np.issubdtype(g.dtype, np.floating):
+            raise InputError(str(path), f"params{name}", f"dtype {g.dtype} is not a float")
+    bad = next((jax.tree_util.keystr(k) for k, a in jax.tree_util.tree_flatten_with_path(params)[0]
+                if not np.isfinite(a).all()), None)
+    if bad is not None:
+        raise InputError(str(path), f"params{bad}", "holds NaN or infinite values (a diverged training run?)")

@@ -19,6 +19,7 @@ which orbax's and flax's pytree handlers do not know).
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -34,13 +35,19 @@ from flax.training.train_state import TrainState
 from tqdm import tqdm
 
 from rosmeery_jax.core import config as config_loader
-from rosmeery_jax.core import xla
+from rosmeery_jax.core import interrupt, xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.files import claim_folder, require_same, write_atomic
+from rosmeery_jax.core.xla import memory_bytes
+from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
 from rosmeery_jax.env import EnvConfig, world_bank
-from rosmeery_jax.rl.env import REWARDS, ExplorationEnv, Obs, RLConfig
+from rosmeery_jax.rl.env import ExplorationEnv, Obs, RLConfig, check_rl
 from rosmeery_jax.rl.network import ActorCritic, save_policy
 from rosmeery_jax.scoring.plots import learning_curve
+from rosmeery_jax.world.generate import expand_names
+
+
+ENV_BYTES = 2.5e6  # one env's state, as a session's (docs/performance.md)
+ROLLOUT_COPIES = 4  # a rollout's observations are held, shuffled and batched within one update
 
 
 @dataclass(frozen=True)
@@ -100,23 +107,36 @@ def _prepare(values: dict, source: str) -> dict:
 
 def _check(cfg: TrainConfig, source: str) -> None:
     EnvConfig().with_overrides(source, **cfg.env)
+    expand_names(cfg.worlds)  # a range refused by its size, before anything is built
+    check_rl(cfg.rl, source)
     p = cfg.ppo
-    for section, names in (("ppo", ("num_envs", "num_steps", "updates", "update_epochs", "minibatches",
-                                    "checkpoint_every")), ("rl", ("goal_grid", "crop", "decide_every"))):
-        for name in names:
-            value = getattr(getattr(cfg, section), name)
-            if value < 1:
-                raise InputError(source, f"{section}.{name}", f"{value!r} must be a whole number >= 1")
-    for name in ("episode_s", "goal_spacing", "crop_resolution"):
-        if getattr(cfg.rl, name) <= 0:
-            raise InputError(source, f"rl.{name}", "must be > 0")
+    for name in ("num_envs", "num_steps", "updates", "update_epochs", "minibatches", "checkpoint_every"):
+        if getattr(p, name) < 1:
+            raise InputError(source, f"ppo.{name}", f"{getattr(p, name)!r} must be a whole number >= 1")
+    for name in ("lr", "clip_eps", "max_grad_norm"):
+        if not 0 < getattr(p, name) < math.inf:
+            raise InputError(source, f"ppo.{name}", f"{getattr(p, name)!r} must be a finite number > 0")
+    for name in ("ent_coef", "vf_coef"):
+        if not 0 <= getattr(p, name) < math.inf:
+            raise InputError(source, f"ppo.{name}", f"{getattr(p, name)!r} must be a finite number >= 0")
     if (p.num_envs * p.num_steps) % p.minibatches:
         raise InputError(source, "ppo.minibatches", f"must divide num_envs x num_steps ({p.num_envs * p.num_steps})")
-    if cfg.rl.reward not in REWARDS:
-        raise InputError(source, "rl.reward", f"{cfg.rl.reward!r} is not one of {', '.join(REWARDS)}")
     for name in ("gamma", "gae_lambda"):
         if not 0 < getattr(p, name) <= 1:
             raise InputError(source, f"ppo.{name}", "must be in (0, 1]")
+    _check_size(cfg, source)
+
+
+def _check_size(cfg: TrainConfig, source: str) -> None:
+    """Refuse a training batch that cannot fit in this machine's memory: the envs' states and
+    one update's rollout of observations."""
+    p, rl = cfg.ppo, cfg.rl
+    obs = rl.crop * rl.crop * 4 * 4 + 64  # bytes of one observation and its transition
+    need = float(p.num_envs) * (ENV_BYTES + p.num_steps * obs * ROLLOUT_COPIES)
+    have = memory_bytes()
+    if need > 0.8 * have:
+        raise InputError(source, "ppo.num_envs", f"{p.num_envs:,} envs x {p.num_steps} steps need about "
+                         f"{need / 1e9:,.1f} GB, more than this machine's {have / 1e9:.1f} GB allows")
 
 
 class Transition(NamedTuple):
@@ -284,9 +304,22 @@ def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: boo
     """Train to ``cfg.ppo.updates`` updates, writing into ``out`` (module docstring)."""
     out = Path(out)
     record = json.loads(json.dumps(asdict(cfg)))
-    _check_out(out, record, resume)
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "config.json", json.dumps(record, indent=2))
+    fresh = _check_out(out, record, resume)
+    with output_folder(out), folder_lock(out):
+        _check_out(out, record, resume)  # again under the lock: another command may have started
+        write_atomic(out / "config.json", json.dumps(record, indent=2))
+        try:
+            with interrupt.deferred():
+                _train(cfg, out, resume, progress)
+        except BaseException:
+            if fresh and not (out / "checkpoint.msgpack").exists():
+                (out / "config.json").unlink(missing_ok=True)  # nothing trained: the same command starts afresh
+            raise
+    return out
+
+
+def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
+    """The update loop: checkpoints every ``checkpoint_every`` updates, then the policy."""
     env = make_env(cfg)
     runner = init_runner(cfg, env)
     done, curve = 0, []
@@ -298,8 +331,10 @@ def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: boo
     bar = tqdm(total=p.updates, initial=done, disable=not progress, unit="update")
     t0 = time.perf_counter()
     for u in range(done, p.updates):
+        interrupt.check()  # Ctrl-C stops between updates; the last checkpoint resumes
         runner, stats = update(runner)
         stats = {k: float(v) for k, v in stats.items()}
+        _check_finite(out, u + 1, stats, runner.train.params)  # before anything of this update is saved
         elapsed = time.perf_counter() - t0
         curve.append({"update": u + 1, "env_steps": (u + 1) * steps_per_update, **stats, "wall_s": elapsed})
         bar.update(1)
@@ -310,13 +345,25 @@ def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: boo
     bar.close()
     save_policy(out / "policy.msgpack", cfg.rl, cfg.env, runner.train.params)
     _write_curve(out, curve)
-    return out
 
 
-def _check_out(out: Path, record: dict, resume: bool) -> None:
+def _check_finite(out: Path, update: int, stats: dict, params) -> None:
+    """Stop a diverged run with one line, before its NaN state is saved: the last checkpoint
+    and curve stay those of the last good update."""
+    bad = next((k for k, v in stats.items() if not math.isfinite(v)), None)
+    if bad is None and not all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(params)):
+        bad = "the parameters"
+    if bad is not None:
+        raise InputError(str(out), f"update {update}", f"training diverged ({bad} not finite): stopped, the last "
+                         "good checkpoint kept (a smaller ppo.lr or max_grad_norm?)")
+
+
+def _check_out(out: Path, record: dict, resume: bool) -> bool:
+    """Check the training folder; returns whether it is new."""
     old = claim_folder(out, resume, holds="a training run")
     if old is not None:
         require_same(out / "config.json", old, record, ("worlds", "ppo", "rl", "env"))
+    return old is None
 
 
 def read_curve(out: str | Path):

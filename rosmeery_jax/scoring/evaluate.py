@@ -25,6 +25,7 @@ The result is one :class:`ObjectLog` per map, so the session's metric functions 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import NamedTuple
 
@@ -66,8 +67,14 @@ class Score(NamedTuple):
 
 
 def read_map(ply: str | Path, taxonomy) -> SemanticMap:
-    """``ply`` and the JSON beside it (optional); one InputError naming the file and field."""
+    """``ply`` and the JSON beside it (its world, time and instance labels; required, so a
+    map of another world is refused rather than scored); one InputError naming the file
+    and field."""
     ply = Path(ply)
+    meta_path = ply.with_suffix(".json")
+    if not meta_path.is_file():
+        raise InputError(meta_path, "file", "not found: each map needs its JSON beside it (frame.world, "
+                         "frame.time_s, objects), the format `rosmeery run` writes")
     vertex = _vertices(ply)
     names = vertex.dtype.names
     field = next((f for f in INSTANCE_FIELDS if f in names), None)
@@ -79,12 +86,9 @@ def read_map(ply: str | Path, taxonomy) -> SemanticMap:
         raise InputError(ply, "vertex x, y, z", f"{int(bad.sum())} points are not finite numbers (first: row {int(np.argmax(bad))})")
     instance = vertex[field].astype(np.int64)
     labels, conf = _point_labels(ply, vertex, instance, taxonomy)
-    world = time_s = None
-    meta_path = ply.with_suffix(".json")
-    if meta_path.is_file():
-        world, time_s, extra_labels, extra_conf = _read_meta(meta_path, taxonomy)
-        labels.update(extra_labels)
-        conf.update(extra_conf)
+    world, time_s, extra_labels, extra_conf = _read_meta(meta_path, taxonomy)
+    labels.update(extra_labels)
+    conf.update(extra_conf)
     return SemanticMap(ply, points, instance, labels, conf, world, time_s)
 
 
@@ -96,9 +100,14 @@ def _vertices(ply: Path) -> np.ndarray:
         raise InputError(ply, "file", "not found") from None
     except Exception as err:  # trimesh raises many kinds on a malformed file
         raise InputError(ply, "file", f"not a readable PLY point cloud ({type(err).__name__}: {err})") from None
+    if isinstance(vertex, dict):  # an ASCII PLY: trimesh gives one (n, 1) column per property
+        vertex = np.rec.fromarrays([np.asarray(v).reshape(len(v), -1)[:, 0] for v in vertex.values()],
+                                   names=list(vertex)) if vertex else np.zeros(0, [("x", "f4")])
     missing = [a for a in "xyz" if a not in (vertex.dtype.names or ())]
     if missing:
         raise InputError(ply, f"vertex {missing[0]}", "missing")
+    if len(vertex) == 0:
+        raise InputError(ply, "vertex", "the map has no points")
     return vertex
 
 
@@ -124,16 +133,26 @@ def _read_meta(path: Path, taxonomy):
         meta = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(path, "file", f"not valid JSON ({err})") from None
+    except RecursionError:
+        raise InputError(path, "file", "nested too deeply to be a semantic map") from None
     frame = meta.get("frame", {}) if isinstance(meta, dict) else None
     if not isinstance(frame, dict):
         raise InputError(path, "frame", "must be an object")
+    if not isinstance(frame.get("world"), str):
+        raise InputError(path, "frame.world", "missing: the name of the world the map is of")
     time_s = frame.get("time_s")
-    if time_s is not None and not isinstance(time_s, (int, float)):
-        raise InputError(path, "frame.time_s", f"{time_s!r} is not a number")
+    if time_s is not None and (isinstance(time_s, bool) or not isinstance(time_s, (int, float))
+                               or not math.isfinite(time_s) or time_s < 0):
+        raise InputError(path, "frame.time_s", f"{time_s!r} is not a time in seconds (a finite number >= 0)")
+    objects = meta.get("objects", [])
+    if not isinstance(objects, list):
+        raise InputError(path, "objects", "must be a list")
     labels, conf = {}, {}
-    for j, obj in enumerate(meta.get("objects", [])):
-        if not isinstance(obj, dict) or not isinstance(obj.get("id"), int):
+    for j, obj in enumerate(objects):
+        if not isinstance(obj, dict) or not isinstance(obj.get("id"), int) or isinstance(obj.get("id"), bool):
             raise InputError(path, f"objects[{j}].id", "each object needs an integer id (its points' instance id)")
+        if obj["id"] in labels:
+            raise InputError(path, f"objects[{j}].id", f"{obj['id']} appears twice")
         label = obj.get("label")
         if label is not None and label not in taxonomy:
             raise InputError(path, f"objects[{j}].label", f"{label!r} is not a category of the taxonomy")
@@ -206,6 +225,15 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
     Returns (metrics table, objects table of the last map, per-class table, summary dict),
     the first two in the session's formats (policy = ``name``, detector = "own", seed 0)."""
     times = [m.time_s if m.time_s is not None else float(k) for k, m in enumerate(maps)]
+    timed = [m.time_s is not None for m in maps]
+    if any(timed) and not all(timed):  # times for some, order for others: no one order
+        m = maps[timed.index(False)]
+        raise InputError(m.path.with_suffix(".json"), "frame.time_s", "missing, while other maps have one: give "
+                         "every map its time, or none (then their order is their time)")
+    for k, m in enumerate(maps):
+        if times.count(times[k]) > 1:
+            raise InputError(m.path.with_suffix(".json"), "frame.time_s", f"{times[k]:g} s: two maps have this "
+                             "time (one map per time)")
     order = np.argsort(times, kind="stable")
     scores = [score(world, maps[k], tolerance) for k in order]
     t = world.truth

@@ -178,14 +178,14 @@ def hold(label: np.ndarray, conf: np.ndarray, events: np.ndarray) -> None:
 
 def frame_logs(world, mapper: PerceivedMapper, frames: int, tolerance: float) -> ObjectLog:
     """The map scored after 0, 1, ..., ``frames`` frames: ObjectLog with (frames + 1, N)
-    fields, one map_eval scoring per frame count (the cloud only grows, so each point is
+    fields, one evaluate scoring per frame count (the cloud only grows, so each point is
     tied to a sample once)."""
     points, instance, frame = mapper.cloud()
     sample = tie(world, points, tolerance) if len(points) else np.zeros(0, np.int64)
     n_samples = len(world.truth.samples.object)
     sample_obj = np.asarray(world.truth.samples.object)
     on = sample >= 0
-    # Rows: the instances that hold points, in id order (as map_eval.score reads the map).
+    # Rows: the instances that hold points, in id order (as evaluate.score reads the map).
     ids, row = np.unique(instance, return_inverse=True)
     # each (instance, sample) pair counts once, from the first frame that held it
     key = row[on] * n_samples + sample[on]

@@ -14,7 +14,8 @@ import io
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from rosmeery_jax.core.files import write_atomic  # noqa: E402
+from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.scoring.results import plain_name  # noqa: E402
 
 LABELS = {"ori": "ORI", "cori": "cORI", "cori_any": "cORI (any label)", "opi": "OPI", "opi_strict": "OPI (strict)"}
 
@@ -51,6 +52,9 @@ def plot_curves(df: pd.DataFrame, world: str, metric: str, ax=None):
 def plot_results(df: pd.DataFrame, directory: str | Path) -> list[Path]:
     """Write ``<world>_<metric>.png`` for every world and metric in df into directory."""
     out = []
+    unsafe = [n for n in (*df.world.unique(), *df.metric.unique()) if not plain_name(str(n))]
+    if unsafe:  # names become file names: never a path out of ``directory``
+        raise ValueError(f"{unsafe[0]!r} is not a plain name")
     for world in sorted(df.world.unique()):
         for metric in sorted(df.metric.unique()):
             fig, ax = plt.subplots(figsize=(6, 3.6))

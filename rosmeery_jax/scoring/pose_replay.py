@@ -26,8 +26,9 @@ POSE_COLUMNS = ("t", "x", "y", "yaw")
 MAX_COORD = 1e6  # larger coordinates are corrupt (and would overflow float32)
 
 
-def read_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(times (T,), poses (T, 3)) from a CSV; one-line InputError naming the file and field."""
+def read_poses(path: str | Path, world=None) -> tuple[np.ndarray, np.ndarray]:
+    """(times (T,), poses (T, 3)) from a CSV; one-line InputError naming the file and field.
+    With ``world``, every pose must lie on its floor plan's grid."""
     path = Path(path)
     if not path.is_file():
         raise InputError(str(path), "file", "not found")
@@ -53,7 +54,16 @@ def read_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise InputError(str(path), f"row {back[0] + 3}, column t", "times must strictly increase")
-    return t, df[["x", "y", "yaw"]].to_numpy(np.float32)
+    if t[0] < 0:
+        raise InputError(str(path), "row 2, column t", f"{t[0]:g} s: times start at 0 or later")
+    poses = df[["x", "y", "yaw"]].to_numpy(np.float32)
+    if world is not None:
+        outside = [k for k, xy in enumerate(poses[:, :2]) if not world.free_space.contains(xy)]
+        if outside:
+            k = outside[0]
+            raise InputError(str(path), f"row {k + 2}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) lies "
+                             f"outside the world {world.name!r}")
+    return t, poses
 
 
 class Replay(NamedTuple):

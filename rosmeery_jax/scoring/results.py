@@ -18,6 +18,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
 
 METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
+NAME_COLUMNS = ("world", "policy", "detector", "mapper", "metric")  # their values name plot files
 OBJECT_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "object", "category", "ps_G", "ps", "coverage",
                   "label", "confidence", "P_G", "p"]
 
@@ -53,6 +54,13 @@ def object_frame(world, log, *, policy: str, detector: str, seed: int, mapper: s
     })[OBJECT_COLUMNS]
 
 
+def plain_name(name: str) -> bool:
+    """Whether ``name`` can be one file name's part in this folder: no separator, no leading
+    dot (``..``), no control character."""
+    return bool(name) and not name.startswith(".") and not any(c in name for c in "/\\") and \
+        all(c.isprintable() for c in name)
+
+
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
     return write_atomic(path, df.to_csv(index=False))
 
@@ -72,6 +80,11 @@ def load(directory: str | Path) -> pd.DataFrame:
     missing = [c for c in METRIC_COLUMNS if c not in df.columns]
     if missing:
         raise InputError(str(path), "columns", f"missing {', '.join(missing)}")
+    for c in NAME_COLUMNS:
+        bad = [i for i, v in enumerate(df[c].astype(str)) if not plain_name(v)]
+        if bad:
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{df[c].iloc[bad[0]]!r} is not a plain name "
+                             "(names in a results table become file names: no folders, no leading dot)")
     for c in ("seed", "time_s", "value"):
         values = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
         bad = np.flatnonzero(~np.isfinite(values))

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import overrides
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.xla import memory_bytes
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
 from rosmeery_jax.policies.learned import policy_file
@@ -28,6 +28,8 @@ MAPPERS = ("oracle", "perceived")
 LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
 DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
+CAMERA_BYTES_PER_PIXEL = 64  # depth, labels and the ray kernel's per-pixel work, with headroom
+FRAME_BYTES_PER_PIXEL = 16  # a detector frame held for the worker: RGB, labels, depth, with copies
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
                  "metrics", "env", "mappers")
@@ -84,9 +86,13 @@ class SessionConfig:
             for p in self.policies:
                 _check_policy(p, worlds)
             decisions(self)
+            sample_steps(self)
         _check_unique(self, worlds, source)
+        if self.weights and self.detector != "yolo":
+            raise InputError(source, "weights", f"{self.weights!r} is for --detector yolo, not {self.detector!r}")
         if self.weights and not Path(self.weights).is_file():
             raise InputError(source, "weights", f"{self.weights!r}: no such file")
+        _check_devices(self, worlds, source)
         if self.detector == "yolo" and importlib.util.find_spec("torch") is None:  # found, not imported
             raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
                              "(or use --detector oracle / off)")
@@ -126,9 +132,22 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
     for m in cfg.mappers:
         if m not in MAPPERS:
             raise InputError(source, "mappers", f"{m!r} is not a mapper (mappers: {', '.join(MAPPERS)})")
+    for name in ("mappers", "metrics"):
+        values = getattr(cfg, name)
+        twice = next((v for v in values if values.count(v) > 1), None)
+        if twice is not None:
+            raise InputError(source, name, f"{twice!r} appears twice")
     if "perceived" in cfg.mappers and cfg.detector == "off":
         raise InputError(source, "mappers", "'perceived' builds its map from detector boxes: use --detector yolo "
                          "or oracle")
+
+
+def _check_devices(cfg: SessionConfig, worlds, source: str) -> None:
+    """At most one device per block of the batch (more would run nothing)."""
+    blocks = -(-cfg.seeds // BLOCK) * len(worlds) * len(cfg.policies)
+    if cfg.devices > blocks:
+        raise InputError(source, "devices", f"{cfg.devices}: this session has {blocks} blocks of {BLOCK} robots, "
+                         "and a device runs whole blocks (at most one device per block)")
 
 
 def _check_world_name(name: str) -> None:
@@ -176,21 +195,17 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     per_policy = -(-cfg.seeds // BLOCK) * BLOCK * len(worlds)
     batch = float(per_policy * len(cfg.policies))
     need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
-    need_device = batch * DEVICE_BYTES_PER_ENV
-    have = _memory_bytes()
+    cam = cfg.env_config.camera  # every step's depth and labels, and a chunk's detector frames
+    frames = per_call(cfg, decisions(cfg)) if cfg.detector != "off" else 0
+    need_device = batch * (DEVICE_BYTES_PER_ENV + CAMERA_BYTES_PER_PIXEL * cam.width * cam.height
+                           + FRAME_BYTES_PER_PIXEL * frames * cam.rgb_width * cam.rgb_height)
+    have = memory_bytes()
     for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
         if need > 0.8 * have:
             raise InputError(source, "seeds" if what.startswith("the batch") else "duration",
                              f"{cfg.seeds} seeds x {len(worlds)} worlds x {len(cfg.policies)} policies x "
                              f"{cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, more than this "
                              f"machine's {have / 1e9:.1f} GB allows (fewer seeds, worlds or a shorter duration)")
-
-
-def _memory_bytes() -> float:
-    try:
-        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):
-        return 8e9
 
 
 def load_config(path: str | Path | None, **cli) -> SessionConfig:
@@ -264,5 +279,10 @@ def log_every(cfg: SessionConfig) -> int:
 
 
 def sample_steps(cfg: SessionConfig) -> int:
-    """Control steps between the rows of metrics.csv."""
-    return max(1, int(round(cfg.sample_s / cfg.dt)))
+    """Control steps between the rows of metrics.csv: ``sample_s`` must be a whole number
+    of control periods."""
+    n = int(round(cfg.sample_s / cfg.dt))
+    if n < 1 or abs(n * cfg.dt - cfg.sample_s) > 1e-6:
+        raise InputError("config", "sample_s", f"{cfg.sample_s:g} s is not a whole number of control periods "
+                         f"({cfg.dt:g} s)")
+    return n

@@ -11,6 +11,7 @@ import subprocess
 from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
+from typing import NamedTuple
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, claim_folder, require_same
@@ -57,16 +58,31 @@ def input_hashes(cfg: SessionConfig) -> dict:
     return out
 
 
-def check_out(cfg: SessionConfig, resume: bool) -> dict:
-    """Check the results folder before anything is written; returns the record for config.json."""
+class Claim(NamedTuple):
+    """What :func:`check_out` found: the record for config.json, and whether the folder is
+    new (nothing of an earlier invocation in it)."""
+
+    record: dict
+    fresh: bool
+
+
+def check_out(cfg: SessionConfig, resume: bool) -> Claim:
+    """Check the results folder before anything is written. A resume keeps every setting
+    that changes results and every input file; it may add worlds and policies, never drop
+    one (config.json would no longer describe the folder's runs)."""
     record = {"session": json.loads(json.dumps(asdict(cfg))), "inputs": input_hashes(cfg)}
     old = claim_folder(cfg.out, resume)
     if old is None:
-        return record
+        return Claim(record, True)
     saved = Path(cfg.out) / RECORD
     if not isinstance(old.get("session"), dict) or not isinstance(old.get("inputs"), dict):
         raise InputError(str(saved), "file", "not a session config: cannot resume from it")
     require_same(saved, old["session"], record["session"], RESULT_FIELDS)
+    for key in ("worlds", "policies"):
+        dropped = [x for x in old["session"].get(key) or [] if x not in record["session"][key]]
+        if dropped:
+            raise InputError(str(saved), key, f"{dropped[0]!r} is in the session: a resume may add {key}, not "
+                             "drop them")
     for kind, hashes in record["inputs"].items():
         before = old["inputs"].get(kind, {})
         for name, digest in (hashes.items() if isinstance(hashes, dict) else [(kind, hashes)]):
@@ -75,7 +91,7 @@ def check_out(cfg: SessionConfig, resume: bool) -> dict:
                 raise InputError(str(saved), f"inputs.{kind}", f"{name} has changed since the session started: "
                                  "resume would mix results of two versions")
     record["inputs"] = _merged(old["inputs"], record["inputs"])
-    return record
+    return Claim(record, False)
 
 
 def _merged(old: dict, new: dict) -> dict:

@@ -15,6 +15,7 @@ are bitwise the same whatever runs beside it (engine: blocks) and whatever ``chu
 from __future__ import annotations
 
 import json
+import shutil
 import tempfile
 import time
 from dataclasses import replace
@@ -23,9 +24,9 @@ from pathlib import Path
 import jax
 from tqdm.auto import tqdm
 
-from rosmeery_jax.core import xla
+from rosmeery_jax.core import interrupt, xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
 from rosmeery_jax.session import cluster, engine
 from rosmeery_jax.session.config import SessionConfig, decisions, log_every, per_call
@@ -52,8 +53,22 @@ class Session:
         out = Path(cfg.out)
         if self.cluster:
             cluster.require_ray()  # before anything is written
-        record = check_out(cfg, resume)
-        write_atomic(out / "config.json", json.dumps({**record, "versions": versions()}, indent=2))
+        check_out(cfg, resume)  # refused here, before the folder is made
+        with output_folder(out), folder_lock(out):
+            claim = check_out(cfg, resume)  # again under the lock: another command may have started
+            write_atomic(out / "config.json", json.dumps({**claim.record, "versions": versions()}, indent=2))
+            try:
+                with interrupt.deferred():
+                    self._run(out)
+            except BaseException:
+                if claim.fresh and not any((out / "runs").glob("*.metrics.csv")):
+                    _empty(out)  # nothing finished: a corrected command starts afresh in the same folder
+                raise
+        return out
+
+    def _run(self, out: Path) -> None:
+        """Simulate every unfinished run (here or on the cluster), then merge."""
+        cfg = self.cfg
         todo = [(w, p) for w in cfg.worlds for p in cfg.policies
                 if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
         t_start = time.perf_counter()
@@ -69,7 +84,6 @@ class Session:
         if parts:
             timing = {**sum_timing(parts, t_start), **extra, "groups": [g for p in parts for g in p.get("groups", [p])]}
             write_atomic(out / "timing.json", json.dumps(timing, indent=2))
-        return out
 
     def _simulate_here(self, todo: list[tuple[str, str]], out: Path) -> list[dict]:
         """Simulate the runs in this process; returns each group's timing."""
@@ -89,6 +103,7 @@ class Session:
                       "devices": group.devices}
             timings.append(timing)
             for run in group.runs:
+                interrupt.check()  # between runs: each run's files are whole or absent
                 write_run(cfg, group, run, out, sim, timing)
         bar.close()
         return timings
@@ -117,6 +132,13 @@ def run_shard(cfg: SessionConfig, world: str, policy: str, cache: bool) -> tuple
         files = sorted(p for p in (out / "runs").glob(f"{name}.*")) + sorted((out / "maps").glob(f"{name}__seed*"))
         timing = json.loads((out / "timing.json").read_text()) if (out / "timing.json").exists() else {}
         return {str(p.relative_to(out)): p.read_bytes() for p in files}, timing
+
+
+def _empty(out: Path) -> None:
+    """Remove what this invocation wrote into the folder it found empty (no run finished)."""
+    for p in out.iterdir():
+        if p.name != LOCK:
+            shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
 
 
 def _detectors(cfg: SessionConfig, group) -> dict | None:

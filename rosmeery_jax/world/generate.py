@@ -676,6 +676,8 @@ def parse_name(text: str) -> GenOptions:
         key, _, value = item.partition("=")
         if key not in ("rooms", "objects", "clutter"):
             raise InputError(text, key, "unknown option (rooms, objects or clutter)")
+        if key in opts:
+            raise InputError(text, key, "given twice")
         try:
             opts[key] = float(value) if key == "clutter" else int(value)
         except ValueError:
@@ -685,6 +687,9 @@ def parse_name(text: str) -> GenOptions:
     options = GenOptions(kind, int(seed), **opts)
     check_options(options, text)
     return options
+
+
+MAX_WORLDS = 10_000  # worlds one command may name (a world bank of 10,000 small worlds fits in memory)
 
 
 def expand_names(names) -> list[str]:
@@ -699,6 +704,8 @@ def expand_names(names) -> list[str]:
         lo, hi = int(rng.group(1)), int(rng.group(2))
         if hi < lo:
             raise InputError(name, "seed", f"empty range {lo}-{hi}")
+        if hi - lo + 1 + len(out) > MAX_WORLDS:  # refused by its size, before any is expanded
+            raise InputError(name, "seed", f"{lo}-{hi} is {hi - lo + 1:,} worlds: at most {MAX_WORLDS:,} in all")
         tail = f":{m.group(3)}" if m.group(3) else ""
         out += [f"{PREFIX}{m.group(1)}:{s}{tail}" for s in range(lo, hi + 1)]
     return out
@@ -711,18 +718,28 @@ def cache_dir() -> Path:
 
 
 def write_world(layout: Layout, folder: Path) -> Path:
-    """Write ``layout`` to ``folder/<name>.xml`` atomically (unchanged files are not touched)."""
-    text = layout.xml()
+    """Write ``layout`` to ``folder/<name>.xml`` atomically. A file already there is kept
+    when it is this world, and refused (one InputError) when it differs: an edited world is
+    never replaced."""
     path = Path(folder) / f"{layout.options.name}.xml"
-    if path.is_file() and path.read_text(encoding="utf-8") == text:
-        return path
-    return write_atomic(path, text)
+    text = layout.xml()
+    check_unchanged(path, text)
+    return path if path.is_file() else write_atomic(path, text)
+
+
+def check_unchanged(path: Path, text: str) -> None:
+    """Refuse ``path`` if it exists and is not ``text`` (edited since it was generated, or
+    another world of that name)."""
+    try:
+        same = not path.exists() or path.read_text(encoding="utf-8") == text
+    except (OSError, UnicodeDecodeError):
+        same = False
+    if not same:
+        raise InputError(str(path), "file", "differs from the world this generator makes under that name (edited "
+                         "since?): it is never replaced; move it away, or write elsewhere")
 
 
 def procedural_path(text: str) -> Path:
     """The file of procedural world ``text``, generated into :func:`cache_dir` on first use."""
     options = parse_name(text)
-    path = cache_dir() / f"{options.name}.xml"
-    if path.is_file():
-        return path
-    return write_world(generate(options), cache_dir())
+    return write_world(generate(options), cache_dir())  # a cached file is checked against a fresh one

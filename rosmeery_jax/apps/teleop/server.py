@@ -22,6 +22,7 @@ numbers, clipped to the robot's limits; anything else gets 400/403/415 and moves
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import threading
 import time
@@ -220,7 +221,24 @@ def _handler(app: Teleop):
             self.end_headers()
             self.wfile.write(body)
 
+        def _host_allowed(self) -> bool:
+            """A DNS-rebinding page reaches this server under its own host name: only a
+            loopback name or an IP literal, with this server's port, may name it."""
+            name, _, port = self.headers.get("Host", "").rpartition(":")
+            if port != str(self.server.server_address[1]):
+                return False
+            name = name.strip("[]")
+            if name == "localhost":
+                return True
+            try:
+                ipaddress.ip_address(name)
+            except ValueError:
+                return False
+            return True
+
         def do_GET(self):
+            if not self._host_allowed():
+                return self._error(403, "Host not allowed")
             path = self.path.split("?")[0]
             f = app.frame
             if path in ("/", "/index.html"):
@@ -240,6 +258,8 @@ def _handler(app: Teleop):
             self._send(json.dumps({"error": message}).encode(), "application/json", code)
 
         def do_POST(self):
+            if not self._host_allowed():
+                return self._error(403, "Host not allowed")
             path = self.path.split("?")[0]
             # Only the page itself may drive: a browser sends Origin with a cross-site POST,
             # and a "simple" cross-site request cannot carry application/json.
