@@ -37,16 +37,33 @@ def world(tmp_path_factory):
     return str(path)
 
 
-@pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
-    """A Ray head on 127.0.0.1 with 2 CPUs: at most two shards (worker processes) at once."""
+@pytest.fixture(scope="module", autouse=True)
+def own_home(tmp_path_factory):
+    """Ray reads and writes its token under the home folder: these tests use one of their
+    own, so they neither depend on nor change the user's."""
+    home = tmp_path_factory.mktemp("home")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("HOME", str(home))
+        for name in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+            mp.delenv(name, raising=False)
+        yield home
+
+
+def _head(env: dict | None = None) -> str:
+    """Start a Ray head on 127.0.0.1 with 2 CPUs (at most two shards at once); its address."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}  # the workers inherit the suite's JAX cache folder
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", **(env or {})}  # workers inherit the suite's JAX cache
     subprocess.run([RAY, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
                     "--include-dashboard=false", "--disable-usage-stats"], check=True, env=env, capture_output=True)
-    yield f"127.0.0.1:{port}"
+    return f"127.0.0.1:{port}"
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A Ray head without authentication (no token in the home folder)."""
+    yield _head()
     import ray
 
     ray.shutdown()
@@ -150,12 +167,15 @@ def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(wor
         assert group.real.sum() == seeds * len(policies)
 
 
-def test_more_devices_than_there_are_is_one_clear_line(world, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("devices", ["64", "1000"])
+def test_more_devices_than_blocks_is_one_clear_line_at_once(world, tmp_path, capsys, monkeypatch, devices):
     monkeypatch.setenv("XLA_FLAGS", os.environ.get("XLA_FLAGS", ""))  # restored afterwards: main may set it
     out = tmp_path / "o"
-    assert main(_session(world, out, "--devices", "64")) == 2
+    t0 = time.monotonic()
+    assert main(_session(world, out, "--devices", devices)) == 2
+    assert time.monotonic() - t0 < 30  # refused by the count, before any device is made
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "devices" in err[0] and "64 asked" in err[0] and not out.exists()
+    assert len(err) == 1 and f"devices: {devices}" in err[0] and "2 blocks" in err[0] and not out.exists()
 
 
 def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp_path):
@@ -167,3 +187,42 @@ def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp
     with pytest.raises(InputError, match="--devices.*not with --cluster"):
         Session(cfg, cluster="auto").run()
     assert not (tmp_path / "o").exists()
+
+
+def test_an_unreachable_or_empty_cluster_address_is_one_line_within_the_timeout(world, tmp_path, capsys):
+    pytest.importorskip("ray")
+    for address, needle in (("127.0.0.1:1", "no Ray head answers"), ("", "is not ray, auto"),
+                            ("nowhere", "is not ray, auto")):
+        out = tmp_path / "o"
+        t0 = time.monotonic()
+        assert main(_session(world, out, "--cluster", address)) == 2
+        assert time.monotonic() - t0 < 30
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0] and not out.exists(), err
+
+
+def test_a_token_head_is_joined_when_the_home_folder_holds_its_token(world, local, own_home, tmp_path, cluster):
+    """The order that failed: a token in ~/.ray (as a local ray.init() leaves), a head that
+    picks it up, then a join (a fresh process, as a user's command). The module's own head,
+    without a token, is joined by the tests above."""
+    (own_home / ".ray").mkdir(exist_ok=True)
+    (own_home / ".ray" / "auth_token").write_text("0123456789abcdef" * 4)
+    try:
+        address = _head()
+        out = tmp_path / "token"
+        cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--cluster", address)]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                              env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
+        assert done.returncode == 0, done.stderr[-2000:]
+        _same_results(local, out)
+    finally:
+        (own_home / ".ray" / "auth_token").unlink()
+
+
+def test_a_local_cluster_leaves_no_token_in_the_home_folder(world, local, own_home, tmp_path):
+    out = tmp_path / "local"
+    cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--cluster", "ray")]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    _same_results(local, out)
+    assert not (own_home / ".ray" / "auth_token").exists()  # a head started later is joined as before

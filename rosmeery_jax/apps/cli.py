@@ -452,7 +452,7 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"{','.join(d.mappers)}")
     p.add_argument("--out", metavar="DIR", help=f"results folder (default {d.out})")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
-    p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a local "
+    p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
     p.add_argument("--devices", type=int, metavar="N", help="split each batch over N devices (GPUs, or N host "

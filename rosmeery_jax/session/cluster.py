@@ -12,6 +12,11 @@ the padding (rosmeery_jax.session.engine). Ray retries a shard whose worker dies
 
 from __future__ import annotations
 
+import importlib.util
+import os
+import secrets
+import sys
+import socket
 from pathlib import Path
 from typing import Callable
 
@@ -19,30 +24,70 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
 
 RETRIES = 3  # attempts after the first when a worker process or node dies
+CONNECT_TIMEOUT_S = 10.0  # a head that does not accept a connection by then is not there
 INSTALL = "pip install 'rosmeery-jax[cluster]'"
 
 
-def require_ray():
-    """The ray module, or one InputError naming the extra to install."""
+def require_ray() -> None:
+    """One InputError naming the extra to install if Ray is missing (found, not imported:
+    Ray reads its authentication settings when it is imported, :func:`connect` sets them)."""
     try:
-        import ray  # the optional [cluster] extra: imported only when a cluster is asked for
-    except ImportError:
-        raise InputError("command line", "--cluster", f"needs Ray: {INSTALL}") from None
-    return ray
+        found = importlib.util.find_spec("ray") is not None
+    except ValueError:  # ray in sys.modules without a spec (a test's stand-in)
+        found = False
+    if not found or sys.modules.get("ray", False) is None:
+        raise InputError("command line", "--cluster", f"needs Ray: {INSTALL}")
+
+
+def check_address(address: str) -> None:
+    """Refuse an address that cannot be a cluster, or whose head does not answer within
+    ``CONNECT_TIMEOUT_S`` (Ray itself would wait for it without end)."""
+    if address in ("ray", "auto"):
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise InputError(address or '""', "--cluster", "is not ray, auto, ray://HOST:PORT or HOST:PORT")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as err:
+        raise InputError(address, "--cluster", f"no Ray head answers there within {CONNECT_TIMEOUT_S:g} s "
+                         f"({err.strerror or err})") from None
+
+
+def _auth(address: str) -> None:
+    """Set Ray's authentication for this process (docs/cluster.md), unless RAY_AUTH_MODE is
+    set. A local cluster gets token authentication with a token of its own, passed to its
+    processes in the environment and written nowhere (Ray would write it to ~/.ray, where a
+    later join to another head would pick it up). A join uses token mode when a token is
+    at hand (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token): Ray 2.60 then joins
+    heads with and without authentication alike, where it would fail on a token head."""
+    if os.environ.get("RAY_AUTH_MODE"):
+        return
+    if address == "ray":
+        os.environ["RAY_AUTH_MODE"] = "token"
+        os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
+    elif os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or \
+            (Path.home() / ".ray" / "auth_token").is_file():
+        os.environ["RAY_AUTH_MODE"] = "token"
 
 
 def connect(address: str):
-    """Join the cluster at ``address``: ``ray`` (a local one, started if none runs),
+    """Join the cluster at ``address``: ``ray`` (a new local one, of this machine's cores),
     ``auto`` (the running one), ``ray://HOST:PORT`` or ``HOST:PORT``."""
-    ray = require_ray()
+    require_ray()
+    check_address(address)
+    _auth(address)  # before Ray is imported: it reads the mode then
+    import ray  # the optional [cluster] extra: imported only when a cluster is asked for
+
     if not ray.is_initialized():
-        kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level="WARNING")
-        if address != "ray":
-            kwargs["address"] = address
+        kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level="WARNING",
+                      address="local" if address == "ray" else address)  # "local": a new one, never another's
         try:
             ray.init(**kwargs)
         except (ConnectionError, RuntimeError, ValueError) as err:
-            raise InputError(address, "--cluster", f"cannot join the Ray cluster ({str(err).splitlines()[0]})") from None
+            raise InputError(address, "--cluster", f"cannot join the Ray cluster ({str(err).splitlines()[0]}); "
+                             "a cluster with token authentication needs its token: RAY_AUTH_TOKEN or "
+                             "RAY_AUTH_TOKEN_PATH (docs/cluster.md)") from None
     return ray
 
 

@@ -40,10 +40,10 @@ class Session:
 
     def __init__(self, cfg: SessionConfig, progress: bool = True, cluster: str | None = None, cache: bool = True):
         self.cfg, self.progress, self.cluster, self.cache = cfg, progress, cluster, cache
-        if cluster and cfg.devices > 1:
+        if cluster is not None and cfg.devices > 1:
             raise InputError("command line", "--devices", "not with --cluster: each Ray worker runs its shard on "
                              "one device")
-        if not cluster:  # a cluster's workers make their own
+        if cluster is None:  # a cluster's workers make their own
             prepare_devices(cfg)
 
     def run(self, resume: bool = False) -> Path:
@@ -51,8 +51,9 @@ class Session:
         one Ray task each, write each run's files, then the merged tables and plots."""
         cfg = self.cfg
         out = Path(cfg.out)
-        if self.cluster:
-            cluster.require_ray()  # before anything is written
+        if self.cluster is not None:  # before anything is written
+            cluster.require_ray()
+            cluster.check_address(self.cluster)
         check_out(cfg, resume)  # refused here, before the folder is made
         with output_folder(out), folder_lock(out):
             claim = check_out(cfg, resume)  # again under the lock: another command may have started
@@ -73,7 +74,7 @@ class Session:
                 if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
         t_start = time.perf_counter()
         parts, extra = [], {}
-        if todo and self.cluster:
+        if todo and self.cluster is not None:
             bar = _bar(len(todo) * cfg.duration, self.progress)
             parts = cluster.simulate_on_cluster(cfg, todo, out, self.cluster, bar, self.cache, run_shard)
             bar.close()
