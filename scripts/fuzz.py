@@ -2,7 +2,8 @@
 
     .venv/bin/python scripts/fuzz.py [--n 1000]
 
-For each loader (worlds, session configs, recordings, pose CSVs, weight files): inputs
+For each loader (worlds, session configs, recordings, pose CSVs, maps as PLY and JSON,
+transforms, procedural world names, policy files, weight files): inputs
 tried, valid results, clear one-line errors, and tracebacks (must be 0). The strategies are
 the suite's (tests/fuzz_inputs.py); the suite runs a few hundred, this runs thousands.
 """
@@ -25,6 +26,12 @@ import fuzz_inputs as fz  # noqa: E402
 
 def texts(seed: str):
     return st.one_of(fz.edits().map(lambda e: fz.mutate(seed, e)), fz.number_swaps(seed))
+
+
+def binary(good: bytes):
+    """The bytes with a stretch cut out and junk spliced in."""
+    return st.tuples(st.binary(max_size=256), st.integers(0, 2**22), st.integers(0, 64)).map(
+        lambda t: good[:t[1] % len(good)] + t[0] + good[t[1] % len(good) + t[2]:])
 
 
 def weight_bytes():
@@ -66,7 +73,12 @@ def main() -> int:
     loaders = [("worlds (MJCF)", fz.load_world_file, texts(fz.SEED_WORLD), "world.xml"),
                ("session configs (TOML)", fz.load_session_config, texts(fz.SEED_CONFIG), "session.toml"),
                ("recordings (JSONL)", fz.load_recording, texts(fz.recording_text()), "rec.jsonl"),
-               ("pose files (CSV)", fz.load_poses, texts(fz.SEED_POSES), "poses.csv")]
+               ("pose files (CSV)", fz.load_poses, texts(fz.SEED_POSES), "poses.csv"),
+               ("maps (PLY)", fz.load_map_ply, texts(fz.SEED_MAP_PLY), "map.ply"),
+               ("maps (JSON)", fz.load_map_json, texts(fz.SEED_MAP_JSON), "map.json"),
+               ("transforms (JSON)", fz.load_transform, texts(fz.SEED_TRANSFORM), "transform.json"),
+               ("procedural names", fz.load_procedural_name, texts(fz.SEED_PROCEDURAL), "name.txt"),
+               ("policy files (msgpack)", fz.load_policy_file, binary(fz.policy_bytes()), "policy.msgpack")]
     try:
         import torch  # noqa: F401
 

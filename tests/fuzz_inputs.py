@@ -20,6 +20,14 @@ SEED_WORLD = room_xml(CHAIR, {"thing": "chair"}, spawn=(-1.0, -1.0, 0.0))
 SEED_CONFIG = ('worlds = ["small_office"]\npolicies = ["random"]\nseeds = 2\nduration = 4.0\n'
                'detector = "off"\nmetrics = ["ori", "opi"]\n[env]\ncamera__cull = 64\n')
 SEED_POSES = "t,x,y,yaw\n0,0,0,0\n0.5,0.2,0.1,0.3\n1.0,0.4,0.2,0.6\n"
+SEED_MAP_PLY = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                "property int instance\nproperty int label\nproperty float confidence\nend_header\n"
+                "0.5 0.5 0.3 0 3 0.9\n0.6 0.5 0.3 0 3 0.8\n-1.0 0.2 0.4 1 -1 0.5\n1.2 -0.4 0.7 2 5 1.0\n")
+SEED_MAP_JSON = json.dumps({"frame": {"world": "small_office", "time_s": 12.5},
+                            "objects": [{"id": 0, "label": "chair", "confidence": 0.9}, {"id": 1, "label": None},
+                                        {"id": 2, "label": "desk", "confidence": 0.4}]})
+SEED_TRANSFORM = json.dumps({"transform": [[0, -1, 0, 0.5], [1, 0, 0, -0.2], [0, 0, 1, 0], [0, 0, 0, 1]]})
+SEED_PROCEDURAL = "procedural:office:3:rooms=3:objects=12:clutter=0.2"
 # Tokens a mutation splices in: numbers at the edges, wrong types, broken syntax.
 TOKENS = ["nan", "inf", "-inf", "1e30", "-1e30", "1e308", "0", "-1", "1.5", '"x"', "true", "[]", "{}", "[", "]",
           "<", ">", "/>", '"', "=", ",", "\n", "\x00", "\xe9", "null", "NaN", "Infinity", "-0", "1e-30", "9" * 30]
@@ -104,6 +112,70 @@ def load_weights(path: Path):
     from rosmeery_jax.detector import checkpoint
 
     return checkpoint.load(path)
+
+
+def load_map_ply(path: Path):
+    """A mutated PLY with a valid JSON beside it, read and scored as `rosmeery evaluate` does."""
+    path.with_suffix(".json").write_text(SEED_MAP_JSON)
+    return _score_map(path)
+
+
+def load_map_json(path: Path):
+    """A valid PLY with a mutated JSON beside it (the file under test)."""
+    ply = path.with_suffix(".ply")
+    ply.write_text(SEED_MAP_PLY)
+    try:
+        return _score_map(ply)
+    except Exception as err:  # name the JSON in the message check: it is the mutated file
+        from rosmeery_jax.core.errors import InputError
+
+        if isinstance(err, InputError) and path.name not in str(err) and ply.name in str(err):
+            raise InputError(path, "", str(err)) from None
+        raise
+
+
+def _score_map(ply: Path):
+    from rosmeery_jax.scoring import evaluate
+    from rosmeery_jax.world import load_world
+
+    world = load_world("small_office")
+    return evaluate.evaluate(world, [evaluate.read_map(ply, world.taxonomy)])
+
+
+def load_transform(path: Path):
+    from rosmeery_jax.scoring.align import read_transform
+
+    return read_transform(path)
+
+
+def load_procedural_name(path: Path):
+    """A procedural world's name (the file's text), expanded, parsed and generated."""
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.world.generate import expand_names, generate, parse_name
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(path, "file", "not UTF-8") from None
+    try:
+        names = expand_names([text])
+        for name in names[:2]:
+            generate(parse_name(name))
+    except InputError as err:
+        raise InputError(path, "", str(err)) from None
+    return names
+
+
+def policy_bytes() -> bytes:
+    from rosmeery_jax.policies.learned import SHIPPED
+
+    return SHIPPED.read_bytes()
+
+
+def load_policy_file(path: Path):
+    from rosmeery_jax.rl.network import load_policy
+
+    return load_policy(path)
 
 
 def check_one(loader, path: Path) -> str:

@@ -63,3 +63,25 @@ def test_corrupted_weight_files(tmp_path, junk, where, cut):
     p = where % len(good)
     data = good[:p] + junk + good[p + cut:] if junk or cut else good[:p]
     fz.check_one(fz.load_weights, _write(tmp_path, "weights.pt", data))
+
+
+@pytest.mark.parametrize("name, loader, seed", [
+    ("map.ply", fz.load_map_ply, fz.SEED_MAP_PLY), ("map.json", fz.load_map_json, fz.SEED_MAP_JSON),
+    ("transform.json", fz.load_transform, fz.SEED_TRANSFORM), ("name.txt", fz.load_procedural_name, fz.SEED_PROCEDURAL)])
+def test_mutated_maps_transforms_and_procedural_names(tmp_path, name, loader, seed):
+    assert fz.check_one(loader, _write(tmp_path, name, seed)) == "ok"  # the seed itself is valid
+
+    @fuzz(60)
+    @given(st.one_of(fz.edits().map(lambda e: fz.mutate(seed, e)), fz.number_swaps(seed)))
+    def one(text):
+        fz.check_one(loader, _write(tmp_path, name, text))
+
+    one()
+
+
+@fuzz(60)
+@given(st.binary(max_size=256), st.integers(0, 2**16), st.integers(0, 64))
+def test_corrupted_policy_files(tmp_path, junk, where, cut):
+    good = fz.policy_bytes()
+    where %= len(good)
+    fz.check_one(fz.load_policy_file, _write(tmp_path, "policy.msgpack", good[:where] + junk + good[where + cut:]))

@@ -272,3 +272,78 @@ def _blank_obs(rl):
     from rosmeery_jax.rl.env import Obs
 
     return Obs(jnp.zeros((rl.crop, rl.crop, 4)), jnp.zeros(4))
+
+
+def test_a_diverged_training_run_stops_and_keeps_its_last_good_checkpoint(worlds, trained, tmp_path):
+    """NaN losses (as lr = 1e30 gives from the second update) stop the run with one error,
+    before the NaN state is saved: the checkpoint and curve stay those of update 2."""
+    from rosmeery_jax.core.errors import InputError
+
+    out = tmp_path / "diverged"
+    real = ppo.make_update
+
+    def diverging(cfg, env):
+        update, calls = real(cfg, env), []
+
+        def once(runner):
+            calls.append(1)
+            runner, stats = update(runner)
+            if len(calls) == 3:  # the third update diverges
+                nan = jax.tree.map(lambda a: a * jnp.nan, runner.train.params)
+                runner = runner._replace(train=runner.train.replace(params=nan))
+                stats = {**stats, "loss": jnp.float32(jnp.nan)}
+            return runner, stats
+
+        return once
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ppo, "make_update", diverging)
+        with pytest.raises(InputError, match="update 3.*diverged.*loss"):
+            ppo.train(_train_config(worlds), out, progress=False)
+    assert not (out / "policy.msgpack").exists()
+    assert list(ppo.read_curve(out)["update"]) == [1, 2]
+    template = ppo.init_runner(_train_config(worlds), ppo.make_env(_train_config(worlds)))
+    saved, done, _ = ppo.load_checkpoint(out / "checkpoint.msgpack", template)
+    assert done == 2 and all(np.isfinite(np.asarray(a)).all() for a in jax.tree.leaves(saved.train.params))
+
+
+@pytest.mark.parametrize("field, value, needle", [
+    ("rl.decide_every", 0, "rl.decide_every"), ("rl.crop_resolution", float("nan"), "rl.crop_resolution"),
+    ("rl.crop", -4, "rl.crop"), ("rl.crop", 100_000, "rl.crop"), ("rl.goal_grid", 7, "params"),
+    ("params", "nan", "NaN"), ("params", "kernel", "shape")])
+def test_a_broken_policy_file_is_refused_before_a_session(tmp_path, field, value, needle):
+    import json as json_
+
+    from flax import serialization
+
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.policies.learned import SHIPPED
+    from rosmeery_jax.session import load_config
+
+    blob = serialization.msgpack_restore(SHIPPED.read_bytes())
+    if field.startswith("rl."):
+        rl = json_.loads(blob["rl"])
+        rl[field[3:]] = value
+        blob["rl"] = json_.dumps(rl)
+    else:
+        conv = blob["params"]["params"]["Conv_0"]
+        if value == "nan":
+            conv["bias"] = conv["bias"] * np.nan
+        else:  # a kernel of 15 output channels where the network has 16
+            conv["kernel"], conv["bias"] = conv["kernel"][..., :15], conv["bias"][:15]
+    path = tmp_path / "policy.msgpack"
+    path.write_bytes(serialization.msgpack_serialize(blob))
+    with pytest.raises(InputError, match=needle) as err:
+        load_config(None, worlds="small_office", policies=f"learned:{path}", detector="off", out=str(tmp_path / "o"))
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("override, field", [({"ppo__clip_eps": -0.1}, "clip_eps"),
+                                              ({"ppo__max_grad_norm": -1.0}, "max_grad_norm"),
+                                              ({"ppo__lr": 0.0}, "lr"),
+                                              ({"ppo__num_envs": 100_000_000}, "num_envs")])
+def test_training_settings_out_of_range_are_refused(override, field):
+    from rosmeery_jax.core.errors import InputError
+
+    with pytest.raises(InputError, match=field):
+        ppo.load_config(None, **override)

@@ -12,6 +12,7 @@ recording's end get (0, 0): the robot stands still and its curves flatten.
 
 from __future__ import annotations
 
+import glob
 from pathlib import Path
 
 import jax
@@ -32,7 +33,7 @@ def replay_files(spec: str) -> list[Path]:
         part = part.strip()
         if not part:
             continue
-        hits = sorted(Path().glob(part)) if any(c in part for c in "*?[") else [Path(part)]
+        hits = sorted(map(Path, glob.glob(part, recursive=True))) if any(c in part for c in "*?[") else [Path(part)]  # absolute too
         if not hits:
             raise InputError("config", "policies", f"replay: no file matches {part!r}")
         files += hits

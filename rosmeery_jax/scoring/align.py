@@ -81,6 +81,8 @@ def read_transform(path: str | Path) -> np.ndarray:
         T = np.asarray(data, dtype=np.float64)
     except (OSError, ValueError, TypeError) as err:
         raise InputError(path, "transform", f"not a 4 x 4 matrix ({err})") from None
+    except RecursionError:
+        raise InputError(path, "transform", "nested too deeply to be a 4 x 4 matrix") from None
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputError(path, "transform", f"must be a 4 x 4 matrix of finite numbers, got shape {T.shape}")
     R = T[:3, :3]

@@ -101,14 +101,27 @@ def _vertices(ply: Path) -> np.ndarray:
     except Exception as err:  # trimesh raises many kinds on a malformed file
         raise InputError(ply, "file", f"not a readable PLY point cloud ({type(err).__name__}: {err})") from None
     if isinstance(vertex, dict):  # an ASCII PLY: trimesh gives one (n, 1) column per property
-        vertex = np.rec.fromarrays([np.asarray(v).reshape(len(v), -1)[:, 0] for v in vertex.values()],
-                                   names=list(vertex)) if vertex else np.zeros(0, [("x", "f4")])
+        vertex = _columns(ply, vertex)
     missing = [a for a in "xyz" if a not in (vertex.dtype.names or ())]
     if missing:
         raise InputError(ply, f"vertex {missing[0]}", "missing")
     if len(vertex) == 0:
         raise InputError(ply, "vertex", "the map has no points")
     return vertex
+
+
+def _columns(ply: Path, columns: dict) -> np.ndarray:
+    """An ASCII PLY's vertex columns as one record array (numbers only, one per vertex)."""
+    if not columns:
+        return np.zeros(0, [("x", "f4")])
+    try:
+        arrays = [np.asarray(v, dtype=np.float64 if np.asarray(v).dtype.kind == "f" else None) for v in columns.values()]
+        if any(a.dtype.kind not in "iuf" or a.ndim != 2 or a.shape[1] != 1 or len(a) != len(arrays[0])
+               for a in arrays):
+            raise ValueError("one number per vertex and property")
+        return np.rec.fromarrays([a[:, 0] for a in arrays], names=list(columns))
+    except (TypeError, ValueError) as err:
+        raise InputError(ply, "vertex", f"not a point cloud's vertex table ({err})") from None
 
 
 def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[dict, dict]:

@@ -1,0 +1,346 @@
+"""Nothing lost, nothing written outside, nothing silently reinterpreted: every command
+validates first, refuses an output that holds something else, writes nothing when it
+refuses, and stops on Ctrl-C at a point it can resume from."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.core.files import folder_lock
+from rosmeery_jax.scoring.results import METRIC_COLUMNS
+
+RUN = ["run", "--worlds", "small_office", "--policies", "random,frontier", "--duration", "4", "--detector", "off",
+       "--quiet"]  # test_hardening's setting: its compiled program is in the cache
+PLY = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+       "property int instance\nend_header\n0.5 0.5 0.3 0\n0.6 0.5 0.3 0\n-1.0 0.2 0.4 1\n")
+
+
+def _one_line(capsys, *needles) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    for n in needles:
+        assert n in err, (n, err)
+    return err
+
+
+def _tree(folder: Path) -> dict:
+    return {p: p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _map(folder: Path, name: str = "map", meta: dict | None = None, ply: str = PLY) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"{name}.ply").write_text(ply)
+    if meta is not False:
+        meta = meta or {"frame": {"world": "small_office", "time_s": 5.0}, "objects": [{"id": 0, "label": "chair"}]}
+        (folder / f"{name}.json").write_text(json.dumps(meta))
+    return folder / f"{name}.ply"
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    out = tmp_path_factory.mktemp("safety") / "session"
+    assert main([*RUN, "--seeds", "2", "--metrics", "ori", "--out", str(out)]) == 0
+    return out
+
+
+# --- overwrites ---
+
+def test_evaluate_never_replaces_a_sessions_or_an_earlier_evaluations_tables(session, tmp_path, capsys):
+    before = _tree(session)
+    ply = _map(tmp_path / "maps")
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(session)]) == 2
+    _one_line(capsys, str(session), "not empty")
+    assert _tree(session) == before
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(out)]) == 0  # an ASCII PLY
+    capsys.readouterr()
+    first = _tree(out)
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(out)]) == 2
+    _one_line(capsys, "not empty")
+    assert _tree(out) == first
+    target = tmp_path / "a_file"
+    target.write_text("mine")
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(target)]) == 2
+    _one_line(capsys, "a_file", "is a file")
+    assert target.read_text() == "mine"
+
+
+def test_generate_never_replaces_an_edited_world(tmp_path, capsys):
+    out = tmp_path / "worlds"
+    args = ["worlds", "generate", "--kind", "office", "--seed", "4", "--count", "2", "--out", str(out)]
+    assert main(args) == 0
+    capsys.readouterr()
+    edited = sorted(out.glob("*.xml"))[0]
+    edited.write_text(edited.read_text().replace("</mujoco>", "<!-- my edit -->\n</mujoco>"))
+    before = _tree(out)
+    assert main(args) == 2
+    _one_line(capsys, edited.name, "never replaced")
+    assert _tree(out) == before
+    for bad, needle in ((edited, "not a folder"), (tmp_path / "loop", "looping")):
+        if bad.name == "loop":
+            os.symlink(bad, bad)
+        assert main([*args[:-1], str(bad)]) == 2
+        _one_line(capsys, needle)
+
+
+def test_an_edited_world_in_the_procedural_cache_is_refused(tmp_path, capsys, monkeypatch):
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.world import load_world
+    from rosmeery_jax.world.generate import cache_dir
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    load_world("procedural:kitchen:7")
+    cached = next(cache_dir().glob("*.xml"))
+    cached.write_text(cached.read_text().replace("</mujoco>", "<!-- edited -->\n</mujoco>"))
+    with pytest.raises(InputError, match="never replaced"):
+        load_world("procedural:kitchen:7")
+
+
+def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "data.json").write_text("{}")
+    assert main(["detector", "dataset", "--worlds", "small_office", "--per-world", "2", "--out", str(data)]) == 2
+    _one_line(capsys, "not empty")
+    assert (data / "data.json").read_text() == "{}"
+    pytest.importorskip("torch")
+    weights = tmp_path / "w.pt"
+    weights.write_bytes(b"precious")
+    assert main(["detector", "train", "--data", str(data), "--out", str(weights)]) == 2
+    _one_line(capsys, "w.pt", "exists already")
+    assert main(["detector", "train", "--data", str(data), "--out", str(tmp_path)]) == 2
+    _one_line(capsys, "is a folder")
+    assert weights.read_bytes() == b"precious"
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["detector", "dataset", "--per-world", "0"], "--per-world"), (["detector", "dataset", "--per-world", "-3"],
+                                                                    "--per-world"),
+    (["detector", "dataset", "--seed", "-1"], "--seed"), (["detector", "train", "--epochs", "0"], "--epochs"),
+    (["detector", "train", "--batch", "0"], "--batch"), (["detector", "train", "--max-images", "0"], "--max-images"),
+    (["teleop", "--world", "small_office", "--port", "70000"], "--port"),
+    (["teleop", "--world", "small_office", "--port", "-1"], "--port"),
+    (["record", "--world", "small_office", "--seed", "3", "--seeds", "2"], "--seed"),
+])
+def test_bad_numbers_are_one_line_before_anything(tmp_path, capsys, args, needle):
+    if args[:2] == ["detector", "train"]:
+        pytest.importorskip("torch")
+    out = tmp_path / "o"
+    extra = [] if args[0] == "teleop" else ["--out", str(out / ("w.pt" if args[1] == "train" else "x"))]
+    assert main([*args, *extra]) == 2
+    _one_line(capsys, needle)
+    assert not out.exists()
+
+
+def test_world_pictures_need_a_file_and_a_folder(tmp_path, capsys):
+    assert main(["world", "show", "small_office", "--out", str(tmp_path)]) == 2
+    _one_line(capsys, "is a folder")
+    target = tmp_path / "f"
+    target.write_text("x")
+    assert main(["worlds", "--pictures", str(target)]) == 2
+    _one_line(capsys, "is a file")
+
+
+# --- sessions: late errors, resumes, locks, interrupts ---
+
+def test_a_late_error_leaves_no_config_behind(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not weights")
+    out = tmp_path / "o"
+    args = ["run", "--worlds", "small_office", "--policies", "random", "--seeds", "1", "--duration", "2", "--quiet",
+            "--out", str(out)]
+    assert main([*args, "--detector", "yolo", "--weights", str(bad)]) == 2
+    _one_line(capsys, "bad.pt")
+    assert not out.exists()  # so the corrected command is not refused as "already holds results"
+
+
+def test_a_resume_may_add_runs_but_never_drop_or_change_them(session, capsys):
+    before = _tree(session)
+    only_random = [a if a != "random,frontier" else "random" for a in RUN]
+    assert main([*only_random, "--seeds", "2", "--metrics", "ori", "--out", str(session), "--resume"]) == 2
+    _one_line(capsys, "policies", "'frontier' is in the session")
+    assert _tree(session) == before
+
+
+def test_two_commands_on_one_folder_do_not_both_run(session, capsys):
+    with folder_lock(session):
+        assert main([*RUN, "--seeds", "2", "--metrics", "ori", "--out", str(session), "--resume"]) == 2
+    _one_line(capsys, "in use by another")
+
+
+def test_record_resume_keeps_its_settings(tmp_path, capsys):
+    out = tmp_path / "rec"
+    out.mkdir()
+    (out / "record.json").write_text(json.dumps({"world": "small_office", "policy": "frontier", "duration": 2.0,
+                                                 "width": 64, "height": 48, "rate_hz": 5.0, "decide_every": 10}))
+    base = ["record", "--world", "small_office", "--duration", "2", "--out", str(out), "--resume", "--quiet"]
+    for extra, field in ((["--width", "80", "--height", "48"], "width"), (["--width", "64", "--height", "48",
+                                                                            "--rate", "2"], "rate_hz"),
+                         (["--width", "64", "--height", "48", "--policy", "random"], "policy")):
+        assert main([*base, *extra]) == 2
+        _one_line(capsys, "record.json", field)
+    assert sorted(p.name for p in out.iterdir()) == ["record.json"]
+
+
+def test_ctrl_c_always_stops_a_run_and_leaves_it_resumable(tmp_path):
+    """Ctrl-C is never lost (it once landed in JAX's garbage-collection callback and the run
+    went on to exit 0): the run stops at the next chunk with status 130, and the same
+    command with --resume is accepted."""
+    from rosmeery_jax.core.files import claim_folder
+
+    out = tmp_path / "o"
+    cmd = [str(Path(sys.executable).with_name("rosmeery")), *RUN, "--duration", "3000", "--seeds", "2", "--out",
+           str(out)]
+    for attempt, wait in enumerate((10, 16)):  # while compiling or starting, then while simulating
+        proc = subprocess.Popen(cmd + (["--resume"] if attempt else []), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        time.sleep(wait)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 130, err[-2000:]
+        assert time.monotonic() - t0 < 30, "stopped within a chunk"
+        assert "interrupted" in err and not (out / "metrics.csv").exists()
+        claim_folder(out, resume=True)  # the same command with --resume is accepted
+
+
+def test_a_full_disk_is_one_line(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from rosmeery_jax.scoring import results
+
+    def full(df, path):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(results, "write_csv", full)
+    ply = _map(tmp_path / "m")
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(tmp_path / "o")]) == 1
+    _one_line(capsys, "metrics.csv", "No space left")
+    assert not (tmp_path / "o").exists()
+
+
+# --- names from files never become paths ---
+
+def test_plot_never_writes_outside_its_folder(tmp_path, capsys):
+    shared = tmp_path / "shared" / "results"
+    shared.mkdir(parents=True)
+    row = {"world": "../../escaped", "policy": "random", "detector": "off", "mapper": "oracle", "seed": 0,
+           "time_s": 0.0, "metric": "ori", "value": 0.5}
+    pd.DataFrame([row], columns=METRIC_COLUMNS).to_csv(shared / "metrics.csv", index=False)
+    before = _tree(tmp_path)
+    assert main(["plot", str(shared)]) == 2
+    _one_line(capsys, "metrics.csv", "row 2, column world", "plain name")
+    assert _tree(tmp_path) == before and not (tmp_path / "escaped_ori.png").exists()
+
+
+# --- silently reinterpreted, now refused ---
+
+@pytest.mark.parametrize("option, needle", [
+    ({}, None),  # the baseline: valid
+    ({"mappers": "perceived,perceived", "detector": "oracle"}, "appears twice"),
+    ({"weights": "x.pt"}, "is for --detector yolo"),
+    ({"worlds": "procedural:office:0-100000000"}, "at most 10,000"),
+    ({"worlds": "procedural:office:3:rooms=2:rooms=3"}, "given twice"),
+])
+def test_session_options_that_were_reinterpreted(tmp_path, option, needle):
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.session import load_config
+
+    args = {**dict(worlds="small_office", policies="random", seeds=1, duration=4.0, detector="off",
+                   out=str(tmp_path / "o")), **option}
+    if needle is None:
+        assert load_config(None, **args).policies == ("random",)
+        return
+    t0 = time.monotonic()
+    with pytest.raises(InputError, match=needle):
+        load_config(None, **args)
+    assert time.monotonic() - t0 < 10  # refused by its size, never expanded
+
+
+def test_an_output_that_cannot_be_made_is_one_line(capsys):
+    assert main([*RUN, "--seeds", "1", "--out", "/proc/rosmeery/o"]) == 2
+    _one_line(capsys, "/proc/rosmeery/o", "cannot be created")
+
+
+def test_sample_s_and_sizes_that_cannot_be_honoured(tmp_path):
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.session import load_config
+
+    base = dict(worlds="small_office", policies="random", seeds=1, duration=4.0, detector="off", out=str(tmp_path))
+    with pytest.raises(InputError, match="sample_s.*whole number of control periods"):
+        load_config(None, **base, sample_s=0.03)
+    deep = tmp_path / "deep.toml"
+    deep.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(InputError, match="deep.toml"):
+        load_config(deep)
+    wide = tmp_path / "wide.toml"
+    wide.write_text('worlds = ["small_office"]\n[env]\ncamera__width = 100000\n')
+    with pytest.raises(InputError, match="camera__width"):
+        load_config(wide)
+
+
+@pytest.mark.parametrize("meta, needle", [
+    (False, "needs its JSON beside it"),
+    ({"frame": {"world": "kitchen", "time_s": 1.0}}, "is not the world scored"),
+    ({"frame": {"world": "small_office", "time_s": float("nan")}}, "frame.time_s"),
+    ({"frame": {"world": "small_office", "time_s": -5}}, "frame.time_s"),
+    ({"frame": {"world": "small_office"}, "objects": [{"id": 0}, {"id": 0}]}, "appears twice"),
+    ({"frame": {"world": "small_office"}, "objects": [{"id": 0, "confidence": float("nan")}]}, "confidence"),
+    ("deep", "nested too deeply"),
+])
+def test_evaluation_maps_that_were_reinterpreted(tmp_path, capsys, meta, needle):
+    folder = tmp_path / "m"
+    ply = _map(folder, meta=None if meta == "deep" else meta)
+    if meta == "deep":
+        (folder / "map.json").write_text("[" * 100_000 + "]" * 100_000)
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(tmp_path / "o")]) == 2
+    _one_line(capsys, needle)
+    assert not (tmp_path / "o").exists()
+
+
+def test_two_maps_at_one_time_and_an_empty_map(tmp_path, capsys):
+    a, b = _map(tmp_path / "m", "a"), _map(tmp_path / "m", "b")
+    assert main(["evaluate", "--world", "small_office", "--map", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
+    _one_line(capsys, "two maps have this time")
+    empty = _map(tmp_path / "e")
+    empty.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+                      b"property float z\nproperty int instance\nend_header\n")  # as a mapper that saw nothing writes
+    assert main(["evaluate", "--world", "small_office", "--map", str(empty), "--out", str(tmp_path / "o")]) == 2
+    _one_line(capsys, "no points")
+
+
+def test_replayed_poses_outside_the_world_or_before_zero(tmp_path, capsys):
+    for rows, needle in (("0,50,50,0\n1,50.1,50,0\n", "outside the world"), ("-5,0,0,0\n1,0.1,0,0\n", "start at 0")):
+        poses = tmp_path / "p.csv"
+        poses.write_text("t,x,y,yaw\n" + rows)
+        assert main(["replay", "--world", "small_office", "--poses", str(poses), "--out", str(tmp_path / "o")]) == 2
+        _one_line(capsys, "p.csv", needle)
+        assert not (tmp_path / "o").exists()
+
+
+def test_an_absolute_replay_glob_is_read(tmp_path):
+    from rosmeery_jax.policies.replay import replay_files
+
+    for name in ("a.jsonl", "b.jsonl"):
+        (tmp_path / name).write_text("{}\n")
+    assert [p.name for p in replay_files(f"replay:{tmp_path}/*.jsonl")] == ["a.jsonl", "b.jsonl"]
+
+
+def test_train_refuses_a_range_of_worlds_by_its_size():
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.rl import ppo
+
+    with pytest.raises(InputError, match="at most 10,000"):
+        ppo.load_config(None, worlds=["procedural:office:0-100000000"])
