@@ -65,3 +65,18 @@ def write_world(tmp_path):
         return path
 
     return _write
+
+
+# A small session setting shared by the modules that run many tiny sessions (each module's
+# sessions then share one compiled function through the persistent cache).
+SMALL_RUN = ["run", "--worlds", "small_office", "--policies", "random,frontier", "--duration", "4", "--detector",
+             "off", "--quiet"]
+
+
+def one_line_error(capsys, *needles) -> str:
+    """The command's stderr: exactly one line, holding every needle."""
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    for n in needles:
+        assert n in err, (n, err)
+    return err

@@ -16,22 +16,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import SMALL_RUN, one_line_error
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.core.errors import InputError
 
 # One session setting for the module's sessions (the kill-9 test's child included: it inherits
 # conftest's one host device), so they share one compiled function through the persistent cache.
-RUN = ["run", "--worlds", "small_office", "--policies", "random,frontier", "--duration", "4", "--detector", "off",
-       "--quiet"]
-
-
-def _one_line_error(capsys, *needles) -> str:
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1, err
-    for n in needles:
-        assert n in err, (n, err)
-    return err
+RUN = SMALL_RUN
+_one_line_error = one_line_error
 
 
 # --- overrides and keys ---

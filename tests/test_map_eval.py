@@ -124,7 +124,8 @@ def test_bad_maps_are_one_line_naming_file_and_field_and_nothing_is_written(worl
         bad[3, 1] = np.nan
         _write(tmp_path, world, bad, np.zeros(len(chair)), {0: ("chair", 1.0)})
     elif case == "label":
-        ply.with_suffix(".json").write_text(json.dumps({"frame": {}, "objects": [{"id": 0, "label": "spaceship"}]}))
+        ply.with_suffix(".json").write_text(json.dumps({"frame": {"world": world.name},
+                                                        "objects": [{"id": 0, "label": "spaceship"}]}))
     out = tmp_path / "out"
     assert main(["evaluate", "--world", str(world.path), "--map", str(ply), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()

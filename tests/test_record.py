@@ -33,7 +33,7 @@ def _lines(path):
 
 def test_the_sequence_has_the_tum_layout(rec):
     seq = rec / "seed1"
-    assert sorted(p.name for p in rec.iterdir()) == ["seed1", "session"]
+    assert sorted(p.name for p in rec.iterdir()) == ["record.json", "seed1", "session"]
     rgb, depth = _lines(seq / "rgb.txt"), _lines(seq / "depth.txt")
     assert [r[0] for r in rgb] == [f"{0.2 * k:.6f}" for k in range(51)]  # 5 Hz over 10 s, both ends
     assert [d[0] for d in depth] == [r[0] for r in rgb] and depth[3][1] == "depth/0.600000.png"

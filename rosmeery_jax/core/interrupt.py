@@ -45,4 +45,7 @@ def deferred() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+        pressed = _pressed.is_set()
         _pressed.clear()
+    if pressed:  # pressed after the last check: never lost
+        raise KeyboardInterrupt

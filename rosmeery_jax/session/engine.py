@@ -447,23 +447,23 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     worker = _Detection(group, plan, detectors, start, data, blocks, bar)
     state, pstates, key, jobs, wait_s = start.state, start.pstates, keys.run, [], 0.0
     try:
-        for c in range(plan.total // plan.per_call):
-            interrupt.check()  # Ctrl-C stops a session here, between chunks (core.interrupt)
-            pending = empty
-            if capture and c >= 2:  # the detections of period c - 2 reach the robot now
-                jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
-                t1 = time.perf_counter()
-                pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result().dets[:3])
-                wait_s += time.perf_counter() - t1
-            out = start.chunk(data, blocks, state, pstates, key, pending)
-            state, pstates, key = out.state, out.pstates, out.key
-            jobs.append(worker.submit(c, out.logs, out.poses, out.frames))
+        with interrupt.deferred():  # Ctrl-C between chunks, never inside a JAX callback
+            for c in range(plan.total // plan.per_call):
+                interrupt.check()  # Ctrl-C stops a session here, between chunks (core.interrupt)
+                pending = empty
+                if capture and c >= 2:  # the detections of period c - 2 reach the robot now
+                    jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
+                    t1 = time.perf_counter()
+                    pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result().dets[:3])
+                    wait_s += time.perf_counter() - t1
+                out = start.chunk(data, blocks, state, pstates, key, pending)
+                state, pstates, key = out.state, out.pstates, out.key
+                jobs.append(worker.submit(c, out.logs, out.poses, out.frames))
     except BaseException:  # Ctrl-C or an error: queued detections are dropped, not waited for
         worker.pool.shutdown(wait=False, cancel_futures=True)
         raise
     done = [j.result() for j in jobs]
     worker.close()
-    interrupt.check()
     real = int(group.real.sum())
     timing = {"envs": real, "padded_envs": group.size, "env_steps": real * plan.total * plan.decide_every,
               **worker.timing, "wait_s": wait_s, "sim_s": time.perf_counter() - worker.started,

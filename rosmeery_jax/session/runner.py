@@ -24,7 +24,7 @@ from pathlib import Path
 import jax
 from tqdm.auto import tqdm
 
-from rosmeery_jax.core import interrupt, xla
+from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
@@ -59,8 +59,7 @@ class Session:
             claim = check_out(cfg, resume)  # again under the lock: another command may have started
             write_atomic(out / "config.json", json.dumps({**claim.record, "versions": versions()}, indent=2))
             try:
-                with interrupt.deferred():
-                    self._run(out)
+                self._run(out)
             except BaseException:
                 if claim.fresh and not any((out / "runs").glob("*.metrics.csv")):
                     _empty(out)  # nothing finished: a corrected command starts afresh in the same folder
@@ -104,7 +103,6 @@ class Session:
                       "devices": group.devices}
             timings.append(timing)
             for run in group.runs:
-                interrupt.check()  # between runs: each run's files are whole or absent
                 write_run(cfg, group, run, out, sim, timing)
         bar.close()
         return timings
