@@ -16,12 +16,14 @@ trained explorer shipped in the package; ``learned:PATH`` for a policy file of
 
 from __future__ import annotations
 
+from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies import learned
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
 from rosmeery_jax.policies.learned import LearnedPolicy
+from rosmeery_jax.policies.plugin import plugin_class
 from rosmeery_jax.policies.random_walk import RandomPolicy
 from rosmeery_jax.policies.replay import PREFIX as REPLAY_PREFIX
 from rosmeery_jax.policies.replay import ReplayPolicy
@@ -43,26 +45,35 @@ def policy_class(spec: str) -> type[Policy]:
         return ReplayPolicy
     if spec.startswith(learned.PREFIX):
         return LearnedPolicy
+    if plugins.is_plugin(spec):
+        return plugin_class(spec)
     if spec not in POLICIES:
         raise InputError("config", "policies", f"unknown policy {spec!r} (built in: {', '.join(POLICIES)}, "
-                         f"{learned.PREFIX}FILE, {REPLAY_PREFIX}FILE[+FILE...])")
+                         f"{learned.PREFIX}FILE, {REPLAY_PREFIX}FILE[+FILE...], or a plugin FILE.py:Name)")
     return Policy
 
 
 def policy_label(spec: str) -> str:
     """The name a policy entry has in results: ``replay:FILES`` -> ``replay``,
-    ``learned:PATH`` -> ``learned_<name>``."""
+    ``learned:PATH`` -> ``learned_<name>``, a plugin -> its class's ``name``."""
     if spec.startswith(learned.PREFIX):
         return learned.label(spec)
+    if plugins.is_plugin(spec) and not spec.startswith(REPLAY_PREFIX):
+        return plugin_class(spec).name
     return "replay" if spec.startswith(REPLAY_PREFIX) else spec
 
 
 def make_policy(spec: str, env, decide_every: int = 10, total_steps: int = 0, **options) -> Policy:
     """A policy entry for ``env``; ``decide_every`` and ``total_steps`` serve ``replay:``."""
-    if policy_class(spec) is ReplayPolicy:
+    cls = policy_class(spec)
+    if cls is ReplayPolicy:
         return ReplayPolicy(env, spec, decide_every, total_steps)
-    if policy_class(spec) is LearnedPolicy:
+    if cls is LearnedPolicy:
         return LearnedPolicy(env, spec)
+    if cls is not Policy:  # a plugin: labelled by its class's name, whatever its instance sets
+        policy = cls(env, **options)
+        policy.name = cls.name
+        return policy
     return POLICIES[spec](env, **options)
 
 

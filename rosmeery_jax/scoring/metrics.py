@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
@@ -82,12 +83,42 @@ def opi_strict(log: ObjectLog, truth: GroundTruthTable):
 
 
 def resolve(names) -> tuple[str, ...]:
-    """Check metric names against the registry (one-line error for an unknown one)."""
-    names = tuple(names)
+    """Check metric names against the registry (one-line error for an unknown one); a
+    plugin ``FILE.py:fn`` or ``package.module:fn`` is loaded, checked and registered as
+    ``fn``, the name its curves carry in the results."""
+    out = []
     for n in names:
+        if n not in REGISTRY and plugins.is_plugin(n):
+            n = _register_plugin(n)
         if n not in REGISTRY:
-            raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))})")
-    return names
+            raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))}; "
+                             "or a plugin FILE.py:function)")
+        out.append(n)
+    return tuple(out)
+
+
+def _register_plugin(spec: str) -> str:
+    """Load the metric function ``spec`` names, check it on a small log (T = 3 steps, N = 2
+    objects: it must trace under JAX and give a curve (3,) of floats), register it."""
+    fn = plugins.load(spec, "config", "metrics")
+    name = spec.rsplit(":", 1)[1]
+    if not callable(fn):
+        raise InputError("config", "metrics", f"plugin {spec!r} is not a function fn(log, truth) -> curve")
+    if name in REGISTRY and REGISTRY[name] is not fn:
+        raise InputError("config", "metrics", f"plugin {spec!r}: a metric named {name!r} exists already")
+    f32, i32 = jax.ShapeDtypeStruct((3, 2), jnp.float32), jax.ShapeDtypeStruct((3, 2), jnp.int32)
+    log = ObjectLog(f32, f32, f32, i32, i32, i32)
+    truth = GroundTruthTable(np.ones(2, np.float32), np.ones(2, np.int32), np.zeros(2, np.int32))
+    try:
+        curve = jax.eval_shape(lambda lg: fn(lg, truth), log)
+    except Exception as err:
+        raise InputError("config", "metrics", f"plugin {spec!r} cannot run under JAX on an object log: "
+                         f"{type(err).__name__}: {str(err).splitlines()[0][:200] if str(err) else ''}") from None
+    if not hasattr(curve, "shape") or curve.shape != (3,) or not jnp.issubdtype(curve.dtype, jnp.floating):
+        raise InputError("config", "metrics", f"plugin {spec!r} must return one float per step, shape (T,); "
+                         f"for T = 3 it gave {getattr(curve, 'shape', type(curve).__name__)}")
+    REGISTRY[name] = fn
+    return name
 
 
 def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:

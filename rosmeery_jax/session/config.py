@@ -10,12 +10,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rosmeery_jax.core import config as config_loader
-from rosmeery_jax.core import overrides
+from rosmeery_jax.core import overrides, plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import memory_bytes
-from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
 from rosmeery_jax.policies.learned import policy_file
+from rosmeery_jax.policies.plugin import check_plugin
 from rosmeery_jax.policies.replay import recordings_by_world
 from rosmeery_jax.rl.network import load_policy
 from rosmeery_jax.scoring import metrics
@@ -84,7 +85,7 @@ class SessionConfig:
                 _check_world_name(w)
             worlds = [load_world(w) for w in self.worlds]
             for p in self.policies:
-                _check_policy(p, worlds)
+                _check_policy(p, worlds, self)
             decisions(self)
             sample_steps(self)
         _check_unique(self, worlds, source)
@@ -157,7 +158,10 @@ def _check_world_name(name: str) -> None:
                          "nor an MJCF file nor procedural:KIND:SEED")
 
 
-def _check_policy(spec: str, worlds) -> None:
+def _check_policy(spec: str, worlds, cfg: SessionConfig) -> None:
+    if plugins.is_plugin(spec) and not spec.startswith((REPLAY_PREFIX, "learned:")):
+        labels = "detections" if cfg.detector != "off" else "observed"
+        check_plugin(spec, make(cfg.worlds[0], labels=labels, **overrides.flatten(cfg.env)))
     if policy_class(spec) is LearnedPolicy:
         load_policy(policy_file(spec))  # one line naming the file if it is not a policy file
     if spec.startswith(REPLAY_PREFIX):

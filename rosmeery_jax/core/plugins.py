@@ -1,0 +1,69 @@
+"""Plugins by name: ``FILE.py:Name`` or ``package.module:Name``, wherever the benchmark takes
+a name (policies, metrics). A plugin is code the user chose to run: it is imported as it
+is, with the user's rights, like any Python module they import themselves.
+
+Loading a plugin never raises anything but :class:`InputError`, one line naming the plugin
+and the problem (no such file, a syntax or import error, no such name).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import re
+import sys
+import traceback
+from pathlib import Path
+
+from rosmeery_jax.core.errors import InputError
+
+_SPEC = re.compile(r"(?P<module>[^:]+\.py|[A-Za-z_][\w.]*):(?P<name>[A-Za-z_]\w*)")
+
+
+def is_plugin(spec: str) -> bool:
+    """Whether ``spec`` names a plugin (``FILE.py:Name`` or ``package.module:Name``)."""
+    return _SPEC.fullmatch(spec) is not None
+
+
+def load(spec: str, source: str, field: str):
+    """The object ``spec`` names; one InputError naming ``source``, ``field`` and the plugin."""
+    m = _SPEC.fullmatch(spec)
+    if m is None:
+        raise InputError(source, field, f"{spec!r} is not a plugin name (FILE.py:Name or package.module:Name)")
+    module = _module(m.group("module"), spec, source, field)
+    try:
+        return getattr(module, m.group("name"))
+    except AttributeError:
+        raise InputError(source, field, f"plugin {spec!r}: {m.group('module')} defines no {m.group('name')!r}") from None
+
+
+def _module(where: str, spec: str, source: str, field: str):
+    try:
+        if where.endswith(".py"):
+            path = Path(where).resolve()
+            if not path.is_file():
+                raise InputError(source, field, f"plugin {spec!r}: no such file {where!r}")
+            name = "rosmeery_plugin_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
+            if name in sys.modules:
+                return sys.modules[name]
+            loader = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(loader)
+            sys.modules[name] = module
+            try:
+                loader.loader.exec_module(module)
+            except BaseException:
+                sys.modules.pop(name, None)
+                raise
+            return module
+        return importlib.import_module(where)
+    except InputError:
+        raise
+    except Exception as err:  # the plugin's own code failed to import: say where
+        frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
+        if isinstance(err, SyntaxError) and err.filename:
+            at = f" ({Path(err.filename).name}, line {err.lineno})"
+        else:
+            at = f" ({Path(frame.filename).name}, line {frame.lineno})" if frame else ""
+        raise InputError(source, field, f"plugin {spec!r} failed to import: {type(err).__name__}: "
+                         f"{str(err).splitlines()[0] if str(err) else ''}{at}") from None

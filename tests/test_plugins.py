@@ -1,0 +1,109 @@
+"""Plugins by name: a researcher's own explorer and metric, named FILE.py:Name or
+package.module:Name, run like the built-ins; a broken plugin is one line naming it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from conftest import one_line_error
+from rosmeery_jax.apps.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SESSION = ["run", "--worlds", "small_office", "--seeds", "2", "--duration", "6", "--detector", "oracle", "--quiet"]
+SAME_AS_FRONTIER = '''
+from rosmeery_jax.policies.frontier import FrontierPolicy
+
+
+class MyFrontier(FrontierPolicy):
+    name = "my_frontier"
+
+    def __init__(self, env):
+        super().__init__(env, choose="biggest")
+'''
+
+
+def test_a_plugin_equal_to_a_builtin_gives_bitwise_its_curves_and_a_plugin_metric_its_own(tmp_path):
+    plugin = tmp_path / "mine.py"
+    plugin.write_text(SAME_AS_FRONTIER)
+    out = tmp_path / "o"
+    metric = f"{ROOT / 'examples' / 'metric_plugin.py'}:labelled_share"
+    assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier", "--metrics", f"ori,opi,{metric}",
+                 "--out", str(out)]) == 0
+    df = pd.read_csv(out / "metrics.csv")
+    assert set(df.policy) == {"frontier", "my_frontier"} and set(df.metric) == {"ori", "opi", "labelled_share"}
+    key = ["mapper", "seed", "metric", "time_s"]
+    a = df[df.policy == "frontier"].sort_values(key)[key + ["value"]].reset_index(drop=True)
+    b = df[df.policy == "my_frontier"].sort_values(key)[key + ["value"]].reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)  # bitwise: the same decisions in the one batch
+    share = df[df.metric == "labelled_share"].value
+    assert share.between(0, 1).all() and share.max() > 0
+
+
+def test_the_example_explorer_runs_in_a_session(tmp_path):
+    out = tmp_path / "o"
+    spec = f"{ROOT / 'examples' / 'farthest_free_policy.py'}:FarthestFree"
+    assert main([*SESSION, "--policies", f"random,{spec}", "--metrics", "ori", "--out", str(out)]) == 0
+    df = pd.read_csv(out / "metrics.csv")
+    assert set(df.policy) == {"random", "farthest_free"}
+    path = pd.read_csv(out / "trajectories.csv").query("policy == 'farthest_free'")
+    for _, seed in path.groupby("seed"):  # it drives towards the far free cells it chose
+        start, end = seed.iloc[0], seed.iloc[-1]
+        assert ((end.x - start.x) ** 2 + (end.y - start.y) ** 2) ** 0.5 > 0.2  # it drove (turning first)
+
+
+BROKEN = {
+    "syntax": ("class P(:\n", "failed to import", "SyntaxError"),
+    "import": ("import no_such_module_here\n", "failed to import", "ModuleNotFoundError"),
+    "missing": ("x = 1\n", "defines no 'P'", ""),
+    "not_a_policy": ("class P:\n    name = 'p'\n", "is not a Policy class", ""),
+    "no_decide": ("from rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n", "lacks a decide", ""),
+    "no_name": ("from rosmeery_jax import Policy\nclass P(Policy):\n    def decide(self, s, p, k):\n"
+                "        return s.pose, p\n", "needs a class attribute name", ""),
+    "shape": ("from rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n    def decide(self, s, p, k):\n"
+              "        return s.pose[:2], p\n", "shape (2,)", ""),
+    "nan": ("import jax.numpy as jnp\nfrom rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n"
+            "    def decide(self, s, p, k):\n        return s.pose * jnp.nan, p\n", "not finite", ""),
+    "untraceable": ("from rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n"
+                    "    def decide(self, s, p, k):\n        if s.pose[0] > 0:\n            pass\n"
+                    "        return s.pose, p\n", "cannot run under JAX", ""),
+    "state": ("import jax.numpy as jnp\nfrom rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n"
+              "    def decide(self, s, p, k):\n        return s.pose, jnp.zeros(4)\n", "policy state unlike init", ""),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BROKEN))
+def test_a_broken_policy_plugin_is_one_line_naming_it_with_nothing_written(tmp_path, capsys, case):
+    code, needle, extra = BROKEN[case]
+    plugin = tmp_path / "broken.py"
+    plugin.write_text(code)
+    out = tmp_path / "o"
+    assert main([*SESSION, "--policies", f"{plugin}:P", "--out", str(out)]) == 2
+    one_line_error(capsys, "broken.py:P", needle, extra)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("code, needle", [
+    ("def m(log, truth):\n    return log.ps\n", "must return one float per step"),
+    ("def m(log, truth):\n    return float(log.ps.sum())\n", "cannot run under JAX"),
+    ("m = 3\n", "is not a function"),
+])
+def test_a_broken_metric_plugin_is_one_line(tmp_path, capsys, code, needle):
+    plugin = tmp_path / "metric.py"
+    plugin.write_text(code)
+    assert main([*SESSION, "--policies", "random", "--metrics", f"ori,{plugin}:m", "--out", str(tmp_path / "o")]) == 2
+    one_line_error(capsys, "metric.py:m", needle)
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_missing_plugin_file_and_a_module_plugin(tmp_path, capsys):
+    assert main([*SESSION, "--policies", f"{tmp_path}/nowhere.py:P", "--out", str(tmp_path / "o")]) == 2
+    one_line_error(capsys, "no such file")
+    from rosmeery_jax.policies import policy_label
+
+    module = "rosmeery_jax.policies.random_walk:RandomPolicy"  # package.module:Name
+    assert policy_label(module) == "random"
+    assert main([*SESSION, "--policies", f"random,{module}", "--out", str(tmp_path / "o")]) == 2
+    one_line_error(capsys, "'random' appears twice")  # the same label would share run files
