@@ -1,5 +1,5 @@
 import sys
 
-from rosmeery_jax.apps.cli import main
+from rosmeery_jax.apps import main
 
 sys.exit(main())

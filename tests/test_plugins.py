@@ -25,33 +25,29 @@ class MyFrontier(FrontierPolicy):
 '''
 
 
-def test_a_plugin_equal_to_a_builtin_gives_bitwise_its_curves_and_a_plugin_metric_its_own(tmp_path):
+def test_plugins_run_like_builtins_in_one_session(tmp_path):
+    """One session: frontier, a plugin equal to it (bitwise the same curves: the same
+    decisions in the one batch), the example explorer (it drives), and a plugin metric."""
     plugin = tmp_path / "mine.py"
     plugin.write_text(SAME_AS_FRONTIER)
-    out = tmp_path / "o"
+    example = f"{ROOT / 'examples' / 'farthest_free_policy.py'}:FarthestFree"
     metric = f"{ROOT / 'examples' / 'metric_plugin.py'}:labelled_share"
-    assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier", "--metrics", f"ori,opi,{metric}",
-                 "--out", str(out)]) == 0
+    out = tmp_path / "o"
+    assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier,{example}", "--metrics",
+                 f"ori,opi,{metric}", "--out", str(out)]) == 0
     df = pd.read_csv(out / "metrics.csv")
-    assert set(df.policy) == {"frontier", "my_frontier"} and set(df.metric) == {"ori", "opi", "labelled_share"}
+    assert set(df.policy) == {"frontier", "my_frontier", "farthest_free"}
+    assert set(df.metric) == {"ori", "opi", "labelled_share"}
     key = ["mapper", "seed", "metric", "time_s"]
     a = df[df.policy == "frontier"].sort_values(key)[key + ["value"]].reset_index(drop=True)
     b = df[df.policy == "my_frontier"].sort_values(key)[key + ["value"]].reset_index(drop=True)
-    pd.testing.assert_frame_equal(a, b, check_exact=True)  # bitwise: the same decisions in the one batch
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
     share = df[df.metric == "labelled_share"].value
     assert share.between(0, 1).all() and share.max() > 0
-
-
-def test_the_example_explorer_runs_in_a_session(tmp_path):
-    out = tmp_path / "o"
-    spec = f"{ROOT / 'examples' / 'farthest_free_policy.py'}:FarthestFree"
-    assert main([*SESSION, "--policies", f"random,{spec}", "--metrics", "ori", "--out", str(out)]) == 0
-    df = pd.read_csv(out / "metrics.csv")
-    assert set(df.policy) == {"random", "farthest_free"}
     path = pd.read_csv(out / "trajectories.csv").query("policy == 'farthest_free'")
-    for _, seed in path.groupby("seed"):  # it drives towards the far free cells it chose
+    for _, seed in path.groupby("seed"):  # the example drives towards the far free cells it chose
         start, end = seed.iloc[0], seed.iloc[-1]
-        assert ((end.x - start.x) ** 2 + (end.y - start.y) ** 2) ** 0.5 > 0.2  # it drove (turning first)
+        assert ((end.x - start.x) ** 2 + (end.y - start.y) ** 2) ** 0.5 > 0.2  # (turning first)
 
 
 BROKEN = {

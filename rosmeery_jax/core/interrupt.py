@@ -1,10 +1,11 @@
-"""Ctrl-C at a safe point: a long computation asks :func:`requested` between its chunks.
+"""Ctrl-C at a safe point: a long computation asks :func:`check` between its chunks.
 
 A ``KeyboardInterrupt`` raised at a random point can land inside a callback that swallows
 it (JAX's garbage-collection hook does), and the command then runs on as if nothing had
 been pressed. Inside :func:`deferred`, the first Ctrl-C only sets a flag that the engine
-reads after each chunk, where it raises ``KeyboardInterrupt`` itself; a second Ctrl-C
-interrupts at once, as usual.
+reads between chunks (and while it waits for a compile), where it raises
+``KeyboardInterrupt`` itself; a press after the last check is raised when the block ends,
+and a second Ctrl-C interrupts at once, as usual.
 """
 
 from __future__ import annotations
@@ -15,23 +16,21 @@ from contextlib import contextmanager
 from typing import Iterator
 
 _pressed = threading.Event()
-
-
-def requested() -> bool:
-    """Whether Ctrl-C was pressed inside :func:`deferred`."""
-    return _pressed.is_set()
+_active = threading.Event()  # a deferred block is open (nested blocks share it)
 
 
 def check() -> None:
     """Raise ``KeyboardInterrupt`` here if Ctrl-C was pressed."""
     if _pressed.is_set():
+        _pressed.clear()
         raise KeyboardInterrupt
 
 
 @contextmanager
 def deferred() -> Iterator[None]:
-    """Defer Ctrl-C to the next :func:`check` (main thread only; elsewhere a no-op)."""
-    if threading.current_thread() is not threading.main_thread():
+    """Defer Ctrl-C to the next :func:`check` (main thread only; nested blocks defer to
+    the outermost)."""
+    if threading.current_thread() is not threading.main_thread() or _active.is_set():
         yield
         return
     _pressed.clear()
@@ -41,10 +40,12 @@ def deferred() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)  # a second Ctrl-C interrupts at once
 
     previous = signal.signal(signal.SIGINT, on_sigint)
+    _active.set()
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+        _active.clear()
         pressed = _pressed.is_set()
         _pressed.clear()
     if pressed:  # pressed after the last check: never lost

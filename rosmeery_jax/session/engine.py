@@ -581,7 +581,16 @@ def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: Keys, empty)
     pool = ThreadPoolExecutor(max_workers=1)
     job = pool.submit(lambda: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile())
     pool.shutdown(wait=False)
-    return lambda *_: job.result()
+    return lambda *_: _wait(job)
+
+
+def _wait(job: Future):
+    """The compile's result, Ctrl-C honoured while waiting for it."""
+    while True:
+        try:
+            return job.result(timeout=0.2)
+        except TimeoutError:
+            interrupt.check()
 
 
 def _perceive(mappers: list, first_frame: int, poses: np.ndarray, depth, dets, decide_every: int) -> None:
