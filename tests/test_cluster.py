@@ -201,28 +201,33 @@ def test_an_unreachable_or_empty_cluster_address_is_one_line_within_the_timeout(
         assert len(err) == 1 and needle in err[0] and not out.exists(), err
 
 
-def test_a_token_head_is_joined_when_the_home_folder_holds_its_token(world, local, own_home, tmp_path, cluster):
+JOIN = ("import sys; from rosmeery_jax.session.cluster import connect; ray = connect(sys.argv[1]); "
+        "print('joined', ray.get(ray.remote(lambda: 41).remote()) + 1)")  # connect imports Ray itself
+
+
+def _join(address: str) -> subprocess.CompletedProcess:
+    """A fresh process, as a user's command, joins ``address`` and runs one task there."""
+    return subprocess.run([sys.executable, "-c", JOIN, address], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
+
+
+def test_a_token_head_is_joined_when_the_home_folder_holds_its_token(own_home, cluster):
     """The order that failed: a token in ~/.ray (as a local ray.init() leaves), a head that
-    picks it up, then a join (a fresh process, as a user's command). The module's own head,
-    without a token, is joined by the tests above."""
+    picks it up, then a join. The module's own head, without a token, is joined above."""
     (own_home / ".ray").mkdir(exist_ok=True)
     (own_home / ".ray" / "auth_token").write_text("0123456789abcdef" * 4)
     try:
-        address = _head()
-        out = tmp_path / "token"
-        cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--cluster", address)]
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
-                              env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
-        assert done.returncode == 0, done.stderr[-2000:]
-        _same_results(local, out)
+        done = _join(_head())
+        assert done.returncode == 0 and "joined 42" in done.stdout, done.stderr[-2000:]
     finally:
         (own_home / ".ray" / "auth_token").unlink()
 
 
-def test_a_local_cluster_leaves_no_token_in_the_home_folder(world, local, own_home, tmp_path):
-    out = tmp_path / "local"
-    cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--cluster", "ray")]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
-    assert done.returncode == 0, done.stderr[-2000:]
-    _same_results(local, out)
-    assert not (own_home / ".ray" / "auth_token").exists()  # a head started later is joined as before
+def test_a_local_cluster_leaves_no_token_in_the_home_folder(own_home, cluster):
+    """rosmeery's own local cluster authenticates with a token written nowhere, so a head
+    started later without one is still joined."""
+    done = _join("ray")
+    assert done.returncode == 0 and "joined 42" in done.stdout, done.stderr[-2000:]
+    assert not (own_home / ".ray" / "auth_token").exists()
+    done = _join(cluster)
+    assert done.returncode == 0 and "joined 42" in done.stdout, done.stderr[-2000:]
