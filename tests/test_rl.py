@@ -179,23 +179,33 @@ def trained(worlds, tmp_path_factory):
     return out
 
 
+def _each_update(change):
+    """``ppo.make_update`` whose k-th update (from 1) runs as ``change(k, update, runner)``."""
+    real = ppo.make_update
+
+    def make(cfg, env):
+        update, calls = real(cfg, env), []
+
+        def once(runner):
+            calls.append(1)
+            return change(len(calls), update, runner)
+
+        return once
+
+    return make
+
+
 def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_path, monkeypatch):
 
     out = tmp_path / "interrupted"
     real = ppo.make_update
 
-    def interrupted(cfg, env):
-        update, calls = real(cfg, env), []
+    def third_interrupted(k, update, runner):
+        if k == 3:
+            raise KeyboardInterrupt  # Ctrl-C during the third update: two are checkpointed
+        return update(runner)
 
-        def once(runner):
-            calls.append(1)
-            if len(calls) == 3:
-                raise KeyboardInterrupt  # Ctrl-C during the third update: two are checkpointed
-            return update(runner)
-
-        return once
-
-    monkeypatch.setattr(ppo, "make_update", interrupted)
+    monkeypatch.setattr(ppo, "make_update", _each_update(third_interrupted))
     with pytest.raises(KeyboardInterrupt):
         ppo.train(_train_config(worlds), out, progress=False)
     assert len(ppo.read_curve(out)) == 2 and not (out / "policy.msgpack").exists()
@@ -280,24 +290,17 @@ def test_a_diverged_training_run_stops_and_keeps_its_last_good_checkpoint(worlds
     from rosmeery_jax.core.errors import InputError
 
     out = tmp_path / "diverged"
-    real = ppo.make_update
 
-    def diverging(cfg, env):
-        update, calls = real(cfg, env), []
-
-        def once(runner):
-            calls.append(1)
-            runner, stats = update(runner)
-            if len(calls) == 3:  # the third update diverges
-                nan = jax.tree.map(lambda a: a * jnp.nan, runner.train.params)
-                runner = runner._replace(train=runner.train.replace(params=nan))
-                stats = {**stats, "loss": jnp.float32(jnp.nan)}
-            return runner, stats
-
-        return once
+    def third_diverges(k, update, runner):
+        runner, stats = update(runner)
+        if k == 3:
+            nan = jax.tree.map(lambda a: a * jnp.nan, runner.train.params)
+            runner = runner._replace(train=runner.train.replace(params=nan))
+            stats = {**stats, "loss": jnp.float32(jnp.nan)}
+        return runner, stats
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(ppo, "make_update", diverging)
+        mp.setattr(ppo, "make_update", _each_update(third_diverges))
         with pytest.raises(InputError, match="update 3.*diverged.*loss"):
             ppo.train(_train_config(worlds), out, progress=False)
     assert not (out / "policy.msgpack").exists()

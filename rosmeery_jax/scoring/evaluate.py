@@ -115,7 +115,7 @@ def _columns(ply: Path, columns: dict) -> np.ndarray:
     if not columns:
         return np.zeros(0, [("x", "f4")])
     try:
-        arrays = [np.asarray(v, dtype=np.float64 if np.asarray(v).dtype.kind == "f" else None) for v in columns.values()]
+        arrays = [np.asarray(v) for v in columns.values()]
         if any(a.dtype.kind not in "iuf" or a.ndim != 2 or a.shape[1] != 1 or len(a) != len(arrays[0])
                for a in arrays):
             raise ValueError("one number per vertex and property")

@@ -37,7 +37,6 @@ chunk, D detections per frame.
 
 from __future__ import annotations
 
-import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -511,7 +510,6 @@ class _Detection:
         self.chunks = plan.total // plan.per_call
         self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0}
         self.pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
-        self.lock = threading.Lock()
         self.started = time.perf_counter()
 
     def submit(self, c: int, logs, poses, frames) -> Future:
@@ -531,10 +529,9 @@ class _Detection:
             t1 = time.perf_counter()
             if self.mappers:
                 _perceive(self.mappers, c * plan.per_call, poses, frames.depth, dets, plan.decide_every)
-            with self.lock:
-                self.timing["detector_s"] += t1 - t0
-                self.timing["mapper_s"] += time.perf_counter() - t1
-                self.timing["frames"] += int(self.group.real.sum()) * plan.per_call
+            self.timing["detector_s"] += t1 - t0  # this thread alone writes them; read after close()
+            self.timing["mapper_s"] += time.perf_counter() - t1
+            self.timing["frames"] += int(self.group.real.sum()) * plan.per_call
         self.bar.update(plan.per_call * plan.decide_every * self.group.env.dt)
         done_steps = int(self.group.real.sum()) * (c + 1) * plan.per_call * plan.decide_every
         self.bar.set_postfix_str(f"{done_steps / (time.perf_counter() - self.started):,.0f} env-steps/s")
