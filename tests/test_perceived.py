@@ -15,7 +15,8 @@ from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score
-from rosmeery_jax.scoring.perceived import PerceivedMapper, _median, frame_logs
+from rosmeery_jax.scoring.mapper import Camera, OnlineScorer
+from rosmeery_jax.scoring.perceived import PerceivedMapper, _median
 from rosmeery_jax.sim.sensors import rgbd
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
 
@@ -57,6 +58,11 @@ def _ori(env, log):
     return {k: float(v) for k, v in metrics.compute(log, table).items()}
 
 
+def _log(env, m):
+    """The mapper's map now, scored (fields (N,))."""
+    return OnlineScorer(env.world, 0.05).score(m.semantic_map()).log
+
+
 def _tight(label):
     b = visible_boxes(label, 40)  # rows object, x1, y1, x2, y2, pixels
     return b[:, 0], b[:, 1:5].astype(np.float32)
@@ -66,18 +72,18 @@ def test_tight_boxes_give_one_instance_per_object_and_points_only_on_objects(sce
     env, depth, label = _frame(scenes, "apart")
     obj, boxes = _tight(label)
     assert list(obj) == [0, 1]  # both objects in view
-    m = PerceivedMapper(env.config.camera)
-    m.add(0, POSE, depth, boxes, np.array([0, 4]), np.array([0.8, 0.6], np.float32))  # chair, desk (indices)
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    assert list(_log(env, m).ps) == [0, 0]  # before the frame: nothing
+    m.fold(POSE, depth, boxes, np.array([0, 4]), np.array([0.8, 0.6], np.float32))  # chair, desk (indices)
     categories = env.world.taxonomy.names
     assert categories[0] == "chair" and categories[4] == "desk"
-    points, instance, _ = m.cloud()
+    points, instance, _, _ = m.semantic_map()
     assert m.instances == 2 and set(instance) == {0, 1}
     assert points[:, 2].min() >= 0.03  # the floor is dropped
-    log = frame_logs(env.world, m, 1, 0.05)
-    assert list(log.ps[0]) == [0, 0]  # before the frame: nothing
-    assert (log.ps[1] > 0).all() and list(log.label[1]) == [0, 4]
-    np.testing.assert_allclose(log.conf_true[1], [0.8, 0.6])
-    sc = score(env.world, _as_map(tmp_path, env, m, 1))
+    log = _log(env, m)
+    assert (log.ps > 0).all() and list(log.label) == [0, 4]
+    np.testing.assert_allclose(log.conf_true, [0.8, 0.6])
+    sc = score(env.world, _as_map(tmp_path, env, m))
     assert sc.off_object == 0.0 and list(sc.matched) == [0, 1]
 
 
@@ -92,8 +98,8 @@ def _two_views(scenes):
     return env, depth, label, _tight(label)[1], depth2, _tight(label2)[1]
 
 
-def _as_map(tmp_path, env, m, frames):
-    points, instance, label, conf = m.snapshot(frames)
+def _as_map(tmp_path, env, m):
+    points, instance, label, conf = m.semantic_map()
     names = [f"instance_{i}" for i in range(len(label))]
     ply, _ = write_map(tmp_path, "perceived", *build_map(env.world, points, instance, names, label, conf, 1.0))
     return read_map(ply, env.world.taxonomy)
@@ -101,15 +107,16 @@ def _as_map(tmp_path, env, m, frames):
 
 def test_a_second_view_joins_the_same_instance_and_a_more_confident_label_replaces_the_first(scenes, tmp_path):
     env, depth, label, boxes, depth2, boxes2 = _two_views(scenes)
-    m = PerceivedMapper(env.config.camera)
-    m.add(0, POSE, depth, boxes[:1], np.array([3]), np.array([0.5], np.float32))  # the chair, mislabelled
-    m.add(1, NEAR, depth2, boxes2[:1], np.array([0]), np.array([0.9], np.float32))  # seen again, right label
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    m.fold(POSE, depth, boxes[:1], np.array([3]), np.array([0.5], np.float32))  # the chair, mislabelled
+    first = _log(env, m)
+    m.fold(NEAR, depth2, boxes2[:1], np.array([0]), np.array([0.9], np.float32))  # seen again, right label
     assert m.instances == 1
-    log = frame_logs(env.world, m, 2, 0.05)
-    assert log.label[1][0] == 3 and log.conf_true[1][0] == 0.0  # after frame 0: wrong label, no cORI
-    assert log.label[2][0] == 0 and log.conf_true[2][0] == pytest.approx(0.9)
-    assert log.ps[2][0] >= log.ps[1][0] > 0  # the nearer view adds samples, never removes
-    assert _ori(env, jax.tree.map(lambda a: a[2], log))["cori"] > 0
+    second = _log(env, m)
+    assert first.label[0] == 3 and first.conf_true[0] == 0.0  # after frame 0: wrong label, no cORI
+    assert second.label[0] == 0 and second.conf_true[0] == pytest.approx(0.9)
+    assert second.ps[0] >= first.ps[0] > 0  # the nearer view adds samples, never removes
+    assert _ori(env, jax.tree.map(lambda a: a[None], second))["cori"] > 0
 
 
 def test_one_box_over_two_touching_objects_merges_them_and_loses_the_smaller(scenes, tmp_path):
@@ -117,23 +124,23 @@ def test_one_box_over_two_touching_objects_merges_them_and_loses_the_smaller(sce
     obj, boxes = _tight(label)
     assert list(obj) == [0, 1]
     union = np.concatenate([boxes[:, :2].min(0), boxes[:, 2:].max(0)])[None]
-    merged = PerceivedMapper(env.config.camera)
-    merged.add(0, POSE, depth, union, np.array([4]), np.array([0.9], np.float32))
-    separate = PerceivedMapper(env.config.camera)
-    separate.add(0, POSE, depth, boxes, np.array([0, 4]), np.array([0.9, 0.9], np.float32))
-    lm, ls = (frame_logs(env.world, m, 1, 0.05) for m in (merged, separate))
+    merged = PerceivedMapper(Camera.of(env.config.camera))
+    merged.fold(POSE, depth, union, np.array([4]), np.array([0.9], np.float32))
+    separate = PerceivedMapper(Camera.of(env.config.camera))
+    separate.fold(POSE, depth, boxes, np.array([0, 4]), np.array([0.9, 0.9], np.float32))
+    lm, ls = (_log(env, m) for m in (merged, separate))
     assert merged.instances == 1 and separate.instances == 2
-    assert lm.ps[1][0] == 0 and lm.ps[1][1] == ls.ps[1][1] > 0  # the desk keeps its samples, the chair has none
-    assert _ori(env, jax.tree.map(lambda a: a[1], lm))["ori"] < _ori(env, jax.tree.map(lambda a: a[1], ls))["ori"]
+    assert lm.ps[0] == 0 and lm.ps[1] == ls.ps[1] > 0  # the desk keeps its samples, the chair has none
+    assert _ori(env, jax.tree.map(lambda a: a[None], lm))["ori"] < _ori(env, jax.tree.map(lambda a: a[None], ls))["ori"]
 
 
 def test_padding_and_empty_boxes_add_nothing(scenes, tmp_path):
     env, depth, _ = _frame(scenes, "apart")
-    m = PerceivedMapper(env.config.camera)
-    m.add(0, POSE, depth, np.zeros((3, 4), np.float32), np.array([-1, -1, 2]), np.zeros(3, np.float32))
-    assert m.instances == 0 and len(m.cloud()[0]) == 0
-    log = frame_logs(env.world, m, 1, 0.05)
-    assert log.ps.shape == (2, 2) and not log.ps.any() and (log.label == -1).all()
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    m.fold(POSE, depth, np.zeros((3, 4), np.float32), np.array([-1, -1, 2]), np.zeros(3, np.float32))
+    assert m.instances == 0 and len(m.semantic_map().points) == 0
+    log = _log(env, m)
+    assert log.ps.shape == (2,) and not log.ps.any() and (log.label == -1).all()
 
 
 def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monkeypatch):
@@ -148,20 +155,19 @@ def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monk
     monkeypatch.setattr(PerceivedMapper, "_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
 
     def build(memo: bool) -> PerceivedMapper:
-        m = PerceivedMapper(env.config.camera)
+        m = PerceivedMapper(Camera.of(env.config.camera))
         if not memo:
             m._frame_memo = lambda pose, depth: {}
         for f, (pose, d, b) in enumerate(frames):
-            m.add(f, pose, d, b, np.array([0, 4])[: len(b)], np.array([0.8, 0.6], np.float32)[: len(b)])
+            m.fold(pose, d, b, np.array([0, 4])[: len(b)], np.array([0.8, 0.6], np.float32)[: len(b)])
         return m
 
     kept, plain = build(True), build(False)
     assert len(boxes) == len(boxes2) == 2
     assert len(calls) == 2 * 4 + 2 * 6  # with the memory: A, moved, the nearer view, A again; without: all 6
-    for a, b in zip(kept.cloud(), plain.cloud()):
+    for a, b in zip(kept.semantic_map(), plain.semantic_map()):
         np.testing.assert_array_equal(a, b)
-    assert kept.detections == plain.detections and kept.instances == plain.instances
-    assert len(kept.detections) == 2 * len(frames)  # a repeated frame still counts as a sighting
+    assert kept.instances == plain.instances == 2
 
 
 def test_perceived_needs_a_detector(tmp_path, capsys):

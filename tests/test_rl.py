@@ -13,7 +13,7 @@ import pytest
 
 from conftest import room_xml
 from rosmeery_jax.rl import network, ppo
-from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, goal, goal_offsets, score
+from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, goal, goal_offsets, score, split_obs
 
 BODIES_A = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -40,7 +40,7 @@ def rl(worlds):
     from rosmeery_jax.env.world_bank import world_bank
 
     env = ExplorationEnv(world_bank(worlds), CFG)
-    params = env.default_params()
+    params = env.default_params
     reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
     step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
     return env, params, reset, step
@@ -62,8 +62,11 @@ def test_shapes_and_auto_reset_onto_a_bank_world(rl):
     env, *_ = rl
     assert env.horizon == 3 and env.num_actions == 9
     steps = _episode(rl, 0, [1, 5, 7, 3])
-    obs, state = steps[0][:2]
-    assert obs.maps.shape == (B, 16, 16, 4) and obs.maps.dtype == jnp.float32 and obs.pose.shape == (B, 4)
+    flat, state = steps[0][:2]
+    assert flat.shape == (B, 16 * 16 * 4 + 4) and flat.dtype == jnp.float32
+    assert env.observation_space(env.default_params).shape == flat.shape[1:]
+    obs = split_obs(flat, 16)
+    assert obs.maps.shape == (B, 16, 16, 4) and obs.pose.shape == (B, 4)
     assert float(obs.maps.min()) >= 0 and float(obs.maps.max()) <= 1
     assert float(obs.maps[..., 1].sum()) > 0  # the first scan already shows free space
     rewards = []
@@ -99,7 +102,7 @@ def test_jit_and_vmap_agree_with_one_env(rl):
     key = jax.random.key(7)
     obs1, state1 = jax.jit(env.reset)(key, params)
     obs_b, state_b = reset(key[None], params)
-    np.testing.assert_allclose(obs1.maps, obs_b.maps[0], atol=1e-6)
+    np.testing.assert_allclose(obs1, obs_b[0], atol=1e-6)
     out1 = jax.jit(env.step)(key, state1, jnp.int32(2), params)
     out_b = step(key[None], state_b, jnp.asarray([2], jnp.int32), params)
     np.testing.assert_allclose(out1[1].env.pose, out_b[1].env.pose[0], atol=1e-4)
@@ -274,14 +277,12 @@ def test_the_shipped_policy_loads():
     from rosmeery_jax.policies.learned import SHIPPED
 
     rl, _, params = network.load_policy(SHIPPED)
-    logits, value = network.ActorCritic(rl.actions).apply(params, _blank_obs(rl))
+    logits, value = network.ActorCritic(rl.actions, rl.crop).apply(params, _blank_obs(rl))
     assert logits.shape == (rl.actions,) and value.shape == ()
 
 
 def _blank_obs(rl):
-    from rosmeery_jax.rl.env import Obs
-
-    return Obs(jnp.zeros((rl.crop, rl.crop, 4)), jnp.zeros(4))
+    return jnp.zeros(rl.crop * rl.crop * 4 + 4)
 
 
 def test_a_diverged_training_run_stops_and_keeps_its_last_good_checkpoint(worlds, trained, tmp_path):

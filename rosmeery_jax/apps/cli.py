@@ -194,7 +194,7 @@ def _print_summary(out: Path) -> None:
             print(f"detector: {t['frames']:,} frames in {t['detector_s']:.1f} s ({t['frames'] / t['detector_s']:,.0f} "
                   f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
         if t.get("mapper_s"):
-            print(f"perceived mapper: {t['mapper_s']:.1f} s in the same worker thread")
+            print(f"mappers (fed and scored): {t['mapper_s']:.1f} s in the same worker thread")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
 
@@ -448,8 +448,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
     p.add_argument("--metrics", metavar="M,N", help=f"active metrics (default: {','.join(d.metrics)})")
     p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (the built-in knowledge, "
-                   "ground-truth association) and/or perceived (depth inside detector boxes); default "
-                   f"{','.join(d.mappers)}")
+                   "ground-truth association), perceived (depth inside detector boxes) and/or your own mapper as "
+                   f"FILE.py:Name or package.module:Name (docs/byo.md); default {','.join(d.mappers)}")
     p.add_argument("--out", metavar="DIR", help=f"results folder (default {d.out})")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "

@@ -67,3 +67,9 @@ def _module(where: str, spec: str, source: str, field: str):
             at = f" ({Path(frame.filename).name}, line {frame.lineno})" if frame else ""
         raise InputError(source, field, f"plugin {spec!r} failed to import: {type(err).__name__}: "
                          f"{str(err).splitlines()[0] if str(err) else ''}{at}") from None
+
+
+def describe(err: Exception) -> str:
+    """An exception raised by a plugin's code, in one short line."""
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0][:200] if text else ''}"

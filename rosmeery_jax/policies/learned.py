@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy
-from rosmeery_jax.rl.env import crop_offsets, goal, goal_offsets, observe
+from rosmeery_jax.rl.env import crop_offsets, flat_obs, goal, goal_offsets, observe
 from rosmeery_jax.rl.network import ActorCritic, load_policy
 
 PREFIX = "learned:"
@@ -47,9 +47,9 @@ class LearnedPolicy(Policy):
         self.name = label(spec)
         rl, _, params = load_policy(policy_file(spec))
         self.params = jax.tree.map(jnp.asarray, params)
-        self.net = ActorCritic(rl.actions)
+        self.net = ActorCritic(rl.actions, rl.crop)
         self.offsets, self.crop_xy = goal_offsets(rl), crop_offsets(rl)
 
     def decide(self, state, pstate, key):
-        logits, _ = self.net.apply(self.params, observe(self.env, state, self.crop_xy))
+        logits, _ = self.net.apply(self.params, flat_obs(observe(self.env, state, self.crop_xy)))
         return goal(state.pose, jax.random.categorical(key, logits), self.offsets), pstate

@@ -44,14 +44,14 @@ def check_plugin(spec: str, env) -> None:
     except InputError:
         raise
     except Exception as err:
-        raise InputError(*where, f"plugin {spec!r} cannot be built for the world: {_short(err)}") from None
+        raise InputError(*where, f"plugin {spec!r} cannot be built for the world: {plugins.describe(err)}") from None
     key = jax.random.key(0)
     state = xla.jit(env.reset)(key)
     try:
         pstate = policy.init(key)
         target, after = xla.jit(policy.decide)(state, pstate, key)
     except Exception as err:  # a Python error, or code JAX cannot trace
-        raise InputError(*where, f"plugin {spec!r} cannot run under JAX: {_short(err)}") from None
+        raise InputError(*where, f"plugin {spec!r} cannot run under JAX: {plugins.describe(err)}") from None
     target = np.asarray(target)
     if not policy.per_step and target.shape != (3,):
         raise InputError(*where, f"plugin {spec!r}: decide returned a target of shape {target.shape}, not (3,) "
@@ -64,8 +64,3 @@ def check_plugin(spec: str, env) -> None:
     if jax.tree.structure(after) != jax.tree.structure(pstate) or shapes(after) != shapes(pstate):
         raise InputError(*where, f"plugin {spec!r}: decide returned a policy state unlike init's (same structure, "
                          "shapes and dtypes are needed to carry it between decisions)")
-
-
-def _short(err: Exception) -> str:
-    text = str(err).strip().splitlines()
-    return f"{type(err).__name__}: {text[0][:200] if text else ''}"

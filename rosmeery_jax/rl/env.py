@@ -1,9 +1,12 @@
 """Reinforcement learning on the benchmark: an env in which one step is one decision.
 
-In the style of gymnax: a small class with pure ``reset(key, params) -> (obs, state)`` and
-``step(key, state, action, params) -> (obs, state, reward, done, info)`` for one env, jit-
-and vmap-able end to end (no host round trip per step); ``params`` holds the world bank as
-data, so one compiled step serves every world of the bank.
+A gymnax environment (it subclasses ``gymnax.environments.environment.Environment``):
+pure ``reset_env`` / ``step_env`` for one env, with gymnax's ``reset(key, params)`` and
+``step(key, state, action, params)`` (auto-reset) on top, jit- and vmap-able end to end (no
+host round trip per step). ``params`` (:class:`Params`, also ``default_params``) holds the
+world bank as data, so one compiled step serves every world of the bank, and gymnax's
+``max_steps_in_episode``. gymnax's wrappers and third-party JAX RL libraries (rejax) run on
+it unmodified.
 
 - **Episodes.** A reset draws a world from the bank (uniformly, from the key) and a start
   heading; an episode lasts ``episode_s`` simulated seconds. When it ends, ``step`` returns
@@ -14,7 +17,8 @@ data, so one compiled step serves every world of the bank.
   column ``a % G`` (to the left, likewise). The target faces away from the robot along
   the offset; the centre cell turns the robot round in place. The navigator then drives
   towards the target for ``decide_every`` control steps (0.1 s each).
-- **Observation** (:class:`Obs`): ``maps`` (C, C, 4) egocentric crops of the robot's own
+- **Observation**: one float32 vector (C*C*4 + 4,), :func:`split_obs` gives its two parts
+  (:class:`Obs`): ``maps`` (C, C, 4) egocentric crops of the robot's own
   maps, ``crop_resolution`` per cell, centred on the robot, rows ahead and columns to the
   left: occupied, free (explored), observed object surface, and surface of objects the
   robot holds a label for (samples per cell / 10, capped at 1); ``pose`` (4,) cos and sin
@@ -39,6 +43,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
+from gymnax.environments import environment, spaces
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Env, State
@@ -94,15 +100,32 @@ def check_rl(rl: RLConfig, source: str, prefix: str = "rl.") -> None:
         raise InputError(source, prefix + "reward", f"{rl.reward!r} is not one of {', '.join(REWARDS)}")
 
 
-class Params(NamedTuple):
-    """worlds: the bank's stacked WorldData (W, ...)."""
+@struct.dataclass
+class Params:
+    """worlds: the bank's stacked WorldData (W, ...); max_steps_in_episode: decisions per
+    episode (gymnax's name)."""
 
     worlds: wd.WorldData
+    max_steps_in_episode: int = struct.field(pytree_node=False, default=60)
 
 
 class Obs(NamedTuple):
-    maps: jax.Array  # (C, C, 4) float32
-    pose: jax.Array  # (4,) float32
+    """The observation's two parts (module docstring)."""
+
+    maps: jax.Array  # (..., C, C, 4) float32
+    pose: jax.Array  # (..., 4) float32
+
+
+def flat_obs(obs: Obs) -> jax.Array:
+    """(..., C*C*4 + 4) float32: the observation as the env returns it."""
+    lead = obs.pose.shape[:-1]
+    return jnp.concatenate([obs.maps.reshape(*lead, -1), obs.pose], -1)
+
+
+def split_obs(obs: jax.Array, crop: int) -> Obs:
+    """The parts of a flat observation (..., C*C*4 + 4), C = ``crop``."""
+    lead = obs.shape[:-1]
+    return Obs(obs[..., :-4].reshape(*lead, crop, crop, 4), obs[..., -4:])
 
 
 class RLState(NamedTuple):
@@ -116,7 +139,7 @@ class RLState(NamedTuple):
     ret: jax.Array
 
 
-class ExplorationEnv:
+class ExplorationEnv(environment.Environment):
     """Exploration as a decision process over a world bank (module docstring). One env:
     vmap ``reset`` / ``step`` over keys for a batch."""
 
@@ -130,26 +153,39 @@ class ExplorationEnv:
         self.offsets, self.crop_xy = goal_offsets(config), crop_offsets(config)
 
     @property
+    def name(self) -> str:
+        return "rosmeery-exploration"
+
+    @property
     def num_actions(self) -> int:
         return self.config.actions
 
+    @property
     def default_params(self) -> Params:
-        return Params(self.bank.data)
+        return Params(self.bank.data, self.horizon)
+
+    def action_space(self, params: Params | None = None) -> spaces.Discrete:
+        return spaces.Discrete(self.config.actions)
+
+    def observation_space(self, params: Params | None = None) -> spaces.Box:
+        c = self.config.crop
+        return spaces.Box(-1.0, jnp.inf, (c * c * 4 + 4,), jnp.float32)
 
     def env_in(self, params: Params, world) -> Env:
         return self.bank.env.with_data(wd.pick(params.worlds, world))
 
-    def reset(self, key: jax.Array, params: Params) -> tuple[Obs, RLState]:
+    def reset_env(self, key: jax.Array, params: Params) -> tuple[jax.Array, RLState]:
         k_world, k_env = jax.random.split(key)
         world = jax.random.randint(k_world, (), 0, params.worlds.spawn.shape[0])
         env = self.env_in(params, world)
         s = env.reset(k_env)
         state = RLState(s, world, jnp.int32(0), score(env, s, self.config.reward), jnp.float32(0))
-        return observe(env, s, self.crop_xy), state
+        return flat_obs(observe(env, s, self.crop_xy)), state
 
-    def step(self, key: jax.Array, state: RLState, action: jax.Array, params: Params):
+    def step_env(self, key: jax.Array, state: RLState, action: jax.Array, params: Params):
         """One decision. Returns obs, state, reward, done and info (the finished episode's
-        ``return`` and ``score`` when done, else 0; ``world``)."""
+        ``return`` and ``score`` when done, else 0; ``world``); gymnax's ``step`` adds the
+        auto-reset."""
         cfg = self.config
         env = self.env_in(params, state.world)
         target = goal(state.env.pose, action, self.offsets)
@@ -157,14 +193,11 @@ class ExplorationEnv:
         new_score = score(env, s, cfg.reward)
         reward = cfg.reward_scale * (new_score - state.score) - cfg.fail_penalty * gave_up(s)
         t = state.t + 1
-        done = t >= self.horizon
+        done = t >= params.max_steps_in_episode
         stepped = RLState(s, state.world, t, new_score, state.ret + reward)
-        obs = observe(env, s, self.crop_xy)
-        obs_new, fresh = self.reset(key, params)
-        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(done, x, y), a, b)  # noqa: E731
         info = {"return": jnp.where(done, stepped.ret, 0.0), "score": jnp.where(done, new_score, 0.0),
                 "world": state.world}
-        return pick(obs_new, obs), pick(fresh, stepped), reward, done, info
+        return flat_obs(observe(env, s, self.crop_xy)), stepped, reward, done, info
 
 
 def goal(pose: jax.Array, action: jax.Array, offsets: jax.Array) -> jax.Array:

@@ -1,7 +1,8 @@
 """The learned explorer's network and its policy file.
 
-The network: three stride-2 3x3 convolutions (16, 32, 32 channels) over the map crops
-(C, C, 4), flattened, joined with the pose features, one 128-unit dense layer, then the
+The network: the flat observation split into its map crops and pose features
+(:func:`~rosmeery_jax.rl.env.split_obs`), three stride-2 3x3 convolutions (16, 32, 32
+channels) over the map crops (C, C, 4), flattened, joined with the pose features, one 128-unit dense layer, then the
 policy logits (G*G goal cells) and the value. Actions are sampled from the softmax.
 
 A policy file (``policy.msgpack``) holds the parameters and the settings the policy needs
@@ -24,18 +25,20 @@ from flax import serialization
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.rl.env import Obs, RLConfig, check_rl
+from rosmeery_jax.rl.env import RLConfig, check_rl, split_obs
 
 POLICY_FORMAT = "rosmeery-learned-1"
 
 
 class ActorCritic(nn.Module):
-    """(Obs with leading axes) -> (logits (..., A), value (...,))."""
+    """Flat observations (..., C*C*4 + 4) -> (logits (..., A), value (...,))."""
 
     actions: int
+    crop: int
 
     @nn.compact
-    def __call__(self, obs: Obs):
+    def __call__(self, flat: jax.Array):
+        obs = split_obs(flat, self.crop)
         x = obs.maps
         for features in (16, 32, 32):
             x = nn.relu(nn.Conv(features, (3, 3), strides=2)(x))
@@ -80,8 +83,8 @@ def load_policy(path: str | Path) -> tuple[RLConfig, dict, Any]:
 
 def _check_params(path: Path, rl: RLConfig, params) -> None:
     """The parameters have the network's structure and shapes for ``rl`` and are finite."""
-    blank = Obs(jax.ShapeDtypeStruct((rl.crop, rl.crop, 4), jnp.float32), jax.ShapeDtypeStruct((4,), jnp.float32))
-    want = jax.eval_shape(ActorCritic(rl.actions).init, jax.random.key(0), blank)
+    blank = jax.ShapeDtypeStruct((rl.crop * rl.crop * 4 + 4,), jnp.float32)
+    want = jax.eval_shape(ActorCritic(rl.actions, rl.crop).init, jax.random.key(0), blank)
     got = jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), np.asarray(a).dtype), params)
     if jax.tree.structure(got) != jax.tree.structure(want):
         raise InputError(str(path), "params", "are not those of the learned explorer's network")

@@ -40,7 +40,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import memory_bytes
 from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
 from rosmeery_jax.env import EnvConfig, world_bank
-from rosmeery_jax.rl.env import ExplorationEnv, Obs, RLConfig, check_rl
+from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, check_rl
 from rosmeery_jax.rl.network import ActorCritic, save_policy
 from rosmeery_jax.scoring.plots import learning_curve
 from rosmeery_jax.world.generate import expand_names
@@ -140,7 +140,7 @@ def _check_size(cfg: TrainConfig, source: str) -> None:
 
 
 class Transition(NamedTuple):
-    obs: Obs
+    obs: jax.Array  # (..., C*C*4 + 4)
     action: jax.Array
     log_prob: jax.Array
     value: jax.Array
@@ -154,7 +154,7 @@ class Runner(NamedTuple):
 
     train: TrainState
     env_state: Any
-    obs: Obs
+    obs: jax.Array  # (..., C*C*4 + 4)
     key: jax.Array
 
 
@@ -168,8 +168,8 @@ def init_runner(cfg: TrainConfig, env: ExplorationEnv) -> Runner:
     key = jax.random.key(p.seed)
     key, k_net, k_env = jax.random.split(key, 3)
     reset = xla.jit(jax.vmap(env.reset, in_axes=(0, None)))
-    obs, state = reset(jax.random.split(k_env, p.num_envs), env.default_params())
-    net = ActorCritic(env.num_actions)
+    obs, state = reset(jax.random.split(k_env, p.num_envs), env.default_params)
+    net = ActorCritic(env.num_actions, cfg.rl.crop)
     params = net.init(k_net, jax.tree.map(lambda a: a[0], obs))
     steps_per_update = p.update_epochs * p.minibatches
     lr = (optax.linear_schedule(p.lr, 0.0, p.updates * steps_per_update) if p.anneal_lr else p.lr)
@@ -184,7 +184,7 @@ def make_update(cfg: TrainConfig, env: ExplorationEnv):
     """The jitted ``update(runner) -> (runner, stats)``: one rollout of ``num_steps``
     decisions in every env, GAE, then ``update_epochs`` x ``minibatches`` clipped PPO steps."""
     p = cfg.ppo
-    params_env = env.default_params()
+    params_env = env.default_params
     step_env = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
     def rollout(runner: Runner, _):

@@ -180,23 +180,40 @@ def score(world, m: SemanticMap, tolerance: float = TOLERANCE) -> Score:
     """Score map ``m`` against ``world``'s ground truth (see the module docstring)."""
     if m.world is not None and m.world != world.name:
         raise InputError(m.path.with_suffix(".json"), "frame.world", f"{m.world!r} is not the world scored ({world.name!r})")
-    s = tie(world, m.points, tolerance)
-    ids, inst = np.unique(m.instance, return_inverse=True)
-    shared = shared_samples(world, inst, s, len(ids))
-    names = [m.labels.get(int(i)) for i in ids]
-    label = np.array([world.taxonomy.index(k) if k else -1 for k in names], np.int32)
-    conf = np.array([m.confidence.get(int(i), 0.0) if k else 0.0 for i, k in zip(ids, names)], np.float32)
+    names = m.labels
+
+    def labels_of(ids):
+        found = [names.get(int(i)) for i in ids]
+        label = np.array([world.taxonomy.index(k) if k else -1 for k in found], np.int32)
+        conf = np.array([m.confidence.get(int(i), 0.0) for i in ids], np.float32)
+        return label, conf
+
+    return score_tied(world, tie(world, m.points, tolerance), m.instance, labels_of)
+
+
+def score_tied(world, sample: np.ndarray, instance: np.ndarray, labels_of) -> Score:
+    """Steps 2-4 for points already tied (sample (P,), -1 none) with instance ids (P,);
+    ``labels_of(ids (I,))`` gives each instance's category index (-1 none) and confidence."""
+    ids, inst = np.unique(instance, return_inverse=True)
+    shared = shared_samples(world, inst, sample, max(len(ids), 1))  # an empty map: one instance holding nothing
+    label, conf = labels_of(ids)
+    label = np.r_[np.asarray(label, np.int32), np.full(len(shared) - len(ids), -1, np.int32)]
+    conf = np.where(label >= 0, np.r_[np.asarray(conf, np.float32), np.zeros(len(shared) - len(ids), np.float32)],
+                    0.0).astype(np.float32)
     log, ix = score_shared(world, shared, label, conf)
-    on = s >= 0
+    on = sample >= 0
     off = float(1.0 - on.mean()) if len(on) else 0.0
-    return Score(log, np.where(ix >= 0, ids[np.maximum(ix, 0)], -1), off, int(len(ids) - (ix >= 0).sum()))
+    matched = np.r_[ids, -1][np.where(ix >= 0, ix, len(ids))]  # the empty map's placeholder never matches
+    return Score(log, matched, off, int(len(ids) - (ix >= 0).sum()))
 
 
-def tie(world, points: np.ndarray, tolerance: float = TOLERANCE) -> np.ndarray:
-    """(P,) index of the surface sample each point (P, 3) lies on, -1 for none (step 1)."""
-    samples = np.asarray(world.truth.samples.points, np.float64)
-    _, s = cKDTree(samples).query(points, distance_upper_bound=tolerance)
-    return np.where(s < len(samples), s, -1)
+def tie(world, points: np.ndarray, tolerance: float = TOLERANCE, tree: cKDTree | None = None) -> np.ndarray:
+    """(P,) index of the surface sample each point (P, 3) lies on, -1 for none (step 1);
+    ``tree``: the samples' KD-tree, when the caller keeps one."""
+    if tree is None:
+        tree = cKDTree(np.asarray(world.truth.samples.points, np.float64))
+    _, s = tree.query(points, distance_upper_bound=tolerance)
+    return np.where(s < tree.n, s, -1)
 
 
 def shared_samples(world, instance: np.ndarray, sample: np.ndarray, instances: int) -> np.ndarray:

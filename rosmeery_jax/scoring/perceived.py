@@ -35,9 +35,8 @@ from itertools import repeat
 
 import numpy as np
 
-from rosmeery_jax.scoring.evaluate import score_shared, tie
-from rosmeery_jax.sim.knowledge import ObjectLog
-from rosmeery_jax.sim.sensors import CameraConfig, camera_rays
+from rosmeery_jax.scoring.mapper import Camera, Frame, Mapper, MapState
+from rosmeery_jax.sim.sensors import camera_rays
 
 
 @dataclass(frozen=True)
@@ -49,11 +48,16 @@ class PerceivedConfig:
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
 
 
-class PerceivedMapper:
-    """One env's perceived map, fed frame by frame (host side, numpy)."""
+class PerceivedMapper(Mapper):
+    """One env's perceived map, fed frame by frame (host side, numpy), through the mapper
+    protocol (:mod:`rosmeery_jax.scoring.mapper`)."""
 
-    def __init__(self, camera: CameraConfig, cfg: PerceivedConfig = PerceivedConfig()):
-        self.camera, self.cfg = camera, cfg
+    name = "perceived"
+
+    def __init__(self, camera: Camera, categories: tuple[str, ...] = (), cfg: PerceivedConfig = PerceivedConfig()):
+        super().__init__(camera, categories)
+        self.cfg = cfg
+        camera = self.config = camera.config  # the benchmark's camera settings: mount and rays
         w, h = camera.rgb_width, camera.rgb_height
         rays = camera_rays(camera, w, h)  # (H*W, 3) camera frame, unit
         axis = np.array([np.cos(camera.pitch), 0.0, -np.sin(camera.pitch)])
@@ -62,13 +66,24 @@ class PerceivedMapper:
         self.owner: dict[int, int] = {}  # voxel key -> instance
         self.points: list[np.ndarray] = []  # per claimed voxel batch: (k, 3)
         self.point_instance: list[np.ndarray] = []
-        self.point_frame: list[np.ndarray] = []
-        self.detections: list[tuple[int, int, int, float]] = []  # (frame, instance, label, conf)
+        self.label: list[int] = []  # per instance: the held label (-1 none) and its confidence (step 4)
+        self.conf: list[float] = []
         self.instances = 0
         self._last: tuple | None = None  # (pose, depth, {box bytes: voxels}) of the latest frame
 
-    def add(self, frame: int, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray, label: np.ndarray,
-            conf: np.ndarray) -> None:
+    def add(self, frame: Frame) -> None:
+        self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)
+
+    def semantic_map(self) -> MapState:
+        """The map of every frame folded so far."""
+        if self.points:
+            points, instance = np.concatenate(self.points), np.concatenate(self.point_instance)
+        else:
+            points, instance = np.zeros((0, 3)), np.zeros(0, np.int64)
+        return MapState(points, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
+
+    def fold(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray, label: np.ndarray,
+             conf: np.ndarray) -> None:
         """Fold one frame: pose (3,) x, y, yaw; depth (H, W) (0 = no return); boxes (D, 4)
         pixel corners x1, y1, x2, y2; label (D,) category index (-1 = padding); conf (D,)."""
         memo = self._frame_memo(pose, depth)
@@ -87,8 +102,8 @@ class PerceivedMapper:
             if new.any():
                 self.points.append(pts[new])
                 self.point_instance.append(np.full(int(new.sum()), inst, np.int64))
-                self.point_frame.append(np.full(int(new.sum()), frame, np.int64))
-            self.detections.append((frame, inst, int(k), float(c)))
+            if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
+                self.label[inst], self.conf[inst] = int(k), np.float32(c)
 
     def _frame_memo(self, pose: np.ndarray, depth: np.ndarray) -> dict:
         """The voxels of each box already seen in this frame, kept while the frame repeats: a
@@ -113,13 +128,13 @@ class PerceivedMapper:
         valid &= np.abs(d - _median(d[valid])) <= self.cfg.depth_band
         d = d[valid]
         rx, ry, rz = (r[y1:y2, x1:x2][valid] for r in self.rays)
-        z = self.camera.mount_height + rz * d
+        z = self.config.mount_height + rz * d
         up = z >= self.cfg.floor_z  # the floor's points are dropped before the rest is computed
         d, rx, ry, z = d[up], rx[up], ry[up], z[up]
         px, py = rx * d, ry * d  # camera frame, x forward
         c, s = np.cos(pose[2]), np.sin(pose[2])
-        x = pose[0] + self.camera.mount_x * c + c * px - s * py
-        y = pose[1] + self.camera.mount_x * s + s * px + c * py
+        x = pose[0] + self.config.mount_x * c + c * px - s * py
+        y = pose[1] + self.config.mount_x * s + s * px + c * py
         cell = [np.floor(a / self.cfg.voxel).astype(np.int64) + (1 << 20) for a in (x, y, z)]
         keys = (cell[0] << 42) | (cell[1] << 21) | cell[2]  # 21 bits per axis: a 100 km cube at 5 cm
         keys, first = np.unique(keys, return_index=True)
@@ -135,28 +150,9 @@ class PerceivedMapper:
             if counts[best] >= self.cfg.overlap * len(owners):
                 return int(ids[best])
         self.instances += 1
+        self.label.append(-1)
+        self.conf.append(np.float32(0.0))
         return self.instances - 1
-
-    def cloud(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """points (V, 3), instance (V,), frame (V,) each voxel was claimed in."""
-        if not self.points:
-            return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return np.concatenate(self.points), np.concatenate(self.point_instance), np.concatenate(self.point_frame)
-
-    def snapshot(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The map after ``frames`` frames: points (V, 3), instance (V,), and per instance id
-        the held label (I,) (-1 none) and its confidence (I,) (step 4)."""
-        points, instance, frame = self.cloud()
-        keep = frame < frames
-        label = np.full(self.instances, -1, np.int32)
-        conf = np.zeros(self.instances, np.float32)
-        events = self.label_events()
-        hold(label, conf, events[events[:, 0] < frames])
-        return points[keep], instance[keep], label, conf
-
-    def label_events(self) -> np.ndarray:
-        """(E, 4) float64 rows (frame, instance, label, conf) per kept detection, in frame order."""
-        return np.array(self.detections, np.float64).reshape(-1, 4)
 
 
 def _median(v: np.ndarray):
@@ -165,48 +161,3 @@ def _median(v: np.ndarray):
     n = len(v)
     part = np.partition(v, [(n - 1) // 2, n // 2])
     return (part[(n - 1) // 2] + part[n // 2]) / 2
-
-
-def hold(label: np.ndarray, conf: np.ndarray, events: np.ndarray) -> None:
-    """Fold label events (E, 4) (frame, instance, label, conf), in frame order, into each
-    instance's held label and confidence in place (step 4: the most confident so far; ties
-    keep the older)."""
-    for _, i, k, c in events:
-        if c > conf[int(i)]:
-            label[int(i)], conf[int(i)] = int(k), c
-
-
-def frame_logs(world, mapper: PerceivedMapper, frames: int, tolerance: float) -> ObjectLog:
-    """The map scored after 0, 1, ..., ``frames`` frames: ObjectLog with (frames + 1, N)
-    fields, one evaluate scoring per frame count (the cloud only grows, so each point is
-    tied to a sample once)."""
-    points, instance, frame = mapper.cloud()
-    sample = tie(world, points, tolerance) if len(points) else np.zeros(0, np.int64)
-    n_samples = len(world.truth.samples.object)
-    sample_obj = np.asarray(world.truth.samples.object)
-    on = sample >= 0
-    # Rows: the instances that hold points, in id order (as evaluate.score reads the map).
-    ids, row = np.unique(instance, return_inverse=True)
-    # each (instance, sample) pair counts once, from the first frame that held it
-    key = row[on] * n_samples + sample[on]
-    order = np.lexsort((frame[on], key))
-    key, when = key[order], frame[on][order]
-    first = np.ones(len(key), bool)
-    first[1:] = key[1:] != key[:-1]
-    key, when = key[first], when[first]
-    shared = np.zeros((max(len(ids), 1), world.truth.num_objects), np.int64)
-    label = np.full(len(shared), -1, np.int32)
-    conf = np.zeros(len(shared), np.float32)
-    events = mapper.label_events()
-    events = events[np.isin(events[:, 1], ids)]
-    events[:, 1] = np.searchsorted(ids, events[:, 1])
-    changed = set(when.tolist()) | set(events[:, 0].astype(int).tolist())
-    logs, last = [], None
-    for f in range(frames + 1):
-        if last is None or f - 1 in changed:  # frame f - 1 added points or detections
-            add = key[when == f - 1]
-            np.add.at(shared, (add // n_samples, sample_obj[add % n_samples]), 1)
-            hold(label, conf, events[events[:, 0] == f - 1])
-            last = score_shared(world, shared, label, conf)[0]
-        logs.append(last)
-    return ObjectLog(*(np.stack(a) for a in zip(*logs)))

@@ -9,6 +9,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import overrides, plugins
 from rosmeery_jax.core.errors import InputError
@@ -20,12 +22,12 @@ from rosmeery_jax.policies.plugin import check_plugin
 from rosmeery_jax.policies.replay import recordings_by_world
 from rosmeery_jax.rl.network import load_policy
 from rosmeery_jax.scoring import metrics
+from rosmeery_jax.scoring.mapper import BUILT_IN, check_mapper, mapper_label
 from rosmeery_jax.session.engine import BLOCK
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.generate import expand_names
 
 DETECTORS = ("yolo", "oracle", "off")
-MAPPERS = ("oracle", "perceived")
 LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
 DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
@@ -86,6 +88,7 @@ class SessionConfig:
             worlds = [load_world(w) for w in self.worlds]
             for p in self.policies:
                 _check_policy(p, worlds, self)
+            _check_mappers(self, worlds)
             decisions(self)
             sample_steps(self)
         _check_unique(self, worlds, source)
@@ -131,15 +134,17 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
         if not getattr(cfg, name) > 0:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a number > 0")
     for m in cfg.mappers:
-        if m not in MAPPERS:
-            raise InputError(source, "mappers", f"{m!r} is not a mapper (mappers: {', '.join(MAPPERS)})")
+        if m not in BUILT_IN and not plugins.is_plugin(m):
+            raise InputError(source, "mappers", f"{m!r} is not a mapper ({', '.join(BUILT_IN)}, or a plugin: "
+                             "FILE.py:Name or package.module:Name)")
     for name in ("mappers", "metrics"):
         values = getattr(cfg, name)
         twice = next((v for v in values if values.count(v) > 1), None)
         if twice is not None:
             raise InputError(source, name, f"{twice!r} appears twice")
-    if "perceived" in cfg.mappers and cfg.detector == "off":
-        raise InputError(source, "mappers", "'perceived' builds its map from detector boxes: use --detector yolo "
+    fed = next((m for m in cfg.mappers if m != "oracle"), None)
+    if fed and cfg.detector == "off":
+        raise InputError(source, "mappers", f"{fed!r} builds its map from detector frames: use --detector yolo "
                          "or oracle")
 
 
@@ -156,6 +161,17 @@ def _check_world_name(name: str) -> None:
     if name not in world_names() and not Path(name).is_file() and not name.startswith("procedural:"):
         raise InputError("config", "worlds", f"{name!r} is neither a built-in world ({', '.join(world_names())}) "
                          "nor an MJCF file nor procedural:KIND:SEED")
+
+
+def _check_mappers(cfg: SessionConfig, worlds) -> None:
+    """Each plugin mapper runs on a test frame; the mappers' labels are distinct."""
+    for m in cfg.mappers:
+        if m not in BUILT_IN:
+            check_mapper(m, cfg.env_config.camera, worlds[0].taxonomy.names)
+    labels = [mapper_label(m) for m in cfg.mappers]
+    twice = next((m for m, name in zip(cfg.mappers, labels) if labels.count(name) > 1), None)
+    if twice is not None:
+        raise InputError("config", "mappers", f"{twice!r}: two mappers are named {mapper_label(twice)!r}")
 
 
 def _check_policy(spec: str, worlds, cfg: SessionConfig) -> None:
@@ -290,3 +306,17 @@ def sample_steps(cfg: SessionConfig) -> int:
         raise InputError("config", "sample_s", f"{cfg.sample_s:g} s is not a whole number of control periods "
                          f"({cfg.dt:g} s)")
     return n
+
+
+def sampled_rows(cfg: SessionConfig) -> np.ndarray:
+    """(K,) the engine's log rows (one every ``log_every`` steps) that metrics.csv keeps:
+    one every ``sample_s`` and the last."""
+    every_log = log_every(cfg)
+    rows = decisions(cfg) * cfg.decide_every // every_log + 1
+    return np.unique(np.r_[np.arange(0, rows, sample_steps(cfg) // every_log), rows - 1])
+
+
+def frames_before(cfg: SessionConfig, steps: np.ndarray) -> np.ndarray:
+    """Detector frames that count at each step (a frame taken at a decision's last step
+    counts from the step after it, as labels do)."""
+    return np.maximum(np.asarray(steps) - 1, 0) // cfg.decide_every

@@ -53,7 +53,8 @@ from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import Env, EnvConfig, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
-from rosmeery_jax.scoring.perceived import PerceivedMapper
+from rosmeery_jax.scoring.evaluate import TOLERANCE
+from rosmeery_jax.scoring.mapper import Camera, Frame, MapState, OnlineScorer, check_map, make_mapper
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
 
@@ -254,14 +255,20 @@ def reset_fn(group: Group):
 class Plan(NamedTuple):
     """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
     ``decide_every`` control steps per decision, a log row every ``log_every`` steps (a
-    divisor of ``decide_every``); ``perceive``: feed a perceived mapper per env (needs
-    detectors)."""
+    divisor of ``decide_every``); ``mappers``: the mapper entries fed every detector frame
+    per env (needs detectors), their maps scored after each frame count in ``score_at``."""
 
     total: int
     per_call: int
     decide_every: int
     log_every: int = 1
-    perceive: bool = False
+    mappers: tuple[str, ...] = ()
+    score_at: frozenset = frozenset()
+
+    @property
+    def perceive(self) -> bool:
+        """Whether frames carry their depth (a mapper reads it)."""
+        return bool(self.mappers)
 
     @property
     def spans(self) -> int:
@@ -388,15 +395,23 @@ class Compiled(NamedTuple):
 class Simulation(NamedTuple):
     """A group's results, real envs only, in row order. logs: ObjectLog (B, T / log_every +
     1, N), at steps 0, log_every, 2 log_every, ...; poses (B, T + 1, 3) at every step;
-    knowledge: the final labelled knowledge (batched); timing; mappers: one PerceivedMapper
-    per env fed every detector frame, or None."""
+    knowledge: the final labelled knowledge (batched); timing; mapped: per mapper entry, one
+    :class:`Mapped` per env."""
 
     logs: ObjectLog
     poses: np.ndarray
     knowledge: Any
     timing: dict
-    mappers: list | None = None
+    mapped: dict | None = None
     log_every: int = 1
+
+
+class Mapped(NamedTuple):
+    """One env's mapper: its map scored after each frame count of ``Plan.score_at`` (count ->
+    ObjectLog with (N,) fields) and the map at the last of them."""
+
+    logs: dict
+    final: MapState
 
 
 class Keys(NamedTuple):
@@ -497,6 +512,18 @@ class Finished(NamedTuple):
     dets: tuple | None
 
 
+@dataclass
+class _Online:
+    """One env's mapper in the worker thread: the entry, the mapper, its scorer, and its
+    scored maps so far (frame count -> ObjectLog; the last planned map)."""
+
+    spec: str
+    mapper: Any
+    scorer: OnlineScorer
+    logs: dict = field(default_factory=dict)
+    final: MapState | None = None
+
+
 class _Detection:
     """The worker thread: each chunk's frames are fetched, detected, folded into the
     metrics' labels (no lag) and fed to the perceived mappers, one chunk at a time in
@@ -505,12 +532,31 @@ class _Detection:
     def __init__(self, group: Group, plan: Plan, detectors: dict | None, start: Start, data, blocks, bar):
         self.group, self.plan, self.detectors, self.bar = group, plan, detectors, bar
         self.attach, self.labels, self.data, self.blocks = start.attach, start.labels, data, blocks
-        self.mappers = [PerceivedMapper(group.config.camera) if real else None for real in group.real] \
-            if plan.perceive else None
+        self.camera = Camera.of(group.config.camera)
+        self.mappers = [self._mappers(group.envs[w]) if real else None for w, real in zip(group.world, group.real)] \
+            if plan.mappers else None
         self.chunks = plan.total // plan.per_call
         self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0}
         self.pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
         self.started = time.perf_counter()
+
+    def _mappers(self, env: Env) -> dict:
+        """One env's mappers by entry, the empty map scored (frame count 0)."""
+        out = {}
+        for spec in self.plan.mappers:
+            out[spec] = _Online(spec, make_mapper(spec, self.camera, env.world.taxonomy.names),
+                                OnlineScorer(env.world, TOLERANCE))
+            self._score(out[spec], 0)
+        return out
+
+    def _score(self, online: "_Online", count: int) -> None:
+        """Ask the mapper for its map after ``count`` frames and score it, if planned."""
+        if count not in self.plan.score_at:
+            return
+        m = check_map(online.spec, online.mapper.semantic_map(), len(online.scorer.world.taxonomy.names))
+        online.logs[count] = online.scorer.score(m).log
+        if count == max(self.plan.score_at):
+            online.final = m
 
     def submit(self, c: int, logs, poses, frames) -> Future:
         return self.pool.submit(self._finish, c, logs, poses, frames)
@@ -528,7 +574,7 @@ class _Detection:
             logs = self._relabel(c, logs, dets)
             t1 = time.perf_counter()
             if self.mappers:
-                _perceive(self.mappers, c * plan.per_call, poses, frames.depth, dets, plan.decide_every)
+                self._feed(c * plan.per_call, poses, frames, dets)
             self.timing["detector_s"] += t1 - t0  # this thread alone writes them; read after close()
             self.timing["mapper_s"] += time.perf_counter() - t1
             self.timing["frames"] += int(self.group.real.sum()) * plan.per_call
@@ -536,6 +582,25 @@ class _Detection:
         done_steps = int(self.group.real.sum()) * (c + 1) * plan.per_call * plan.decide_every
         self.bar.set_postfix_str(f"{done_steps / (time.perf_counter() - self.started):,.0f} env-steps/s")
         return Finished(logs, poses, dets)
+
+    def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
+        """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
+        detections to its mappers, scoring their maps at the planned counts; a frame is taken
+        at its decision's last step."""
+        rgb, depth = np.asarray(frames.rgb), np.asarray(frames.depth)
+        _, label, conf, box = dets
+        every, dt = self.plan.decide_every, self.group.env.dt
+        for r, mappers in enumerate(self.mappers):
+            if mappers is None:
+                continue
+            for f in range(depth.shape[1]):
+                pose = poses[r, (f + 1) * every - 1]
+                index = first_frame + f
+                frame = Frame(index, (index + 1) * every * dt, rgb[r, f], depth[r, f], pose, self.camera.pose(pose),
+                              box[r, f], label[r, f], conf[r, f])
+                for online in mappers.values():
+                    online.mapper.add(frame)
+                    self._score(online, index + 1)
 
     def _relabel(self, c: int, logs: ObjectLog, dets: tuple) -> ObjectLog:
         """Fold chunk c's detections into the metrics' labels; the log's label fields from them."""
@@ -560,9 +625,12 @@ def _collect(group: Group, start: Start, state, data, blocks, pose0, done: list[
         knowledge = knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
                                        conf_any=lab.conf_any)
     keep = group.real
-    mappers = [m for m in worker.mappers if m is not None] if worker.mappers else None
+    mapped = None
+    if worker.mappers:
+        real = [m for m in worker.mappers if m is not None]
+        mapped = {spec: [Mapped(m[spec].logs, m[spec].final) for m in real] for spec in worker.plan.mappers}
     return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
-                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, mappers, worker.plan.log_every)
+                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, mapped, worker.plan.log_every)
 
 
 def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: Keys, empty):
@@ -588,19 +656,6 @@ def _wait(job: Future):
             return job.result(timeout=0.2)
         except TimeoutError:
             interrupt.check()
-
-
-def _perceive(mappers: list, first_frame: int, poses: np.ndarray, depth, dets, decide_every: int) -> None:
-    """Feed each env's frames (F of this chunk; poses (B, steps, 3), depth (B, F, Hr, Wr))
-    and detections to its perceived mapper; a frame is taken at its decision's last step."""
-    depth = np.asarray(depth)
-    _, label, conf, box = dets
-    for r, mapper in enumerate(mappers):
-        if mapper is None:
-            continue
-        for f in range(depth.shape[1]):
-            mapper.add(first_frame + f, poses[r, (f + 1) * decide_every - 1], depth[r, f], box[r, f], label[r, f],
-                       conf[r, f])
 
 
 def _init_policies(group: Group, keys: jax.Array) -> tuple:

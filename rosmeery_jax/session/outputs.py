@@ -3,7 +3,7 @@
     OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
     OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end (mapper "oracle";
-        ``__seed<k>__perceived`` for the perceived mapper's: rosmeery_jax.scoring.perceived)
+        ``__seed<k>__<mapper>`` for another mapper's, e.g. ``perceived``: rosmeery_jax.scoring.mapper)
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
     OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
     OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged once at the end
@@ -26,10 +26,10 @@ import pandas as pd
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.policies import policy_label
 from rosmeery_jax.scoring import metrics, plots, results
-from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.perceived import frame_logs
+from rosmeery_jax.scoring.mapper import mapper_label
 from rosmeery_jax.scoring.semantic_map import build_map, write_map, write_semantic_map
-from rosmeery_jax.session.config import SessionConfig, sample_steps
+from rosmeery_jax.session.config import SessionConfig, frames_before, sampled_rows
+from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
 
 
@@ -48,29 +48,33 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
     poses = sim.poses[rows]
     step = np.arange(logs.ps.shape[1]) * sim.log_every  # each log row's step
     times = step * env.dt
-    every = sample_steps(cfg) // sim.log_every
-    keep = np.unique(np.r_[np.arange(0, len(times), every), len(times) - 1])
+    keep = sampled_rows(cfg)
+    counted = frames_before(cfg, step[keep])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
     for seed in range(len(rows)):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[seed], logs)
-        mapped = {}
         if "oracle" in cfg.mappers:
-            mapped["oracle"] = log
             k = jax.tree.map(lambda a: a[rows[seed]], sim.knowledge)
             k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
                                                                                 "conf_any")})
             write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
-        if "perceived" in cfg.mappers:
-            mapped["perceived"] = _perceived_log(env, sim.mappers[rows[seed]], step, cfg.decide_every,
-                                                 out / "maps" / f"{run.name}__seed{seed}__perceived", times[-1])
-        for mapper, mlog in mapped.items():
-            c = metrics.compute(mlog, env.truth, cfg.metrics)  # {name: (T,)}
+            c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
             curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
-                                               mapper=mapper, **tags))
-            final = jax.tree.map(lambda a: a[-1], mlog)
-            objects.append(results.object_frame(world, final, seed=seed, mapper=mapper, policy=policy,
-                                                detector=cfg.detector))
+                                               mapper="oracle", **tags))
+            objects.append(results.object_frame(world, jax.tree.map(lambda a: a[-1], log), seed=seed,
+                                                mapper="oracle", policy=policy, detector=cfg.detector))
+        for spec in cfg.mappers:
+            if spec == "oracle":
+                continue
+            name = mapper_label(spec)
+            done = sim.mapped[spec][rows[seed]]
+            mlog = ObjectLog(*(np.stack(a) for a in zip(*(done.logs[c] for c in counted))))  # (K, N)
+            c = metrics.compute(mlog, env.truth, cfg.metrics)
+            curves.append(results.metric_frame(c, times[keep], seed=seed, mapper=name, **tags))
+            objects.append(results.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=name,
+                                                policy=policy, detector=cfg.detector))
+            _write_mapper_map(env, done.final, out / "maps" / f"{run.name}__seed{seed}__{name}", times[-1])
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
                                    "time_s": np.round(times[keep], 6), "x": poses[seed, step[keep], 0],
                                    "y": poses[seed, step[keep], 1], "yaw": poses[seed, step[keep], 2]}))
@@ -83,16 +87,11 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
     results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
 
 
-def _perceived_log(env, mapper, steps: np.ndarray, decide_every: int, stem: Path, time_s: float):
-    """The perceived mapper's ObjectLog (T, N) at ``steps`` (T,): the map of the frames
-    taken before each step (a frame counts from the step after it, as labels do); its final
-    map is written to ``stem``.ply / .json."""
-    counted = np.maximum(steps - 1, 0) // decide_every  # frames counted at each step
-    per_frame = frame_logs(env.world, mapper, int(counted[-1]), TOLERANCE)
-    points, instance, label, conf = mapper.snapshot(int(counted[-1]))
-    names = [f"instance_{i}" for i in range(len(label))]
-    write_map(stem.parent, stem.name, *build_map(env.world, points, instance, names, label, conf, float(time_s)))
-    return type(per_frame)(*(a[counted] for a in per_frame))
+def _write_mapper_map(env, m, stem: Path, time_s: float) -> None:
+    """A mapper's last scored map as ``stem``.ply / .json."""
+    names = [f"instance_{i}" for i in range(len(m.label))]
+    write_map(stem.parent, stem.name, *build_map(env.world, m.points, m.instance, names, m.label, m.confidence,
+                                                 float(time_s)))
 
 
 def merge(out: Path) -> None:

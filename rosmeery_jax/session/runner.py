@@ -29,7 +29,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
 from rosmeery_jax.session import cluster, engine
-from rosmeery_jax.session.config import SessionConfig, decisions, log_every, per_call
+from rosmeery_jax.session.config import SessionConfig, decisions, frames_before, log_every, per_call, sampled_rows
 from rosmeery_jax.session.folder import check_out, versions
 from rosmeery_jax.session.outputs import merge, run_name, sum_timing, write_run
 
@@ -96,8 +96,10 @@ class Session:
         for group in groups:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
+            steps = sampled_rows(cfg) * log_every(cfg)
             plan = engine.Plan(total, per_call(cfg, total), cfg.decide_every, log_every(cfg),
-                               "perceived" in cfg.mappers)
+                               tuple(m for m in cfg.mappers if m != "oracle"),
+                               frozenset(frames_before(cfg, steps).tolist()))
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}

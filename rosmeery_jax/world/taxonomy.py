@@ -42,6 +42,9 @@ class Taxonomy:
     def __hash__(self) -> int:  # the mapping proxy is not hashable; its items are
         return hash((self.source, tuple(self.categories.items())))
 
+    def __deepcopy__(self, memo) -> "Taxonomy":  # immutable: a copy is itself (a mapping proxy cannot be copied)
+        return self
+
     @property
     def names(self) -> tuple[str, ...]:
         """Category names in file order; index = class id used by the detector."""

@@ -1,0 +1,206 @@
+"""The mapper protocol: a researcher's own semantic mapper in the loop (docs/byo.md).
+
+A mapper is a class, named like a policy plugin (``--mapper FILE.py:Name`` or
+``package.module:Name``), built once per robot with the camera and the taxonomy's category
+names. The session hands it every detector frame (:class:`Frame`) in time order and, at
+each sampled time, asks for its semantic map (:class:`MapState`), which is scored by the
+evaluator of ``rosmeery evaluate`` (:mod:`rosmeery_jax.scoring.evaluate`). The built-in
+``perceived`` mapper (:mod:`rosmeery_jax.scoring.perceived`) is one implementation.
+
+Conventions: the world frame is the benchmark's (x, y on the floor, z up, metres); the
+camera's pose and intrinsics follow OpenCV (x right, y down, z forward; pixel (u, v) is
+column u, row v, centres at whole numbers); depth is the distance along the optical axis.
+
+Each map is tied to the ground truth point by point; a map that only grows (new points
+appended, earlier ones unchanged, as most mappers' clouds do) is tied only for its new
+points. Shapes: H x W the detector frame, D detections, V points, I instances.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from rosmeery_jax.core import plugins
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.scoring.evaluate import Score, score_tied, tie
+from rosmeery_jax.scoring.results import plain_name
+from rosmeery_jax.sim.sensors import CameraConfig
+
+BUILT_IN = ("oracle", "perceived")  # "oracle": the built-in knowledge (no mapper object)
+
+
+class Camera(NamedTuple):
+    """The detector camera: width x height pixels, intrinsics (3, 3) K, and the benchmark's
+    own camera settings (mount, field of view) for mappers that want them."""
+
+    width: int
+    height: int
+    intrinsics: np.ndarray
+    config: CameraConfig
+
+    @staticmethod
+    def of(cfg: CameraConfig) -> "Camera":
+        f = cfg.focal(cfg.rgb_width)
+        k = np.array([[f, 0.0, (cfg.rgb_width - 1) / 2], [0.0, f, (cfg.rgb_height - 1) / 2], [0.0, 0.0, 1.0]])
+        return Camera(cfg.rgb_width, cfg.rgb_height, k, cfg)
+
+    def pose(self, robot: np.ndarray) -> np.ndarray:
+        """(4, 4) world-from-camera transform (OpenCV axes) for a robot pose (3,) x, y, yaw."""
+        cfg = self.config
+        x, y, yaw = (float(v) for v in robot)
+        c, s, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(cfg.pitch), np.sin(cfg.pitch)
+        yaw_r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        tilt = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])  # pitched down for positive pitch
+        from_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV axes in x fwd, y left, z up
+        out = np.eye(4)
+        out[:3, :3] = yaw_r @ tilt @ from_cv
+        out[:3, 3] = [x + cfg.mount_x * c, y + cfg.mount_x * s, cfg.mount_height]
+        return out
+
+
+class Frame(NamedTuple):
+    """One detector frame: index (0, 1, ... in the run), time_s; rgb (H, W, 3) uint8; depth
+    (H, W) float32 metres (0: no return); pose (3,) the robot's x, y, yaw; camera_pose (4, 4)
+    world-from-camera; boxes (D, 4) pixel corners x1, y1, x2, y2; labels (D,) category
+    index (into the names the mapper was built with); confidences (D,)."""
+
+    index: int
+    time_s: float
+    rgb: np.ndarray
+    depth: np.ndarray
+    pose: np.ndarray
+    camera_pose: np.ndarray
+    boxes: np.ndarray
+    labels: np.ndarray
+    confidences: np.ndarray
+
+
+class MapState(NamedTuple):
+    """A semantic map: points (V, 3) world frame; instance (V,) int, the id of each point's
+    instance (ids index ``label``); label (I,) int category index (-1 none) and confidence
+    (I,) in [0, 1] per instance id. Predicates follow from the label through the taxonomy,
+    as ``rosmeery evaluate`` counts them."""
+
+    points: np.ndarray
+    instance: np.ndarray
+    label: np.ndarray
+    confidence: np.ndarray
+
+
+class Mapper:
+    """The protocol: subclass it, give ``name`` (a plain name: results' ``mapper`` column)
+    and implement :meth:`add` and :meth:`semantic_map`. One instance per robot."""
+
+    name = "mapper"
+
+    def __init__(self, camera: Camera, categories: tuple[str, ...]):
+        self.camera, self.categories = camera, categories
+
+    def add(self, frame: Frame) -> None:
+        """Fold one detector frame into the map."""
+        raise NotImplementedError
+
+    def semantic_map(self) -> MapState:
+        """The map now."""
+        raise NotImplementedError
+
+
+def mapper_class(spec: str, source: str = "config") -> type[Mapper]:
+    """A plugin mapper's class, checked as a class: a Mapper subclass with both methods and a
+    plain name."""
+    cls = plugins.load(spec, source, "mappers")
+    if not (isinstance(cls, type) and issubclass(cls, Mapper)):
+        raise InputError(source, "mappers", f"plugin {spec!r} is not a Mapper class (subclass rosmeery_jax.Mapper "
+                         "and implement add and semantic_map)")
+    for method in ("add", "semantic_map"):
+        if getattr(cls, method) is getattr(Mapper, method):
+            raise InputError(source, "mappers", f"plugin {spec!r} lacks a {method} method")
+    if not isinstance(cls.name, str) or cls.name in ("mapper", *BUILT_IN) or not plain_name(cls.name):
+        raise InputError(source, "mappers", f"plugin {spec!r} needs a class attribute name: a plain name, not "
+                         "'mapper', 'oracle' or 'perceived', that labels its results")
+    return cls
+
+
+def mapper_label(spec: str) -> str:
+    """The ``mapper`` column of a mapper entry's results."""
+    return spec if spec in BUILT_IN else mapper_class(spec).name
+
+
+def make_mapper(spec: str, camera: Camera, categories: tuple[str, ...]) -> Mapper:
+    if spec == "perceived":
+        from rosmeery_jax.scoring.perceived import PerceivedMapper  # perceived imports this module
+
+        return PerceivedMapper(camera, categories)
+    return mapper_class(spec)(camera, categories)
+
+
+def check_mapper(spec: str, camera: CameraConfig, categories: tuple[str, ...]) -> None:
+    """Build the plugin and feed it one made-up frame (a wall 2 m ahead, one box): any
+    failure or a malformed map is one InputError naming the plugin, before a session runs."""
+    cls = mapper_class(spec)
+    cam = Camera.of(camera)
+    try:
+        mapper = cls(cam, categories)
+    except Exception as err:
+        raise InputError("config", "mappers", f"plugin {spec!r} cannot be built: {plugins.describe(err)}") from None
+    w, h = cam.width, cam.height
+    pose = np.zeros(3)
+    frame = Frame(0, 1.0, np.zeros((h, w, 3), np.uint8), np.full((h, w), 2.0, np.float32), pose, cam.pose(pose),
+                  np.array([[w / 4, h / 4, 3 * w / 4, 3 * h / 4]], np.float32), np.zeros(1, np.int32),
+                  np.full(1, 0.9, np.float32))
+    try:
+        mapper.add(frame)
+        m = mapper.semantic_map()
+    except Exception as err:
+        raise InputError("config", "mappers", f"plugin {spec!r} failed on a test frame: {plugins.describe(err)}") \
+            from None
+    check_map(spec, m, len(categories))
+
+
+def check_map(spec: str, m, categories: int) -> MapState:
+    """``m`` as a MapState of numpy arrays, or one InputError naming the plugin and what is
+    wrong (type, shape, dtype, finiteness, ids, labels, confidences)."""
+    def bad(what: str):
+        return InputError("config", "mappers", f"plugin {spec!r}: semantic_map returned {what}")
+
+    if not isinstance(m, MapState):
+        raise bad(f"a {type(m).__name__}, not a MapState")
+    points, instance, label, conf = (np.asarray(a) for a in m)
+    if points.ndim != 2 or points.shape[1:] != (3,) or not np.issubdtype(points.dtype, np.floating):
+        raise bad(f"points of shape {points.shape} and dtype {points.dtype}, not (V, 3) floats")
+    if not np.isfinite(points).all():
+        raise bad("points that are not finite")
+    if instance.shape != points.shape[:1] or not np.issubdtype(instance.dtype, np.integer):
+        raise bad(f"instance of shape {instance.shape} and dtype {instance.dtype}, not (V,) integers")
+    if label.ndim != 1 or conf.shape != label.shape or not np.issubdtype(label.dtype, np.integer):
+        raise bad(f"label {label.shape} {label.dtype} and confidence {conf.shape}: (I,) integers and (I,) numbers needed")
+    if len(instance) and (instance.min() < 0 or instance.max() >= len(label)):
+        raise bad(f"instance ids outside [0, {len(label)}) (one label per instance id)")
+    if len(label) and (label.min() < -1 or label.max() >= categories):
+        raise bad(f"labels outside [-1, {categories}) (category indices, -1 none)")
+    if not (np.isfinite(conf).all() and ((conf >= 0) & (conf <= 1)).all()):
+        raise bad("confidences outside [0, 1]")
+    return MapState(points.astype(np.float64), instance.astype(np.int64), label.astype(np.int32),
+                    conf.astype(np.float32))
+
+
+class OnlineScorer:
+    """Scores one robot's maps as they grow (module docstring): ``score(map) -> Score``."""
+
+    def __init__(self, world, tolerance: float):
+        self.world, self.tolerance = world, tolerance
+        self.tree = cKDTree(np.asarray(world.truth.samples.points, np.float64))  # built once, not per map
+        self.points = np.zeros((0, 3))
+        self.sample = np.zeros(0, np.int64)
+
+    def score(self, m: MapState) -> Score:
+        old = len(self.points)
+        grown = len(m.points) >= old and np.array_equal(m.points[:old], self.points)
+        fresh = m.points[old:] if grown else m.points
+        tied = tie(self.world, fresh, self.tolerance, self.tree) if len(fresh) else np.zeros(0, np.int64)
+        self.sample = np.concatenate([self.sample, tied]) if grown else tied
+        self.points = m.points
+        return score_tied(self.world, self.sample, m.instance, lambda ids: (m.label[ids], m.confidence[ids]))
