@@ -14,7 +14,7 @@ from rosmeery_jax.scoring import metrics
 from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
-from rosmeery_jax.scoring.evaluate import read_map, score
+from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, OnlineScorer
 from rosmeery_jax.scoring.perceived import PerceivedMapper, _median
 from rosmeery_jax.sim.sensors import rgbd
@@ -116,7 +116,7 @@ def test_a_second_view_joins_the_same_instance_and_a_more_confident_label_replac
     assert first.label[0] == 3 and first.conf_true[0] == 0.0  # after frame 0: wrong label, no cORI
     assert second.label[0] == 0 and second.conf_true[0] == pytest.approx(0.9)
     assert second.ps[0] >= first.ps[0] > 0  # the nearer view adds samples, never removes
-    assert _ori(env, jax.tree.map(lambda a: a[None], second))["cori"] > 0
+    assert _ori(env, second)["cori"] > 0
 
 
 def test_one_box_over_two_touching_objects_merges_them_and_loses_the_smaller(scenes, tmp_path):
@@ -131,7 +131,7 @@ def test_one_box_over_two_touching_objects_merges_them_and_loses_the_smaller(sce
     lm, ls = (_log(env, m) for m in (merged, separate))
     assert merged.instances == 1 and separate.instances == 2
     assert lm.ps[0] == 0 and lm.ps[1] == ls.ps[1] > 0  # the desk keeps its samples, the chair has none
-    assert _ori(env, jax.tree.map(lambda a: a[None], lm))["ori"] < _ori(env, jax.tree.map(lambda a: a[None], ls))["ori"]
+    assert _ori(env, lm)["ori"] < _ori(env, ls)["ori"]
 
 
 def test_padding_and_empty_boxes_add_nothing(scenes, tmp_path):
@@ -190,3 +190,18 @@ def test_the_depth_median_is_numpys_bitwise(values):
     v = np.array(values, np.float32)
     ours, ref = _median(v), np.median(v)
     assert ours.dtype == ref.dtype and ours.tobytes() == ref.tobytes()
+
+
+def test_the_frames_intrinsics_and_camera_pose_put_pixels_on_their_object(scenes):
+    """The mapper protocol's camera (OpenCV K and world-from-camera pose): a pixel of an
+    object, back-projected with its depth, lies on that object's surface samples."""
+    env, depth, label = _frame(scenes, "apart")
+    cam = Camera.of(env.config.camera)
+    v, u = np.nonzero((label >= 0) & (depth > 0))
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(cam.intrinsics).T
+    pose = cam.pose(POSE)
+    points = (rays * depth[v, u][:, None]) @ pose[:3, :3].T + pose[:3, 3]
+    sample = tie(env.world, points, 0.05)
+    obj = np.asarray(env.world.truth.samples.object)
+    assert len(points) > 100 and (sample >= 0).mean() > 0.95
+    assert (obj[sample[sample >= 0]] == label[v, u][sample >= 0]).mean() > 0.95

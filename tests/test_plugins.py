@@ -24,24 +24,44 @@ class MyFrontier(FrontierPolicy):
         super().__init__(env, choose="biggest")
 '''
 
+SAME_AS_PERCEIVED = '''
+from rosmeery_jax.scoring.perceived import PerceivedMapper
+
+
+class MyPerceived(PerceivedMapper):
+    name = "my_perceived"
+'''
+
+
+def _same(df, column, a, b):
+    """The rows with ``column`` a and b hold bitwise the same curves."""
+    rest = [c for c in ("world", "policy", "mapper", "seed", "metric", "time_s") if c != column]
+    x, y = (df[df[column] == v].sort_values(rest)[rest + ["value"]].reset_index(drop=True) for v in (a, b))
+    pd.testing.assert_frame_equal(x, y, check_exact=True)
+
 
 def test_plugins_run_like_builtins_in_one_session(tmp_path):
     """One session: frontier, a plugin equal to it (bitwise the same curves: the same
-    decisions in the one batch), the example explorer (it drives), and a plugin metric."""
+    decisions in the one batch), the example explorer (it drives), a plugin metric, and
+    mappers: perceived, a plugin equal to it (bitwise the same curves) and the numpy example."""
     plugin = tmp_path / "mine.py"
-    plugin.write_text(SAME_AS_FRONTIER)
+    plugin.write_text(SAME_AS_FRONTIER + SAME_AS_PERCEIVED)
     example = f"{ROOT / 'examples' / 'farthest_free_policy.py'}:FarthestFree"
     metric = f"{ROOT / 'examples' / 'metric_plugin.py'}:labelled_share"
+    mapper = f"{ROOT / 'examples' / 'numpy_mapper.py'}:VoxelMapper"
     out = tmp_path / "o"
     assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier,{example}", "--metrics",
-                 f"ori,opi,{metric}", "--out", str(out)]) == 0
+                 f"ori,opi,{metric}", "--mapper", f"oracle,perceived,{plugin}:MyPerceived,{mapper}",
+                 "--out", str(out)]) == 0
     df = pd.read_csv(out / "metrics.csv")
     assert set(df.policy) == {"frontier", "my_frontier", "farthest_free"}
     assert set(df.metric) == {"ori", "opi", "labelled_share"}
-    key = ["mapper", "seed", "metric", "time_s"]
-    a = df[df.policy == "frontier"].sort_values(key)[key + ["value"]].reset_index(drop=True)
-    b = df[df.policy == "my_frontier"].sort_values(key)[key + ["value"]].reset_index(drop=True)
-    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert set(df.mapper) == {"oracle", "perceived", "my_perceived", "voxel_numpy"}
+    _same(df, "policy", "frontier", "my_frontier")
+    _same(df, "mapper", "perceived", "my_perceived")
+    own = df[(df.mapper == "voxel_numpy") & (df.metric == "ori")]
+    assert own.value.between(0, 1).all() and own[own.time_s == 0].value.eq(0).all() and own.value.max() > 0
+    assert (out / "maps" / "small_office__frontier__seed0__voxel_numpy.ply").is_file()
     share = df[df.metric == "labelled_share"].value
     assert share.between(0, 1).all() and share.max() > 0
     path = pd.read_csv(out / "trajectories.csv").query("policy == 'farthest_free'")
@@ -78,6 +98,36 @@ def test_a_broken_policy_plugin_is_one_line_naming_it_with_nothing_written(tmp_p
     out = tmp_path / "o"
     assert main([*SESSION, "--policies", f"{plugin}:P", "--out", str(out)]) == 2
     one_line_error(capsys, "broken.py:P", needle, extra)
+    assert not out.exists()
+
+
+MAPPER_HEAD = "import numpy as np\nfrom rosmeery_jax import Mapper, MapState\nclass M(Mapper):\n    name = 'm'\n"
+ADD = "    def add(self, frame):\n        pass\n"
+BROKEN_MAPPERS = {
+    "not_a_mapper": ("class M:\n    pass\n", "is not a Mapper class"),
+    "no_map": (MAPPER_HEAD + ADD, "lacks a semantic_map method"),
+    "raises": (MAPPER_HEAD + "    def add(self, frame):\n        raise ValueError('boom')\n"
+               "    def semantic_map(self):\n        pass\n", "failed on a test frame: ValueError: boom"),
+    "not_a_map": (MAPPER_HEAD + ADD + "    def semantic_map(self):\n        return {}\n", "not a MapState"),
+    "shape": (MAPPER_HEAD + ADD + "    def semantic_map(self):\n        return MapState(np.zeros((4, 2)), "
+              "np.zeros(4, int), np.zeros(1, int), np.ones(1))\n", "not (V, 3) floats"),
+    "nan": (MAPPER_HEAD + ADD + "    def semantic_map(self):\n        return MapState(np.full((4, 3), np.nan), "
+            "np.zeros(4, int), np.zeros(1, int), np.ones(1))\n", "not finite"),
+    "ids": (MAPPER_HEAD + ADD + "    def semantic_map(self):\n        return MapState(np.zeros((4, 3)), "
+            "np.full(4, 2), np.zeros(1, int), np.ones(1))\n", "instance ids outside [0, 1)"),
+    "label": (MAPPER_HEAD + ADD + "    def semantic_map(self):\n        return MapState(np.zeros((4, 3)), "
+              "np.zeros(4, int), np.full(1, 999), np.ones(1))\n", "labels outside"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BROKEN_MAPPERS))
+def test_a_broken_mapper_plugin_is_one_line_naming_it_with_nothing_written(tmp_path, capsys, case):
+    code, needle = BROKEN_MAPPERS[case]
+    plugin = tmp_path / "mapper.py"
+    plugin.write_text(code)
+    out = tmp_path / "o"
+    assert main([*SESSION, "--policies", "random", "--mapper", f"oracle,{plugin}:M", "--out", str(out)]) == 2
+    one_line_error(capsys, "mapper.py:M", needle)
     assert not out.exists()
 
 
