@@ -129,14 +129,6 @@ def mapper_label(spec: str) -> str:
     return spec if spec in BUILT_IN else mapper_class(spec).name
 
 
-def make_mapper(spec: str, camera: Camera, categories: tuple[str, ...]) -> Mapper:
-    if spec == "perceived":
-        from rosmeery_jax.scoring.perceived import PerceivedMapper  # perceived imports this module
-
-        return PerceivedMapper(camera, categories)
-    return mapper_class(spec)(camera, categories)
-
-
 def check_mapper(spec: str, camera: CameraConfig, categories: tuple[str, ...]) -> None:
     """Build the plugin and feed it one made-up frame (a wall 2 m ahead, one box): any
     failure or a malformed map is one InputError naming the plugin, before a session runs."""

@@ -54,7 +54,8 @@ from rosmeery_jax.env import Env, EnvConfig, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
 from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.mapper import Camera, Frame, MapState, OnlineScorer, check_map, make_mapper
+from rosmeery_jax.scoring.mapper import Camera, Frame, MapState, OnlineScorer, check_map, mapper_class
+from rosmeery_jax.scoring.perceived import PerceivedMapper
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
 
@@ -544,7 +545,8 @@ class _Detection:
         """One env's mappers by entry, the empty map scored (frame count 0)."""
         out = {}
         for spec in self.plan.mappers:
-            out[spec] = _Online(spec, make_mapper(spec, self.camera, env.world.taxonomy.names),
+            cls = PerceivedMapper if spec == "perceived" else mapper_class(spec)
+            out[spec] = _Online(spec, cls(self.camera, env.world.taxonomy.names),
                                 OnlineScorer(env.world, TOLERANCE))
             self._score(out[spec], 0)
         return out

@@ -1,0 +1,221 @@
+"""Gymnasium interface: any Python agent (numpy, PyTorch, Stable-Baselines3) drives the robots.
+
+``VectorEnv(worlds, num_envs)`` is a ``gymnasium.vector.VectorEnv`` of B robots stepping the
+batched engine in one compiled call; ``Env(world)`` a ``gymnasium.Env`` for one robot.
+Robot i lives in ``worlds[i % len(worlds)]``; every world compiles into one function
+(a world bank).
+
+- **One step is one decision**: the agent's action holds for ``decide_every`` control
+  steps (0.1 s each), as in sessions.
+- **Action** (``action_mode``): ``"target"`` (default, the paper's interface) the next target
+  pose x, y, yaw in the world frame, which the robot's navigator drives to; ``"velocity"``
+  the command (v m/s, w rad/s) held for the decision.
+- **Observation** (a Dict), what the robot perceives and nothing else: ``rgb`` (H, W, 3) uint8
+  and ``depth`` (H, W) float32 metres along the optical axis (0: no return) at the camera's
+  ``rgb_width`` x ``rgb_height`` (``env`` overrides set them), ``scan`` (beams,) laser
+  ranges, ``pose`` (3,) odometry x, y, yaw (the simulated odometry is exact), ``occupancy``
+  (Hg, Wg) int8 the robot's own map (-1 unknown, 0 free, 1 occupied; cells past the
+  world's extent stay unknown), ``time`` (1,) seconds. ``privileged=True`` adds
+  ``privileged_coverage`` (N,): each object's observed share of its surface, ground truth
+  for debugging only.
+- **Reward**: the increase of ``reward`` ("ori", default, as in :mod:`rosmeery_jax.rl`;
+  "cori"; "coverage") over the decision, from ground truth the agent never sees.
+- **Episodes** end at ``duration`` simulated seconds (``truncated``; nothing terminates
+  earlier). The vector env resets a finished robot on the next ``step`` (Gymnasium's
+  next-step autoreset).
+- **Maps**: an agent that maps for itself hands its map to :meth:`VectorEnv.submit_map` at
+  any step; it is scored like a ``--mapper`` (:mod:`rosmeery_jax.scoring.mapper`) and the
+  metrics come back in a dict.
+
+Shapes: B robots, H x W camera pixels, Hg x Wg occupancy cells, N objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from rosmeery_jax.core import overrides, xla
+from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.env import world_data as wd
+from rosmeery_jax.env.world_bank import world_bank
+from rosmeery_jax.rl.env import REWARDS, score
+from rosmeery_jax.scoring import metrics
+from rosmeery_jax.scoring.evaluate import TOLERANCE
+from rosmeery_jax.scoring.mapper import MapState, OnlineScorer
+from rosmeery_jax.sim import coverage, occupancy
+from rosmeery_jax.sim.knowledge import GroundTruthTable
+
+
+@dataclass(frozen=True)
+class GymConfig:
+    duration: float = 300.0  # simulated seconds per episode
+    decide_every: int = 10  # control steps per decision (1 s)
+    action_mode: str = "target"  # or "velocity"
+    reward: str = "ori"
+    privileged: bool = False
+    env: dict = field(default_factory=dict)  # EnvConfig overrides, as in sessions
+
+
+class VectorEnv(gymnasium.vector.VectorEnv):
+    """B robots in one batch (module docstring)."""
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, worlds: list[str] | str, num_envs: int = 1, config: GymConfig = GymConfig()):
+        worlds = [worlds] if isinstance(worlds, str) else list(worlds)
+        if config.action_mode not in ("target", "velocity"):
+            raise ValueError(f"action_mode {config.action_mode!r} is not 'target' or 'velocity'")
+        if config.reward not in REWARDS:
+            raise ValueError(f"reward {config.reward!r} is not one of {', '.join(REWARDS)}")
+        env_cfg = EnvConfig().with_overrides("gym", **overrides.flatten({**config.env,
+                                                                         "action_mode": config.action_mode}))
+        self.bank = world_bank(worlds, env_cfg)
+        self.config, self.num_envs = config, num_envs
+        self.world = np.arange(num_envs) % len(self.bank)
+        self.horizon = max(1, int(round(config.duration / (self.bank.env.dt * config.decide_every))))
+        self.single_observation_space = self._observation_space()
+        self.single_action_space = self._action_space()
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._reset = xla.jit(jax.vmap(self._reset_one))
+        self._step = xla.jit(jax.vmap(self._step_one))
+        self._scorers = [OnlineScorer(self.bank.worlds[w], TOLERANCE) for w in self.world]
+        self.state, self.t, self._done = None, 0, np.zeros(num_envs, bool)
+
+    # -- spaces ---------------------------------------------------------------------------
+    def _observation_space(self) -> spaces.Dict:
+        env = self.bank.env
+        cam, beams = env.config.camera, env.config.laser.beams
+        hw = (cam.rgb_height, cam.rgb_width)
+        parts = {
+            "rgb": spaces.Box(0, 255, (*hw, 3), np.uint8),
+            "depth": spaces.Box(0.0, cam.max_range, hw, np.float32),
+            "scan": spaces.Box(0.0, np.inf, (beams,), np.float32),
+            "pose": spaces.Box(-np.inf, np.inf, (3,), np.float32),
+            "occupancy": spaces.Box(-1, 1, env.grid.shape, np.int8),
+            "time": spaces.Box(0.0, np.inf, (1,), np.float32),
+        }
+        if self.config.privileged:
+            parts["privileged_coverage"] = spaces.Box(0.0, 1.0, (env.sizes.objects,), np.float32)
+        return spaces.Dict(parts)
+
+    def _action_space(self) -> spaces.Box:
+        if self.config.action_mode == "velocity":
+            r = self.bank.env.config.robot
+            return spaces.Box(np.float32([-r.max_speed, -r.max_turn_rate]), np.float32([r.max_speed, r.max_turn_rate]))
+        lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+        for env in self.bank.envs():  # the worlds' extents together
+            origin = np.asarray(env.grid.origin, np.float64)
+            lo = np.minimum(lo, origin)
+            hi = np.maximum(hi, origin + np.asarray(env.grid.extent)[::-1] * env.grid.resolution)
+        return spaces.Box(np.float32([*lo, -np.pi]), np.float32([*hi, np.pi]))
+
+    # -- one robot, jitted and vmapped above ------------------------------------------------
+    def _reset_one(self, world, key):
+        env = self.bank.env_at(world)
+        s = env.reset(key)
+        return s, self._observe(env, s, jnp.int32(0)), score(env, s, self.config.reward)
+
+    def _step_one(self, world, s, action, t):
+        env = self.bank.env_at(world)
+        s = jax.lax.fori_loop(0, self.config.decide_every, lambda _, s: env.step(s, action), s)
+        return s, self._observe(env, s, t), score(env, s, self.config.reward)
+
+    def _observe(self, env, s, t) -> dict:
+        rgb, depth, _ = env.camera_rgbd(s)
+        occ = env.occupancy(s)
+        grid = jnp.where(occ == occupancy.OCCUPIED, 1, jnp.where(occ == occupancy.FREE, 0, -1)).astype(jnp.int8)
+        obs = {"rgb": rgb, "depth": depth.astype(jnp.float32), "scan": s.ranges.astype(jnp.float32),
+               "pose": s.pose.astype(jnp.float32), "occupancy": grid,
+               "time": (t * self.config.decide_every * env.dt)[None].astype(jnp.float32)}
+        if self.config.privileged:
+            ps = coverage.per_object(s.knowledge.seen, env.sk.table).astype(jnp.float32)
+            real = env.sk.ps_G < wd.NEVER
+            obs["privileged_coverage"] = jnp.where(real, ps / jnp.where(real, env.sk.ps_G, 1.0), 0.0)
+        return obs
+
+    # -- Gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """All robots anew; robot i's key is ``seed`` folded with i (the same seed, the same
+        episodes)."""
+        super().reset(seed=seed)
+        base = int(self.np_random.integers(2**31)) if seed is None else seed
+        self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(base), i))(jnp.arange(self.num_envs))
+        self._episode = 0
+        return self._start(self._keys), {}
+
+    def _start(self, keys) -> dict:
+        self.state, obs, self._score = self._reset(jnp.asarray(self.world), keys)
+        self.t, self._done[:] = 0, False
+        self._scorers = [OnlineScorer(self.bank.worlds[w], TOLERANCE) for w in self.world]
+        return _host(obs)
+
+    def step(self, actions):
+        if self.state is None:
+            raise RuntimeError("call reset() before step()")
+        if self._done.any():  # next-step autoreset: every robot finished (one horizon), all start again
+            self._episode += 1
+            obs = self._start(jax.vmap(jax.random.fold_in, in_axes=(0, None))(self._keys, self._episode))
+            zeros = np.zeros(self.num_envs)
+            return obs, zeros, zeros.astype(bool), zeros.astype(bool), {}
+        actions = jnp.asarray(np.asarray(actions, np.float32).reshape(self.num_envs, -1))
+        self.t += 1
+        self.state, obs, new = self._step(jnp.asarray(self.world), self.state, actions,
+                                          jnp.full(self.num_envs, self.t, jnp.int32))
+        reward = np.asarray(new - self._score, np.float64)
+        self._score = new
+        truncated = np.full(self.num_envs, self.t >= self.horizon)
+        self._done = truncated.copy()
+        return _host(obs), reward, np.zeros(self.num_envs, bool), truncated, {}
+
+    def submit_map(self, i: int, m: MapState) -> dict:
+        """Score robot ``i``'s own map now: {metric: value} (the session's default metrics)."""
+        world = self.bank.worlds[self.world[i]]
+        log = self._scorers[i].score(m).log
+        t = world.truth
+        table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))
+        curves = metrics.compute(type(log)(*(np.asarray(a)[None] for a in log)), table)
+        return {k: float(np.asarray(v)[0]) for k, v in curves.items()}
+
+    def poses(self) -> np.ndarray:
+        """(B, 3) the robots' poses now."""
+        return np.asarray(self.state.pose)
+
+
+class Env(gymnasium.Env):
+    """One robot (module docstring): a :class:`VectorEnv` of one, unbatched."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, world: str = "small_office", config: GymConfig = GymConfig()):
+        self.vec = VectorEnv([world], 1, config)
+        self.observation_space = self.vec.single_observation_space
+        self.action_space = self.vec.single_action_space
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs, info = self.vec.reset(seed=seed if seed is not None else int(self.np_random.integers(2**31)))
+        return _first(obs), info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.vec.step(np.asarray(action, np.float32)[None])
+        return _first(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
+
+    def submit_map(self, m: MapState) -> dict:
+        return self.vec.submit_map(0, m)
+
+
+def _host(obs: dict) -> dict:
+    return {k: np.asarray(v) for k, v in obs.items()}
+
+
+def _first(obs: dict) -> dict:
+    return {k: v[0] for k, v in obs.items()}
