@@ -15,17 +15,24 @@ Robot i lives in ``worlds[i % len(worlds)]``; every world compiles into one func
   ``rgb_width`` x ``rgb_height`` (``env`` overrides set them), ``scan`` (beams,) laser
   ranges, ``pose`` (3,) odometry x, y, yaw (the simulated odometry is exact), ``occupancy``
   (Hg, Wg) int8 the robot's own map (-1 unknown, 0 free, 1 occupied; cells past the
-  world's extent stay unknown), ``time`` (1,) seconds. ``privileged=True`` adds
+  world's extent stay unknown), ``nav_status`` (1,) int8 its navigator's status (the
+  codes of :mod:`rosmeery_jax.sim.navigation`: idle, moving, reached, stuck, unreachable,
+  timed out), ``time`` (1,) seconds. ``privileged=True`` adds
   ``privileged_coverage`` (N,): each object's observed share of its surface, ground truth
   for debugging only.
 - **Reward**: the increase of ``reward`` ("ori", default, as in :mod:`rosmeery_jax.rl`;
   "cori"; "coverage") over the decision, from ground truth the agent never sees.
+- **Seeds**: ``reset(seed=s)`` starts robot i as a session starts seed ``s + i``.
 - **Episodes** end at ``duration`` simulated seconds (``truncated``; nothing terminates
   earlier). The vector env resets a finished robot on the next ``step`` (Gymnasium's
   next-step autoreset).
 - **Maps**: an agent that maps for itself hands its map to :meth:`VectorEnv.submit_map` at
   any step; it is scored like a ``--mapper`` (:mod:`rosmeery_jax.scoring.mapper`) and the
   metrics come back in a dict.
+
+- **Agents in sessions**: a subclass of :class:`Agent` named ``agent:FILE.py:Name`` in a
+  session's policies runs through this vector env, one robot per seed, with the
+  session's results files and plots (``rosmeery_jax.session.agents``).
 
 Shapes: B robots, H x W camera pixels, Hg x Wg occupancy cells, N objects.
 """
@@ -42,7 +49,8 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from rosmeery_jax.core import overrides, xla
+from rosmeery_jax.core import overrides, plugins, xla
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
@@ -50,6 +58,7 @@ from rosmeery_jax.rl.env import REWARDS, score
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.evaluate import TOLERANCE
 from rosmeery_jax.scoring.mapper import MapState, OnlineScorer
+from rosmeery_jax.scoring.results import plain_name
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 
@@ -69,7 +78,11 @@ class VectorEnv(gymnasium.vector.VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, worlds: list[str] | str, num_envs: int = 1, config: GymConfig = GymConfig()):
+    def __init__(self, worlds: list[str] | str, num_envs: int = 1, config: GymConfig = GymConfig(),
+                 log_every: int = 0):
+        """``log_every`` > 0 also keeps each robot's object log every ``log_every`` control
+        steps and its pose at every step (``last_logs`` (B, spans, N), ``last_poses``
+        (B, decide_every, 3)), as sessions record them."""
         worlds = [worlds] if isinstance(worlds, str) else list(worlds)
         if config.action_mode not in ("target", "velocity"):
             raise ValueError(f"action_mode {config.action_mode!r} is not 'target' or 'velocity'")
@@ -78,7 +91,9 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         env_cfg = EnvConfig().with_overrides("gym", **overrides.flatten({**config.env,
                                                                          "action_mode": config.action_mode}))
         self.bank = world_bank(worlds, env_cfg)
-        self.config, self.num_envs = config, num_envs
+        self.config, self.num_envs, self.log_every = config, num_envs, log_every
+        if log_every and config.decide_every % log_every:
+            raise ValueError(f"log_every {log_every} must divide decide_every {config.decide_every}")
         self.world = np.arange(num_envs) % len(self.bank)
         self.horizon = max(1, int(round(config.duration / (self.bank.env.dt * config.decide_every))))
         self.single_observation_space = self._observation_space()
@@ -87,6 +102,8 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._reset = xla.jit(jax.vmap(self._reset_one))
         self._step = xla.jit(jax.vmap(self._step_one))
+        self._log = xla.jit(jax.vmap(lambda w, s: self.bank.env_at(w).log(s)))
+        self._knowledge = xla.jit(jax.vmap(lambda w, s: self.bank.env_at(w).labelled_knowledge(s)))
         self._scorers = [OnlineScorer(self.bank.worlds[w], TOLERANCE) for w in self.world]
         self.state, self.t, self._done = None, 0, np.zeros(num_envs, bool)
 
@@ -101,6 +118,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             "scan": spaces.Box(0.0, np.inf, (beams,), np.float32),
             "pose": spaces.Box(-np.inf, np.inf, (3,), np.float32),
             "occupancy": spaces.Box(-1, 1, env.grid.shape, np.int8),
+            "nav_status": spaces.Box(0, 127, (1,), np.int8),
             "time": spaces.Box(0.0, np.inf, (1,), np.float32),
         }
         if self.config.privileged:
@@ -126,8 +144,20 @@ class VectorEnv(gymnasium.vector.VectorEnv):
 
     def _step_one(self, world, s, action, t):
         env = self.bank.env_at(world)
-        s = jax.lax.fori_loop(0, self.config.decide_every, lambda _, s: env.step(s, action), s)
-        return s, self._observe(env, s, t), score(env, s, self.config.reward)
+        if not self.log_every:
+            s = jax.lax.fori_loop(0, self.config.decide_every, lambda _, s: env.step(s, action), s)
+            return s, self._observe(env, s, t), score(env, s, self.config.reward), None
+
+        def one(s, _):
+            s = env.step(s, action)
+            return s, s.pose
+
+        def span(s, _):  # log_every steps, then the object log (as a session's chunk function)
+            s, poses = jax.lax.scan(one, s, None, length=self.log_every)
+            return s, (env.log(s), poses)
+
+        s, (logs, poses) = jax.lax.scan(span, s, None, length=self.config.decide_every // self.log_every)
+        return s, self._observe(env, s, t), score(env, s, self.config.reward), (logs, poses.reshape(-1, 3))
 
     def _observe(self, env, s, t) -> dict:
         rgb, depth, _ = env.camera_rgbd(s)
@@ -135,6 +165,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         grid = jnp.where(occ == occupancy.OCCUPIED, 1, jnp.where(occ == occupancy.FREE, 0, -1)).astype(jnp.int8)
         obs = {"rgb": rgb, "depth": depth.astype(jnp.float32), "scan": s.ranges.astype(jnp.float32),
                "pose": s.pose.astype(jnp.float32), "occupancy": grid,
+               "nav_status": s.nav.status.astype(jnp.int8)[None],
                "time": (t * self.config.decide_every * env.dt)[None].astype(jnp.float32)}
         if self.config.privileged:
             ps = coverage.per_object(s.knowledge.seen, env.sk.table).astype(jnp.float32)
@@ -148,7 +179,8 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         episodes)."""
         super().reset(seed=seed)
         base = int(self.np_random.integers(2**31)) if seed is None else seed
-        self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(base), i))(jnp.arange(self.num_envs))
+        # robot i as a session's seed base + i (its env key: the seed's key folded with 0)
+        self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(i), 0))(base + jnp.arange(self.num_envs))
         self._episode = 0
         return self._start(self._keys), {}
 
@@ -168,8 +200,10 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             return obs, zeros, zeros.astype(bool), zeros.astype(bool), {}
         actions = jnp.asarray(np.asarray(actions, np.float32).reshape(self.num_envs, -1))
         self.t += 1
-        self.state, obs, new = self._step(jnp.asarray(self.world), self.state, actions,
-                                          jnp.full(self.num_envs, self.t, jnp.int32))
+        self.state, obs, new, recorded = self._step(jnp.asarray(self.world), self.state, actions,
+                                                    jnp.full(self.num_envs, self.t, jnp.int32))
+        if recorded is not None:
+            self.last_logs, self.last_poses = recorded
         reward = np.asarray(new - self._score, np.float64)
         self._score = new
         truncated = np.full(self.num_envs, self.t >= self.horizon)
@@ -184,6 +218,14 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))
         curves = metrics.compute(type(log)(*(np.asarray(a)[None] for a in log)), table)
         return {k: float(np.asarray(v)[0]) for k, v in curves.items()}
+
+    def log(self):
+        """The robots' object logs now: ObjectLog with (B, N) fields."""
+        return self._log(jnp.asarray(self.world), self.state)
+
+    def knowledge(self):
+        """The robots' labelled knowledge now (batched), for the session's oracle map."""
+        return self._knowledge(jnp.asarray(self.world), self.state)
 
     def poses(self) -> np.ndarray:
         """(B, 3) the robots' poses now."""
@@ -213,8 +255,41 @@ class Env(gymnasium.Env):
         return self.vec.submit_map(0, m)
 
 
+AGENT = "agent:"  # a session's policy entry naming an Agent plugin
+
+
+class Agent:
+    """A host-side agent (numpy, PyTorch, anything): give ``name`` (a plain name, its
+    results' label) and implement :meth:`act`. Built once per run with the
+    :class:`VectorEnv` of its robots (one per seed)."""
+
+    name = "agent"
+
+    def __init__(self, env: VectorEnv):
+        self.env = env
+
+    def act(self, obs: dict) -> np.ndarray:
+        """The B robots' next actions (B, 3) target poses (or (B, 2) velocities) from their
+        observations (each (B, ...))."""
+        raise NotImplementedError
+
+
+def agent_class(spec: str, source: str = "config") -> type[Agent]:
+    """The class an ``agent:FILE.py:Name`` entry names, checked as a class."""
+    cls = plugins.load(spec[len(AGENT):], source, "policies")
+    if not (isinstance(cls, type) and issubclass(cls, Agent)):
+        raise InputError(source, "policies", f"{spec!r} is not an Agent class (subclass rosmeery_jax.gym.Agent "
+                         "and implement act)")
+    if cls.act is Agent.act:
+        raise InputError(source, "policies", f"{spec!r} lacks an act(obs) method")
+    if not isinstance(cls.name, str) or cls.name == Agent.name or not plain_name(cls.name):
+        raise InputError(source, "policies", f"{spec!r} needs a class attribute name: a plain name that labels "
+                         "its results")
+    return cls
+
+
 def _host(obs: dict) -> dict:
-    return {k: np.asarray(v) for k, v in obs.items()}
+    return {k: np.array(v) for k, v in obs.items()}  # copies: the agent may write to them
 
 
 def _first(obs: dict) -> dict:

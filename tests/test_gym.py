@@ -71,6 +71,27 @@ def test_the_vector_env_batches_robots_over_worlds_and_scores_a_submitted_map(wo
                                       np.zeros(0)))["ori"] == 0.0
 
 
+def test_the_pytorch_agent_example_explores_through_the_vector_env(world):
+    pytest.importorskip("torch")
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "torch_agent.py"
+    spec = importlib.util.spec_from_file_location("torch_agent", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    vec = VectorEnv([world], 2, SMALL)
+    agent = example.TorchFrontier(vec)
+    obs, _ = vec.reset(seed=0)
+    start, gained = obs["pose"][:, :2].copy(), 0.0
+    for _ in range(3):
+        target = agent.act(obs)
+        assert vec.action_space.contains(target)
+        obs, reward, _, _, _ = vec.step(target)
+        gained += reward
+    assert (gained > 0).all() and (np.hypot(*(obs["pose"][:, :2] - start).T) > 0.1).all()  # it drove
+
+
 def test_stable_baselines3_ppo_trains_on_the_env(env):
     torch = pytest.importorskip("torch")
     from stable_baselines3 import PPO

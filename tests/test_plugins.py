@@ -33,6 +33,40 @@ class MyPerceived(PerceivedMapper):
 '''
 
 
+FRONTIER_AGENT = '''from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from rosmeery_jax.gym import Agent
+from rosmeery_jax.policies.frontier import FrontierPolicy
+
+
+class FrontierAgent(Agent):
+    """Sends the targets frontier would send, computed on the host from the observations."""
+
+    name = "frontier_agent"
+
+    def __init__(self, env):
+        super().__init__(env)
+        world = env.bank.env_at(0)
+        policy = FrontierPolicy(world)
+
+        def decide(occupancy, pose, status, pstate):
+            mine = SimpleNamespace(grid=world.grid, occupancy=lambda s: (occupancy + 1).astype(jnp.int8))
+            state = SimpleNamespace(pose=pose, nav=SimpleNamespace(status=status.astype(jnp.int32)))
+            return policy.bind(mine).decide(state, pstate, jax.random.key(0))
+
+        self.decide = jax.jit(jax.vmap(decide))
+        self.pstate = jax.vmap(policy.init)(jax.random.split(jax.random.key(0), env.num_envs))
+
+    def act(self, obs):
+        target, self.pstate = self.decide(obs["occupancy"], obs["pose"], obs["nav_status"][:, 0], self.pstate)
+        return np.asarray(target)
+'''
+
+
 def _same(df, column, a, b):
     """The rows with ``column`` a and b hold bitwise the same curves."""
     rest = [c for c in ("world", "policy", "mapper", "seed", "metric", "time_s") if c != column]
@@ -153,3 +187,52 @@ def test_a_missing_plugin_file_and_a_module_plugin(tmp_path, capsys):
     assert policy_label(module) == "random"
     assert main([*SESSION, "--policies", f"random,{module}", "--out", str(tmp_path / "o")]) == 2
     one_line_error(capsys, "'random' appears twice")  # the same label would share run files
+
+
+def test_python_agents_run_in_a_session_and_one_sending_frontiers_targets_follows_frontier(tmp_path, capsys):
+    """A host-side agent computing frontier's targets from its observations makes frontier's
+    decisions: the runs agree to float rounding (the vector env's step is compiled apart
+    from the session's chunk function, so poses may differ in the last bits; over longer
+    runs such a difference can flip a decision). The PyTorch example runs beside them, and
+    --resume finds every run done."""
+    agent = tmp_path / "agent.py"
+    agent.write_text(FRONTIER_AGENT)
+    torch_agent = f"agent:{ROOT / 'examples' / 'torch_agent.py'}:TorchFrontier"
+    out = tmp_path / "o"
+    run = ["run", "--worlds", "small_office", "--seeds", "2", "--duration", "6", "--detector", "off", "--quiet",
+           "--policies", f"frontier,agent:{agent}:FrontierAgent,{torch_agent}", "--out", str(out)]
+    assert main(run) == 0
+    df = pd.read_csv(out / "metrics.csv")
+    assert set(df.policy) == {"frontier", "frontier_agent", "torch_frontier"}
+    key = ["seed", "metric", "time_s"]
+    a, b = (df[df.policy == p].sort_values(key).reset_index(drop=True) for p in ("frontier", "frontier_agent"))
+    assert (a[key] == b[key]).all().all() and (a.value - b.value).abs().max() < 1e-4
+    paths = pd.read_csv(out / "trajectories.csv")
+    x, y = (paths[paths.policy == p].sort_values(["seed", "time_s"])[["x", "y"]].to_numpy()
+            for p in ("frontier", "frontier_agent"))
+    assert abs(x - y).max() < 1e-4 and abs(x[-1] - x[0]).max() > 0.1  # the same path, and a real one
+    own = df[(df.policy == "torch_frontier") & (df.metric == "ori")]
+    assert own.value.max() > 0 and (out / "maps" / "small_office__torch_frontier__seed1.ply").is_file()
+    before = (out / "metrics.csv").read_bytes()
+    assert main([*run, "--resume"]) == 0 and (out / "metrics.csv").read_bytes() == before
+
+
+AGENT_HEAD = "import numpy as np\nfrom rosmeery_jax.gym import Agent\nclass A(Agent):\n    name = 'a'\n"
+
+
+@pytest.mark.parametrize("code, extra, needle", [
+    ("class A:\n    pass\n", [], "is not an Agent class"),
+    (AGENT_HEAD, [], "lacks an act(obs) method"),
+    (AGENT_HEAD + "    def act(self, obs):\n        return np.zeros((2, 2))\n", [], "shape (2, 2), not (2, 3)"),
+    (AGENT_HEAD + "    def act(self, obs):\n        return obs['pose'] * np.nan\n", [], "not finite"),
+    (AGENT_HEAD + "    def act(self, obs):\n        return obs['pose']\n", ["--detector", "oracle"], "--detector off"),
+])
+def test_a_broken_agent_is_one_line_with_nothing_written(tmp_path, capsys, code, extra, needle):
+    plugin = tmp_path / "agent.py"
+    plugin.write_text(code)
+    out = tmp_path / "o"
+    run = ["run", "--worlds", "small_office", "--seeds", "2", "--duration", "2", "--detector", "off", "--quiet",
+           *extra, "--policies", f"agent:{plugin}:A", "--out", str(out)]
+    assert main(run) == 2
+    one_line_error(capsys, "agent.py:A", needle)
+    assert not out.exists() or not any(out.iterdir())

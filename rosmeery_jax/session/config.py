@@ -16,6 +16,7 @@ from rosmeery_jax.core import overrides, plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import memory_bytes
 from rosmeery_jax.env import EnvConfig, make
+from rosmeery_jax.gym import AGENT, agent_class
 from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
 from rosmeery_jax.policies.learned import policy_file
 from rosmeery_jax.policies.plugin import check_plugin
@@ -174,7 +175,18 @@ def _check_mappers(cfg: SessionConfig, worlds) -> None:
         raise InputError("config", "mappers", f"{twice!r}: two mappers are named {mapper_label(twice)!r}")
 
 
+def run_label(spec: str) -> str:
+    """A policy entry's label in results: an agent's class name, else the policy's label."""
+    return agent_class(spec).name if spec.startswith(AGENT) else policy_label(spec)
+
+
 def _check_policy(spec: str, worlds, cfg: SessionConfig) -> None:
+    if spec.startswith(AGENT):
+        agent_class(spec)
+        if cfg.detector != "off":
+            raise InputError("config", "policies", f"{spec!r}: a Python agent runs with --detector off (its "
+                             "robots label what they observe)")
+        return
     if plugins.is_plugin(spec) and not spec.startswith((REPLAY_PREFIX, "learned:")):
         labels = "detections" if cfg.detector != "off" else "observed"
         check_plugin(spec, make(cfg.worlds[0], labels=labels, **overrides.flatten(cfg.env)))
@@ -201,7 +213,7 @@ def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
             raise InputError(source, "worlds", f"{seen[w.name]!r} and {spec!r} are both named {w.name!r}: their "
                              "results would share files (rename one file)")
         seen[w.name] = spec
-    labels = [policy_label(p) for p in cfg.policies]
+    labels = [run_label(p) for p in cfg.policies]
     for label in labels:
         if labels.count(label) > 1:
             raise InputError(source, "policies", f"{label!r} appears twice (join replay files with '+' in one entry)")

@@ -16,6 +16,7 @@ from typing import NamedTuple
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, claim_folder, require_same
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+from rosmeery_jax.gym import AGENT
 from rosmeery_jax.policies import REPLAY_PREFIX, LearnedPolicy, policy_class
 from rosmeery_jax.policies.learned import policy_file
 from rosmeery_jax.policies.replay import replay_files
@@ -52,7 +53,8 @@ def input_hashes(cfg: SessionConfig) -> dict:
     out = {"worlds": {w.name: _sha256(w.path) for w in map(load_world, cfg.worlds)},
            "recordings": {str(f): _sha256(f) for p in cfg.policies if p.startswith(REPLAY_PREFIX)
                           for f in replay_files(p)},
-           "policies": {p: _sha256(policy_file(p)) for p in cfg.policies if policy_class(p) is LearnedPolicy}}
+           "policies": {p: _sha256(policy_file(p)) for p in cfg.policies
+                        if not p.startswith(AGENT) and policy_class(p) is LearnedPolicy}}
     if cfg.detector == "yolo":
         out["weights"] = _sha256(cfg.weights or DEFAULT_WEIGHTS)
     return out

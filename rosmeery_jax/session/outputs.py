@@ -18,47 +18,61 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.policies import policy_label
 from rosmeery_jax.scoring import metrics, plots, results
 from rosmeery_jax.scoring.mapper import mapper_label
 from rosmeery_jax.scoring.semantic_map import build_map, write_map, write_semantic_map
-from rosmeery_jax.session.config import SessionConfig, frames_before, sampled_rows
+from rosmeery_jax.session.config import SessionConfig, frames_before, run_label, sampled_rows
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
 
 
 def run_name(world: str, policy: str) -> str:
-    return f"{load_world(world).name}__{policy_label(policy)}"
+    return f"{load_world(world).name}__{run_label(policy)}"
 
 
-def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> None:
+class RunResult(NamedTuple):
+    """One run's simulation, per seed (S, in seed order): env (its world's); policy, the
+    results' label; logs ObjectLog (S, T, N) one row every ``log_every`` steps; poses
+    (S, steps + 1, 3); knowledge: the final labelled knowledge (S, ...); mapped: per mapper
+    entry, one ``engine.Mapped`` per seed (None without mappers)."""
+
+    env: Any
+    policy: str
+    logs: ObjectLog
+    poses: np.ndarray
+    knowledge: Any
+    mapped: dict | None
+    log_every: int
+
+
+def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: dict) -> None:
     """One run's files, each atomically; the metrics file last (its presence marks the run
-    done). ``sim`` holds the group's real envs in row order; padding objects are cut off."""
-    env = group.envs[run.world]
-    world, policy = env.world, group.policies[run.policy].name
+    done). Padding objects and samples are cut off."""
+    env, policy = run.env, run.policy
+    world = env.world
     n, s = world.truth.num_objects, len(world.truth.samples.object)
-    rows = np.searchsorted(np.flatnonzero(group.real), run.rows)
-    logs = jax.tree.map(lambda a: a[rows][..., :n], sim.logs)
-    poses = sim.poses[rows]
-    step = np.arange(logs.ps.shape[1]) * sim.log_every  # each log row's step
+    logs = jax.tree.map(lambda a: a[..., :n], run.logs)
+    poses = run.poses
+    step = np.arange(logs.ps.shape[1]) * run.log_every  # each log row's step
     times = step * env.dt
     keep = sampled_rows(cfg)
     counted = frames_before(cfg, step[keep])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
-    for seed in range(len(rows)):  # per seed, so a seed's numbers never depend on the batch shape
+    for seed in range(len(poses)):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[seed], logs)
         if "oracle" in cfg.mappers:
-            k = jax.tree.map(lambda a: a[rows[seed]], sim.knowledge)
+            k = jax.tree.map(lambda a: np.asarray(a)[seed], run.knowledge)
             k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
                                                                                 "conf_any")})
-            write_semantic_map(out / "maps", f"{run.name}__seed{seed}", world, k, float(times[-1]))
+            write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
             c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
             curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
                                                mapper="oracle", **tags))
@@ -67,24 +81,24 @@ def write_run(cfg: SessionConfig, group, run, out: Path, sim, timing: dict) -> N
         for spec in cfg.mappers:
             if spec == "oracle":
                 continue
-            name = mapper_label(spec)
-            done = sim.mapped[spec][rows[seed]]
+            label = mapper_label(spec)
+            done = run.mapped[spec][seed]
             mlog = ObjectLog(*(np.stack(a) for a in zip(*(done.logs[c] for c in counted))))  # (K, N)
             c = metrics.compute(mlog, env.truth, cfg.metrics)
-            curves.append(results.metric_frame(c, times[keep], seed=seed, mapper=name, **tags))
-            objects.append(results.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=name,
+            curves.append(results.metric_frame(c, times[keep], seed=seed, mapper=label, **tags))
+            objects.append(results.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=label,
                                                 policy=policy, detector=cfg.detector))
-            _write_mapper_map(env, done.final, out / "maps" / f"{run.name}__seed{seed}__{name}", times[-1])
+            _write_mapper_map(env, done.final, out / "maps" / f"{name}__seed{seed}__{label}", times[-1])
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
                                    "time_s": np.round(times[keep], 6), "x": poses[seed, step[keep], 0],
                                    "y": poses[seed, step[keep], 1], "yaw": poses[seed, step[keep], 2]}))
     runs = out / "runs"
-    results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{run.name}.objects.csv")
-    write_atomic(runs / f"{run.name}.timing.json", json.dumps(
+    results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{name}.objects.csv")
+    write_atomic(runs / f"{name}.timing.json", json.dumps(
         {**timing, "note": "simulated in one batch with the other runs of its group: the times are the group's"},
         indent=2))
-    results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{run.name}.trajectory.csv")
-    results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{run.name}.metrics.csv")
+    results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
+    results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
 
 
 def _write_mapper_map(env, m, stem: Path, time_s: float) -> None:

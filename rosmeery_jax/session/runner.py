@@ -22,16 +22,19 @@ from dataclasses import replace
 from pathlib import Path
 
 import jax
+import numpy as np
 from tqdm.auto import tqdm
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
+from rosmeery_jax.gym import AGENT
 from rosmeery_jax.session import cluster, engine
+from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import SessionConfig, decisions, frames_before, log_every, per_call, sampled_rows
 from rosmeery_jax.session.folder import check_out, versions
-from rosmeery_jax.session.outputs import merge, run_name, sum_timing, write_run
+from rosmeery_jax.session.outputs import RunResult, merge, run_name, sum_timing, write_run
 
 
 class Session:
@@ -89,10 +92,15 @@ class Session:
         """Simulate the runs in this process; returns each group's timing."""
         cfg = self.cfg
         total = decisions(cfg)
-        groups = engine.build_groups(todo, cfg.env, cfg.detector != "off", cfg.seeds, cfg.decide_every,
-                                     total * cfg.decide_every, cfg.devices)
-        bar = _bar(len(groups) * cfg.duration, self.progress)
+        agents = [(w, p) for w, p in todo if p.startswith(AGENT)]
+        groups = engine.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off", cfg.seeds,
+                                     cfg.decide_every, total * cfg.decide_every, cfg.devices)
+        bar = _bar((len(groups) + len(agents)) * cfg.duration, self.progress)
         timings = []
+        for world, spec in agents:  # host-side agents, one run at a time through the vector env
+            result, timing = run_agent(cfg, world, spec, bar)
+            timings.append(timing)
+            write_run(cfg, result, run_name(world, spec), out, timing)
         for group in groups:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
@@ -105,9 +113,18 @@ class Session:
                       "devices": group.devices}
             timings.append(timing)
             for run in group.runs:
-                write_run(cfg, group, run, out, sim, timing)
+                write_run(cfg, _result(group, run, sim), run.name, out, timing)
         bar.close()
         return timings
+
+
+def _result(group, run, sim) -> RunResult:
+    """One run's part of its group's simulation (``sim`` holds the real envs in row order)."""
+    rows = np.searchsorted(np.flatnonzero(group.real), run.rows)
+    pick = lambda tree: jax.tree.map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
+    mapped = {spec: [per_env[r] for r in rows] for spec, per_env in sim.mapped.items()} if sim.mapped else None
+    return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), sim.poses[rows],
+                     pick(sim.knowledge), mapped, sim.log_every)
 
 
 def prepare_devices(cfg: SessionConfig) -> None:

@@ -1,0 +1,63 @@
+"""Python agents in sessions: ``--policies agent:FILE.py:Name`` runs a
+:class:`rosmeery_jax.gym.Agent` (numpy, PyTorch, any Python) through the Gymnasium vector
+env, one robot per seed, in the session's worlds, duration and decision period, and writes
+the session's results files for it (metrics, objects, trajectories, maps), so its curves
+sit beside the built-ins' in the tables and plots and ``--resume`` treats it like any run.
+
+One host round trip per decision: the agent acts on the B robots' observations, the vector
+env steps them in one compiled call. With the detector off, as the vector env has no
+detector: the robots' labels are those they observe (``labels = "observed"``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import numpy as np
+
+from rosmeery_jax.core import interrupt
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.gym import AGENT, GymConfig, VectorEnv, agent_class
+from rosmeery_jax.session.config import SessionConfig, decisions, log_every
+from rosmeery_jax.session.outputs import RunResult
+
+
+def run_agent(cfg: SessionConfig, world: str, spec: str, bar) -> tuple[RunResult, dict]:
+    """Run the agent entry ``spec`` in ``world`` for every seed; its result and timing."""
+    t0 = time.perf_counter()
+    vec = VectorEnv([world], cfg.seeds, GymConfig(cfg.duration, cfg.decide_every, env=cfg.env), log_every(cfg))
+    agent = agent_class(spec)(vec)
+    obs, _ = vec.reset(seed=0)  # robot k is seed k, as in the engine
+    logs, poses = [jax.tree.map(lambda a: np.asarray(a)[:, None], vec.log())], [vec.poses()[:, None]]
+    t1 = time.perf_counter()
+    for _ in range(decisions(cfg)):
+        interrupt.check()
+        obs, *_ = vec.step(_checked(spec, agent.act(obs), vec))
+        logs.append(jax.tree.map(np.asarray, vec.last_logs))
+        poses.append(np.asarray(vec.last_poses))
+        bar.update(cfg.decide_every * vec.bank.env.dt)
+    logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), *logs)
+    result = RunResult(vec.bank.env, agent.name, logs, np.concatenate(poses, axis=1),
+                       jax.tree.map(np.asarray, vec.knowledge()), None, log_every(cfg))
+    steps = cfg.seeds * decisions(cfg) * cfg.decide_every
+    return result, {"envs": cfg.seeds, "env_steps": steps, "sim_s": time.perf_counter() - t1,
+                    "compile_s": t1 - t0, "wall_s": time.perf_counter() - t0, "compiles": 1}
+
+
+def _checked(spec: str, actions, vec: VectorEnv) -> np.ndarray:
+    """The agent's actions as (B, A) float32, or one line naming it."""
+    want = (vec.num_envs, *vec.single_action_space.shape)
+    try:
+        a = np.asarray(actions, np.float32)
+    except (TypeError, ValueError) as err:
+        raise InputError("config", "policies", f"{spec!r}: act returned something that is not numbers ({err})") \
+            from None
+    if a.shape != want:
+        raise InputError("config", "policies", f"{spec!r}: act returned actions of shape {a.shape}, not {want}")
+    if not np.isfinite(a).all():
+        raise InputError("config", "policies", f"{spec!r}: act returned actions that are not finite")
+    return a
+
+
+__all__ = ["AGENT", "run_agent"]
