@@ -70,6 +70,8 @@ class GymConfig:
     action_mode: str = "target"  # or "velocity"
     reward: str = "ori"
     privileged: bool = False
+    camera: bool = True  # rgb and depth in the observation: the costliest part of a step on a
+    # CPU (a 160 x 128 frame per robot per decision); an agent that does not look sets False
     env: dict = field(default_factory=dict)  # EnvConfig overrides, as in sessions
 
 
@@ -115,6 +117,8 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         parts = {
             "rgb": spaces.Box(0, 255, (*hw, 3), np.uint8),
             "depth": spaces.Box(0.0, cam.max_range, hw, np.float32),
+        } if self.config.camera else {}
+        parts |= {
             "scan": spaces.Box(0.0, np.inf, (beams,), np.float32),
             "pose": spaces.Box(-np.inf, np.inf, (3,), np.float32),
             "occupancy": spaces.Box(-1, 1, env.grid.shape, np.int8),
@@ -160,10 +164,13 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         return s, self._observe(env, s, t), score(env, s, self.config.reward), (logs, poses.reshape(-1, 3))
 
     def _observe(self, env, s, t) -> dict:
-        rgb, depth, _ = env.camera_rgbd(s)
+        obs = {}
+        if self.config.camera:
+            rgb, depth, _ = env.camera_rgbd(s)
+            obs = {"rgb": rgb, "depth": depth.astype(jnp.float32)}
         occ = env.occupancy(s)
         grid = jnp.where(occ == occupancy.OCCUPIED, 1, jnp.where(occ == occupancy.FREE, 0, -1)).astype(jnp.int8)
-        obs = {"rgb": rgb, "depth": depth.astype(jnp.float32), "scan": s.ranges.astype(jnp.float32),
+        obs |= {"scan": s.ranges.astype(jnp.float32),
                "pose": s.pose.astype(jnp.float32), "occupancy": grid,
                "nav_status": s.nav.status.astype(jnp.int8)[None],
                "time": (t * self.config.decide_every * env.dt)[None].astype(jnp.float32)}
@@ -264,6 +271,7 @@ class Agent:
     :class:`VectorEnv` of its robots (one per seed)."""
 
     name = "agent"
+    camera = True  # False: no rgb and depth in its observations (much faster on a CPU)
 
     def __init__(self, env: VectorEnv):
         self.env = env

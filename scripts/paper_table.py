@@ -1,4 +1,5 @@
-"""Print the README's paper table and the figures its findings quote, from a results folder.
+"""Print the paper table (intervals over seeds, paired tests by seed) and the figures its
+findings quote, from a results folder.
 
     .venv/bin/python scripts/paper_table.py results/paper
 """
@@ -11,25 +12,47 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rosmeery_jax.scoring import stats
+
 TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Small Office",
           "large_office": "Large Office"}
 POLICIES = ("frontier", "random", "semantic_nbv")
 
 
+def _per_seed(final: pd.DataFrame, world: str, metric: str) -> pd.DataFrame:
+    """Final values, one row per seed and one column per policy."""
+    part = final[(final.world == world) & (final.metric == metric)]
+    return part.pivot_table(index="seed", columns="policy", values="value")
+
+
 def table(final: pd.DataFrame) -> None:
-    """The README's table of final values (mean ± std over seeds; bold within one std of the best)."""
+    """The paper table: mean [95 % bootstrap interval] over seeds; bold the best and every
+    policy a paired test by seed cannot tell from it at 95 %."""
     print("| world | metric | frontier | random | semantic NBV |\n|---|---|---|---|---|")
     for w, title in TITLES.items():
         for m in ("ori", "cori", "opi"):
-            part = final[(final.world == w) & (final.metric == m)].groupby("policy").value
-            stats = pd.DataFrame({"mean": part.mean(), "std": part.std(ddof=0)})
-            best = stats["mean"].idxmax()
+            seeds = _per_seed(final, w, m)
+            best = seeds.mean().idxmax()
             cells = []
             for p in POLICIES:
-                mean, std = stats.loc[p, "mean"], stats.loc[p, "std"]
-                text = f"{mean:.2f} ± {std:.2f}"
-                cells.append(f"**{text}**" if mean >= stats.loc[best, "mean"] - stats.loc[best, "std"] else text)
+                ci = stats.interval(seeds[p])
+                text = f"{ci.mean:.2f} [{ci.low:.2f}, {ci.high:.2f}]"
+                tied = p == best or not stats.paired(seeds[p], seeds[best]).significant
+                cells.append(f"**{text}**" if tied else text)
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
+
+
+def comparisons(final: pd.DataFrame, metric: str = "ori") -> None:
+    """Every pair of policies per world, paired by seed: the difference of final values, its
+    interval, the permutation test's p and the verdict at 95 %."""
+    print(f"\npaired comparisons of final {metric.upper()} by seed (b - a, 95 % interval, sign-flip test):")
+    for w, title in TITLES.items():
+        seeds = _per_seed(final, w, metric)
+        for a, b in ((a, b) for i, a in enumerate(POLICIES) for b in POLICIES[i + 1:]):
+            r = stats.paired(seeds[a], seeds[b])
+            verdict = (f"{b if r.diff.mean > 0 else a} ahead" if r.significant else "no difference shown")
+            print(f"  {title:<13}{b:>13} - {a:<13}{r.diff.mean:+.3f} [{r.diff.low:+.3f}, {r.diff.high:+.3f}]  "
+                  f"p = {r.p:.4f}  ({r.seeds} seeds): {verdict}")
 
 
 def main(folder: str) -> None:
@@ -42,6 +65,7 @@ def main(folder: str) -> None:
         print(f"\nmapper: {mapper}")
         part = full[full.mapper == mapper]
         table(part[np.isclose(part.time_s, end)])
+        comparisons(part[np.isclose(part.time_s, end)])
     if {"oracle", "perceived"} <= set(full.mapper):
         f = full[np.isclose(full.time_s, end) & (full.metric == "ori")]
         ratio = f.pivot_table(index=["world", "policy"], columns="mapper", values="value", aggfunc="mean")

@@ -28,12 +28,12 @@ from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
 from rosmeery_jax.env import make
 from rosmeery_jax.rl import ppo
 from rosmeery_jax.scoring import evaluate as map_eval
-from rosmeery_jax.scoring import metrics, plots, results
+from rosmeery_jax.scoring import metrics, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
 from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
 from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
-from rosmeery_jax.session import Session, SessionConfig, load_config
+from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import save_world_picture
 from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
@@ -166,7 +166,8 @@ def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
-                      detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices)
+                      detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
+                      digest=args.digest or None)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
     out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
@@ -177,14 +178,13 @@ def _cmd_run(args) -> int:
 def _print_summary(out: Path) -> None:
     df = results.load(out)
     df["policy"] = df.policy.where(df.mapper == "oracle", df.policy + " [" + df.mapper + "]")
-    print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final':>14}{'auc':>8}{'t90 s':>8}")
+    print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final, mean [95% CI] over seeds':>32}{'auc':>8}{'t90 s':>8}")
     for (w, p, m), g in df.groupby(["world", "policy", "metric"], sort=False):
         per_seed = [metrics.summarize(s.time_s.to_numpy(), s.value.to_numpy()) for _, s in g.groupby("seed")]
-        final = [x["final"] for x in per_seed]
+        final = stats.interval([x["final"] for x in per_seed])
         auc = sum(x["auc"] for x in per_seed) / len(per_seed)
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
-        print(f"{w:<14}{p:<18}{m:<12}{sum(final) / len(final):>8.3f} ±{pd.Series(final).std(ddof=0):.3f}"
-              f"{auc:>8.3f}{t90:>8.1f}")
+        print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} [{final.low:.3f}, {final.high:.3f}]{auc:>8.3f}{t90:>8.1f}")
     if (out / "timing.json").exists():
         t = json.loads((out / "timing.json").read_text())
         print(f"engine: {t['env_steps']:,} env-steps in {t['wall_s']:.1f} s ({t['env_steps_per_s']:,.0f} env-steps/s "
@@ -193,7 +193,7 @@ def _print_summary(out: Path) -> None:
         if t["frames"]:
             print(f"detector: {t['frames']:,} frames in {t['detector_s']:.1f} s ({t['frames'] / t['detector_s']:,.0f} "
                   f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
-        if t.get("mapper_s"):
+        if t.get("score_s"):
             print(f"mappers (fed and scored): {t['mapper_s']:.1f} s in the same worker thread")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
@@ -349,6 +349,12 @@ def _cmd_train(args) -> int:
     return 0
 
 
+def _cmd_diff(args) -> int:
+    for line in digest.compare(args.a, args.b):
+        print(line)
+    return 0
+
+
 def _cmd_plot(args) -> int:
     d = Path(args.dir)
     written = plots.plot_results(results.load(d), d / "plots")
@@ -371,6 +377,11 @@ def build_parser() -> argparse.ArgumentParser:
     _evaluate_parser(sub, d)
     _train_parser(sub, d)
     _plot_parser(sub, d)
+    p = sub.add_parser("diff", help="where two results folders part: per run and seed, the last chunk they agree "
+                       "on and the parts of the state that differ next (docs/paper.md)")
+    p.add_argument("a", metavar="DIR_A")
+    p.add_argument("b", metavar="DIR_B")
+    p.set_defaults(func=_cmd_diff)
     return parser
 
 
@@ -463,6 +474,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"detector (progress granularity only; default {d.chunk_s:g})")
     p.add_argument("--detector-period-s", type=float, metavar="S", help="labels from one period's frames reach "
                    f"the robot at the start of the period after next (default {d.detector_period_s:g})")
+    p.add_argument("--digest", action="store_true", help="write a digest of each robot's state per chunk "
+                   "(runs/*.digest.csv) for `rosmeery diff`; slower")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_run)

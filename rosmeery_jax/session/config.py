@@ -59,6 +59,8 @@ class SessionConfig:
     # knowledge: detections tied to objects by the ground-truth segmentation) and/or
     # "perceived" (depth inside detector boxes, no ground truth: rosmeery_jax.scoring.perceived)
     out: str = "results/session"
+    digest: bool = False  # write a digest of each robot's state per chunk (runs/*.digest.csv), to
+    # find where two runs part (rosmeery diff); it waits for every chunk, so it is slower
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
     # 0 = every device JAX has (on a CPU one host device per core, less one for torch when

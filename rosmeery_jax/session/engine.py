@@ -57,6 +57,7 @@ from rosmeery_jax.scoring.evaluate import TOLERANCE
 from rosmeery_jax.scoring.mapper import Camera, Frame, MapState, OnlineScorer, check_map, mapper_class
 from rosmeery_jax.scoring.perceived import PerceivedMapper
 from rosmeery_jax.sim.knowledge import ObjectLog
+from rosmeery_jax.session import digest
 from rosmeery_jax.world import load_world
 
 BLOCK = 5  # envs per compiled block (module docstring): 5 seeds, the paper's and the default, fill one
@@ -265,6 +266,7 @@ class Plan(NamedTuple):
     log_every: int = 1
     mappers: tuple[str, ...] = ()
     score_at: frozenset = frozenset()
+    digest: bool = False  # a digest of each env's state after every chunk (session.digest)
 
     @property
     def perceive(self) -> bool:
@@ -405,6 +407,7 @@ class Simulation(NamedTuple):
     timing: dict
     mapped: dict | None = None
     log_every: int = 1
+    digests: list | None = None  # per chunk: {part: (B,) digests} (session.digest)
 
 
 class Mapped(NamedTuple):
@@ -460,7 +463,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     for run in group.runs:
         run.host_policy.check_start(pose0[run.rows])
     worker = _Detection(group, plan, detectors, start, data, blocks, bar)
-    state, pstates, key, jobs, wait_s = start.state, start.pstates, keys.run, [], 0.0
+    state, pstates, key, jobs, wait_s, digests = start.state, start.pstates, keys.run, [], 0.0, []
     try:
         with interrupt.deferred():  # Ctrl-C between chunks, never inside a JAX callback
             for c in range(plan.total // plan.per_call):
@@ -474,6 +477,8 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
                 out = start.chunk(data, blocks, state, pstates, key, pending)
                 state, pstates, key = out.state, out.pstates, out.key
                 jobs.append(worker.submit(c, out.logs, out.poses, out.frames))
+                if plan.digest:  # waits for the chunk: a debugging aid, not for timed runs
+                    digests.append(digest.of_state(state))
     except BaseException:  # Ctrl-C or an error: queued detections are dropped, not waited for
         worker.pool.shutdown(wait=False, cancel_futures=True)
         raise
@@ -485,7 +490,12 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
               "compiles": 1,  # the chunk function: one per group
               "xla_compiles": CompileClock._counts["compiles"] - xla_before["compiles"],
               "cache_hits": CompileClock._counts["cache_hits"] - xla_before["cache_hits"]}
-    return _collect(group, start, state, data, blocks, pose0, done, worker, timing)
+    if plan.digest:
+        for part, d in zip(digests, done):
+            part["detections"] = digest.rows(d.dets) if d.dets is not None else [""] * group.size
+    return _collect(group, start, state, data, blocks, pose0, done, worker, timing)._replace(
+        digests=[{k: [v[r] for r in np.flatnonzero(group.real)] for k, v in part.items()} for part in digests]
+        if plan.digest else None)
 
 
 def _start(group: Group, plan: Plan, capture: bool, data, blocks, keys: Keys, empty: tuple) -> Start:
@@ -534,10 +544,10 @@ class _Detection:
         self.group, self.plan, self.detectors, self.bar = group, plan, detectors, bar
         self.attach, self.labels, self.data, self.blocks = start.attach, start.labels, data, blocks
         self.camera = Camera.of(group.config.camera)
+        self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0, "score_s": 0.0}  # score_s: within mapper_s
         self.mappers = [self._mappers(group.envs[w]) if real else None for w, real in zip(group.world, group.real)] \
             if plan.mappers else None
         self.chunks = plan.total // plan.per_call
-        self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0}
         self.pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
         self.started = time.perf_counter()
 
@@ -555,8 +565,10 @@ class _Detection:
         """Ask the mapper for its map after ``count`` frames and score it, if planned."""
         if count not in self.plan.score_at:
             return
+        t0 = time.perf_counter()
         m = check_map(online.spec, online.mapper.semantic_map(), len(online.scorer.world.taxonomy.names))
         online.logs[count] = online.scorer.score(m).log
+        self.timing["score_s"] += time.perf_counter() - t0
         if count == max(self.plan.score_at):
             online.final = m
 

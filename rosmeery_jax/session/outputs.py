@@ -50,6 +50,7 @@ class RunResult(NamedTuple):
     knowledge: Any
     mapped: dict | None
     log_every: int
+    digests: pd.DataFrame | None = None  # seed, chunk, time_s and a digest per part (session.digest)
 
 
 def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: dict) -> None:
@@ -98,6 +99,8 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         {**timing, "note": "simulated in one batch with the other runs of its group: the times are the group's"},
         indent=2))
     results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
+    if run.digests is not None:
+        results.write_csv(run.digests, runs / f"{name}.digest.csv")
     results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
 
 
@@ -123,7 +126,7 @@ def merge(out: Path) -> None:
     plots.plot_results(df, out / "plots")
 
 
-TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "wait_s", "compile_s", "compiles", "xla_compiles",
+TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "score_s", "wait_s", "compile_s", "compiles", "xla_compiles",
                "cache_hits", "sim_s")
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import pandas as pd
 from tqdm.auto import tqdm
 
 from rosmeery_jax.core import xla
@@ -107,7 +108,7 @@ class Session:
             steps = sampled_rows(cfg) * log_every(cfg)
             plan = engine.Plan(total, per_call(cfg, total), cfg.decide_every, log_every(cfg),
                                tuple(m for m in cfg.mappers if m != "oracle"),
-                               frozenset(frames_before(cfg, steps).tolist()))
+                               frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}
@@ -123,8 +124,15 @@ def _result(group, run, sim) -> RunResult:
     rows = np.searchsorted(np.flatnonzero(group.real), run.rows)
     pick = lambda tree: jax.tree.map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
     mapped = {spec: [per_env[r] for r in rows] for spec, per_env in sim.mapped.items()} if sim.mapped else None
+    digests = None
+    if sim.digests is not None:
+        span = sim.log_every * (sim.logs.ps.shape[1] - 1) / len(sim.digests)  # steps per chunk
+        env = group.envs[run.world]
+        digests = pd.DataFrame([{"seed": seed, "chunk": c, "time_s": round((c + 1) * span * env.dt, 6),
+                                 **{k: v[r] for k, v in part.items()}}
+                                for seed, r in enumerate(rows) for c, part in enumerate(sim.digests)])
     return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), sim.poses[rows],
-                     pick(sim.knowledge), mapped, sim.log_every)
+                     pick(sim.knowledge), mapped, sim.log_every, digests)
 
 
 def prepare_devices(cfg: SessionConfig) -> None:

@@ -1,0 +1,100 @@
+"""Where two runs part: a digest of each robot's state after every chunk, and a comparison
+of two results folders (``rosmeery diff A B``, docs/paper.md#across-machines).
+
+With ``digest = true`` a session writes ``runs/<world>__<policy>.digest.csv``: per seed and
+chunk (``chunk_s`` of simulated time, or the detector period), a 64-bit BLAKE2b digest of
+each part of the state: ``physics`` (MJX positions and velocities, the pose), ``map`` (the
+occupancy log-odds), ``knowledge`` (observed samples, labels and confidences) and
+``detections`` (the detector's objects, labels, confidences and boxes of the chunk's
+frames). A digest covers every bit, so one ulp anywhere changes it.
+
+:func:`compare` names, per run and seed, the last chunk at which two folders agree and the
+parts that differ next; without digests it falls back to the first sampled time at which
+the trajectories differ, and by how much.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+
+from rosmeery_jax.core.errors import InputError
+
+PARTS = ("physics", "map", "knowledge", "detections")
+
+
+def of_state(state) -> dict[str, list[str]]:
+    """Per part, one digest per env (B,) of the batched state."""
+    groups = {"physics": (state.physics.qpos, state.physics.qvel, state.pose), "map": (state.logodds,),
+              "knowledge": tuple(jax.tree.leaves(state.knowledge))}
+    return {part: rows(arrays) for part, arrays in groups.items()}
+
+
+def rows(arrays) -> list[str]:
+    """One digest per leading-axis row (B,) of the arrays, together."""
+    host = [np.ascontiguousarray(np.asarray(a)) for a in arrays]
+    return [_digest(a[r] for a in host) for r in range(host[0].shape[0])]
+
+
+def _digest(parts) -> str:
+    h = hashlib.blake2b(digest_size=8)
+    for p in parts:
+        h.update(str(p.dtype).encode() + str(p.shape).encode())
+        h.update(np.ascontiguousarray(p).tobytes())
+    return h.hexdigest()
+
+
+def compare(a: str | Path, b: str | Path) -> list[str]:
+    """One line per run and seed of two results folders: identical, or where they part."""
+    a, b = Path(a), Path(b)
+    lines = []
+    for path in sorted((a / "runs").glob("*.metrics.csv")) if (a / "runs").is_dir() else []:
+        run = path.name[:-len(".metrics.csv")]
+        if not (b / "runs" / path.name).is_file():
+            lines.append(f"{run}: only in {a}")
+            continue
+        digest = [f / "runs" / f"{run}.digest.csv" for f in (a, b)]
+        lines += _by_digest(run, *digest) if all(p.is_file() for p in digest) else _by_path(run, a, b)
+    if not lines:
+        raise InputError(str(a), "runs", "no finished runs to compare (not a results folder?)")
+    return lines
+
+
+def _by_digest(run: str, x: Path, y: Path) -> list[str]:
+    da, db = (pd.read_csv(p, dtype=str) for p in (x, y))
+    out = []
+    for seed, ga in da.groupby("seed", sort=True):
+        gb = db[db.seed == seed]
+        m = ga.merge(gb, on=["seed", "chunk", "time_s"], suffixes=("_a", "_b"))
+        differ = [[p for p in PARTS if r[f"{p}_a"] != r[f"{p}_b"]] for _, r in m.iterrows()]
+        first = next((k for k, d in enumerate(differ) if d), None)
+        if first is None:
+            out.append(f"{run} seed {seed}: identical over {len(m)} chunks")
+            continue
+        row = m.iloc[first]
+        before = f"identical up to chunk {int(m.iloc[first - 1].chunk)} ({m.iloc[first - 1].time_s} s)" if first \
+            else "different from the first chunk"
+        out.append(f"{run} seed {seed}: {before}; at chunk {int(row.chunk)} ({row.time_s} s) "
+                   f"{', '.join(differ[first])} differ")
+    return out
+
+
+def _by_path(run: str, a: Path, b: Path) -> list[str]:
+    ta, tb = (pd.read_csv(f / "runs" / f"{run}.trajectory.csv") for f in (a, b))
+    key = ["seed", "time_s"]
+    m = ta.merge(tb, on=key, suffixes=("_a", "_b")).sort_values(key)
+    out = []
+    for seed, g in m.groupby("seed"):
+        d = np.abs(g[["x_a", "y_a", "yaw_a"]].to_numpy() - g[["x_b", "y_b", "yaw_b"]].to_numpy()).max(1)
+        k = np.flatnonzero(d > 0)
+        if not len(k):
+            out.append(f"{run} seed {seed}: the same path at every sampled time (no digests to compare)")
+            continue
+        t = g.time_s.to_numpy()
+        out.append(f"{run} seed {seed}: the paths part at {t[k[0]]:g} s by {d[k[0]]:.2g} (m or rad); "
+                   f"{d.max():.2g} at most (no digests: rerun both with --digest for the part and chunk)")
+    return out
