@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from rosmeery_jax.scoring import stats
 from rosmeery_jax.scoring.metrics import summarize
 
 PAPER = ("kitchen", "laboratory", "small_office", "large_office")
@@ -29,16 +30,30 @@ def per_run(df: pd.DataFrame, metric: str = "ori") -> pd.DataFrame:
 
 
 def table(runs: pd.DataFrame, policies: list[str]) -> None:
-    """ORI AUC (and final ORI) mean ± std over seeds; bold within one std of the world's best AUC."""
+    """ORI AUC mean [95 % interval] over seeds (final ORI in brackets); bold the world's best
+    and every policy a paired test by seed cannot tell from it at 95 %."""
     print("| world | " + " | ".join(policies) + " |\n|---|" + "---|" * len(policies))
     for w, g in runs.groupby("world", sort=False):
-        stats = g.groupby("policy").agg(auc=("auc", "mean"), sd=("auc", "std"), final=("final", "mean"))
-        best = stats.auc.idxmax()
+        auc = g.pivot_table(index="seed", columns="policy", values="auc")
+        final = g.groupby("policy").final.mean()
+        best = auc.mean().idxmax()
         cells = []
         for p in policies:
-            text = f"{stats.auc[p]:.3f} ± {stats.sd[p]:.3f} ({stats.final[p]:.2f})"
-            cells.append(f"**{text}**" if stats.auc[p] >= stats.auc[best] - stats.sd[best] else text)
+            ci = stats.interval(auc[p])
+            text = f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})"
+            tied = p == best or not stats.paired(auc[p], auc[best]).significant
+            cells.append(f"**{text}**" if tied else text)
         print(f"| {w} | " + " | ".join(cells) + " |")
+
+
+def paired(runs: pd.DataFrame, a: str, b: str) -> None:
+    """b against a on ORI AUC, paired by seed, per world."""
+    print(f"\n{b} - {a}, ORI AUC paired by seed (95 % interval, sign-flip test):")
+    for w, g in runs.groupby("world", sort=False):
+        auc = g.pivot_table(index="seed", columns="policy", values="auc")
+        r = stats.paired(auc[a], auc[b])
+        print(f"  {w:<26}{r.diff.mean:+.3f} [{r.diff.low:+.3f}, {r.diff.high:+.3f}]  p = {r.p:.4f}"
+              f"  {'significant' if r.significant else 'no difference shown'} at 95 % ({r.seeds} seeds)")
 
 
 def targets(runs: pd.DataFrame) -> None:
@@ -52,7 +67,10 @@ def targets(runs: pd.DataFrame) -> None:
         m = paper.mean()
         print(f"\nlearned vs frontier: {m.learned - m.frontier:+.3f}; vs random: {m.learned - m.random:+.3f} "
               "(mean ORI AUC over the paper worlds)")
+    if {"learned", "random"} <= set(paper.columns):
+        paired(runs, "random", "learned")
     if {"gradient_nbv", "semantic_nbv"} <= set(paper.columns):
+        paired(runs, "semantic_nbv", "gradient_nbv")
         wins = (paper.gradient_nbv > paper.semantic_nbv)
         print(f"gradient_nbv beats semantic_nbv on ORI AUC in {int(wins.sum())} of {len(paper)} paper worlds: "
               + ", ".join(f"{w} {paper.gradient_nbv[w] - paper.semantic_nbv[w]:+.3f}" for w in paper.index))

@@ -195,14 +195,21 @@ def score_tied(world, sample: np.ndarray, instance: np.ndarray, labels_of) -> Sc
     """Steps 2-4 for points already tied (sample (P,), -1 none) with instance ids (P,);
     ``labels_of(ids (I,))`` gives each instance's category index (-1 none) and confidence."""
     ids, inst = np.unique(instance, return_inverse=True)
-    shared = shared_samples(world, inst, sample, max(len(ids), 1))  # an empty map: one instance holding nothing
+    shared = shared_samples(world, inst, sample, len(ids))
+    return score_instances(world, ids, shared, labels_of, int((sample >= 0).sum()), len(sample))
+
+
+def score_instances(world, ids: np.ndarray, shared: np.ndarray, labels_of, on: int, points: int) -> Score:
+    """Steps 2-4 for the instances ``ids`` (I,) holding points, with their shared samples
+    (I, N); ``on`` of the map's ``points`` lie on an object."""
+    if not len(ids):  # an empty map: one instance holding nothing
+        shared = np.zeros((1, world.truth.num_objects), np.int64)
     label, conf = labels_of(ids)
     label = np.r_[np.asarray(label, np.int32), np.full(len(shared) - len(ids), -1, np.int32)]
     conf = np.where(label >= 0, np.r_[np.asarray(conf, np.float32), np.zeros(len(shared) - len(ids), np.float32)],
                     0.0).astype(np.float32)
     log, ix = score_shared(world, shared, label, conf)
-    on = sample >= 0
-    off = float(1.0 - on.mean()) if len(on) else 0.0
+    off = float(1.0 - on / points) if points else 0.0
     matched = np.r_[ids, -1][np.where(ix >= 0, ix, len(ids))]  # the empty map's placeholder never matches
     return Score(log, matched, off, int(len(ids) - (ix >= 0).sum()))
 

@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.scoring.evaluate import Score, score_tied, tie
+from rosmeery_jax.scoring.evaluate import Score, score_instances, tie
 from rosmeery_jax.scoring.results import plain_name
 from rosmeery_jax.sim.sensors import CameraConfig
 
@@ -180,19 +180,60 @@ def check_map(spec: str, m, categories: int) -> MapState:
 
 
 class OnlineScorer:
-    """Scores one robot's maps as they grow (module docstring): ``score(map) -> Score``."""
+    """Scores one robot's maps as they grow (module docstring): ``score(map) -> Score``.
+
+    While a map only grows, each new point is tied once, each new (instance, sample) pair
+    is added once to the instances' shared samples, and a map unchanged since the last
+    call is not scored again; any other change scores the map from scratch. The result
+    is the same either way."""
 
     def __init__(self, world, tolerance: float):
         self.world, self.tolerance = world, tolerance
         self.tree = cKDTree(np.asarray(world.truth.samples.points, np.float64))  # built once, not per map
-        self.points = np.zeros((0, 3))
-        self.sample = np.zeros(0, np.int64)
+        self.objects = np.asarray(world.truth.samples.object)
+        self._clear()
+
+    def _clear(self) -> None:
+        self.points, self.instance = np.zeros((0, 3)), np.zeros(0, np.int64)
+        self.shared = np.zeros((0, self.world.truth.num_objects), np.int64)  # per instance id
+        self.present = np.zeros(0, bool)  # per instance id: holds a point
+        self.pairs: set[int] = set()
+        self.on = 0
+        self.last = None  # (label, confidence, Score) of the last call
 
     def score(self, m: MapState) -> Score:
         old = len(self.points)
-        grown = len(m.points) >= old and np.array_equal(m.points[:old], self.points)
-        fresh = m.points[old:] if grown else m.points
-        tied = tie(self.world, fresh, self.tolerance, self.tree) if len(fresh) else np.zeros(0, np.int64)
-        self.sample = np.concatenate([self.sample, tied]) if grown else tied
-        self.points = m.points
-        return score_tied(self.world, self.sample, m.instance, lambda ids: (m.label[ids], m.confidence[ids]))
+        grown = (len(m.points) >= old and np.array_equal(m.points[:old], self.points)
+                 and np.array_equal(m.instance[:old], self.instance))
+        if not grown:
+            self._clear()
+            old = 0
+        elif len(m.points) == old and self.last is not None and np.array_equal(self.last[0], m.label) \
+                and np.array_equal(self.last[1], m.confidence):
+            return self.last[2]
+        self._add(m.points[old:], m.instance[old:])
+        self.points, self.instance = m.points, m.instance
+        ids = np.flatnonzero(self.present)
+        sc = score_instances(self.world, ids, self.shared[ids], lambda i: (m.label[i], m.confidence[i]), self.on,
+                             len(self.points))
+        self.last = (m.label.copy(), m.confidence.copy(), sc)
+        return sc
+
+    def _add(self, points: np.ndarray, instance: np.ndarray) -> None:
+        """Tie new points and count their new (instance, sample) pairs."""
+        if not len(points):
+            return
+        top = int(instance.max()) + 1
+        if top > len(self.present):
+            grow = top - len(self.present)
+            self.present = np.r_[self.present, np.zeros(grow, bool)]
+            self.shared = np.r_[self.shared, np.zeros((grow, self.shared.shape[1]), np.int64)]
+        self.present[instance] = True
+        sample = tie(self.world, points, self.tolerance, self.tree)
+        on = sample >= 0
+        self.on += int(on.sum())
+        n = len(self.objects)
+        fresh = [k for k in np.unique(instance[on] * n + sample[on]).tolist() if k not in self.pairs]
+        self.pairs.update(fresh)
+        fresh = np.asarray(fresh, np.int64)
+        np.add.at(self.shared, (fresh // n, self.objects[fresh % n]), 1)

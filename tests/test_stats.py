@@ -1,0 +1,38 @@
+"""Intervals over seeds and paired tests by seed (rosmeery_jax.scoring.stats), by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rosmeery_jax.scoring import stats
+
+
+def test_the_sign_flip_test_is_exact_on_small_samples():
+    # d = (3, 1, -2): the 8 sign patterns sum to 6, 4, 2, 0, 0, -2, -4, -6; |sum| >= |3 + 1 - 2| = 2 in 6
+    assert stats.paired([0, 0, 0], [3, 1, -2]).p == pytest.approx(6 / 8)
+    assert stats.paired([0, 0, 0], [3, 1, 2]).p == pytest.approx(2 / 8)  # only all + and all - as extreme
+    assert stats.paired([0.5] * 5, [0.6, 0.61, 0.62, 0.63, 0.64]).p == pytest.approx(2 / 2**5)
+    assert stats.paired([1, 2, 3, 4], [1, 2, 3, 4]).p == 1.0  # no difference at all
+
+
+def test_five_seeds_can_never_show_a_difference_and_six_can():
+    assert stats.seeds_needed() == 6
+    far = np.arange(5.0)
+    assert not stats.paired(far, far + 10).significant  # p = 0.0625 however large the gap
+    assert stats.paired(np.arange(6.0), np.arange(6.0) + 10).significant
+
+
+def test_the_interval_holds_the_mean_and_is_reproducible():
+    v = [0.52, 0.61, 0.55, 0.70, 0.49, 0.58, 0.66, 0.53]
+    a, b = stats.interval(v), stats.interval(v)
+    assert a == b and a.low < a.mean < a.high and a.mean == pytest.approx(np.mean(v))
+    assert a.high - a.low < np.ptp(v)
+    assert stats.interval([0.25, 0.25, 0.25]) == (0.25, 0.25, 0.25)  # no spread, no interval
+    wide = stats.interval(np.r_[v, 0.1, 0.95])
+    assert wide.high - wide.low > a.high - a.low  # more spread, a wider interval
+
+
+def test_a_paired_difference_is_signed_b_minus_a():
+    r = stats.paired([0.5, 0.6, 0.55, 0.7, 0.52, 0.5], [0.6, 0.71, 0.65, 0.8, 0.62, 0.58])
+    assert r.diff.mean == pytest.approx(0.09833, abs=1e-4) and r.diff.low > 0 and r.significant and r.seeds == 6
