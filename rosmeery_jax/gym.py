@@ -90,6 +90,8 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             raise ValueError(f"action_mode {config.action_mode!r} is not 'target' or 'velocity'")
         if config.reward not in REWARDS:
             raise ValueError(f"reward {config.reward!r} is not one of {', '.join(REWARDS)}")
+        if not config.duration > 0 or config.decide_every < 1 or num_envs < 1:
+            raise ValueError("duration must be > 0 s, decide_every and num_envs at least 1")
         env_cfg = EnvConfig().with_overrides("gym", **overrides.flatten({**config.env,
                                                                          "action_mode": config.action_mode}))
         self.bank = world_bank(worlds, env_cfg)
