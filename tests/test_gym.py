@@ -40,7 +40,7 @@ def test_gymnasiums_env_checker_passes(env):
 
 def test_observations_are_what_the_robot_perceives_and_episodes_end_at_the_duration(env):
     obs, _ = env.reset(seed=3)
-    assert set(obs) == {"rgb", "depth", "scan", "pose", "occupancy", "time"}  # no ground truth unless asked
+    assert set(obs) == {"rgb", "depth", "scan", "pose", "occupancy", "nav_status", "time"}  # no ground truth
     again, _ = env.reset(seed=3)
     for k in obs:
         np.testing.assert_array_equal(obs[k], again[k])  # the same seed, the same start
