@@ -29,6 +29,8 @@ def test_the_interval_holds_the_mean_and_is_reproducible():
     assert a == b and a.low < a.mean < a.high and a.mean == pytest.approx(np.mean(v))
     assert a.high - a.low < np.ptp(v)
     assert stats.interval([0.25, 0.25, 0.25]) == (0.25, 0.25, 0.25)  # no spread, no interval
+    two = stats.interval([0.2, 0.4])
+    assert two.mean == pytest.approx(0.3) and np.isnan(two.low) and np.isnan(two.high)  # too few seeds
     wide = stats.interval(np.r_[v, 0.1, 0.95])
     assert wide.high - wide.low > a.high - a.low  # more spread, a wider interval
 

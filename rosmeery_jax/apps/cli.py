@@ -184,7 +184,8 @@ def _print_summary(out: Path) -> None:
         final = stats.interval([x["final"] for x in per_seed])
         auc = sum(x["auc"] for x in per_seed) / len(per_seed)
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
-        print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} [{final.low:.3f}, {final.high:.3f}]{auc:>8.3f}{t90:>8.1f}")
+        ci = f"[{final.low:.3f}, {final.high:.3f}]" if final.low == final.low else "[< 3 seeds]"  # NaN: too few
+        print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} {ci:<16}{auc:>8.3f}{t90:>8.1f}")
     if (out / "timing.json").exists():
         t = json.loads((out / "timing.json").read_text())
         print(f"engine: {t['env_steps']:,} env-steps in {t['wall_s']:.1f} s ({t['env_steps_per_s']:,.0f} env-steps/s "

@@ -51,7 +51,9 @@ def interval(values, level: float = LEVEL) -> Interval:
     """The mean of ``values`` (S,) and its bootstrap interval."""
     v = np.asarray(values, float)
     mean = float(v.mean())
-    if len(v) < 3 or np.ptp(v) == 0:
+    if len(v) < 3:
+        return Interval(mean, float("nan"), float("nan"))
+    if np.ptp(v) == 0:
         return Interval(mean, mean, mean)
     res = stats.bootstrap((v,), np.mean, confidence_level=level, n_resamples=RESAMPLES, method="BCa",
                           random_state=np.random.default_rng(0))
