@@ -39,6 +39,7 @@ Shapes: B robots, H x W camera pixels, Hg x Wg occupancy cells, N objects.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import gymnasium
@@ -267,7 +268,7 @@ class Env(gymnasium.Env):
 AGENT = "agent:"  # a session's policy entry naming an Agent plugin
 
 
-class Agent:
+class Agent(ABC):
     """A host-side agent (numpy, PyTorch, anything): give ``name`` (a plain name, its
     results' label) and implement :meth:`act`. Built once per run with the
     :class:`VectorEnv` of its robots (one per seed)."""
@@ -278,10 +279,10 @@ class Agent:
     def __init__(self, env: VectorEnv):
         self.env = env
 
+    @abstractmethod
     def act(self, obs: dict) -> np.ndarray:
         """The B robots' next actions (B, 3) target poses (or (B, 2) velocities) from their
         observations (each (B, ...))."""
-        raise NotImplementedError
 
 
 def agent_class(spec: str, source: str = "config") -> type[Agent]:
@@ -290,7 +291,7 @@ def agent_class(spec: str, source: str = "config") -> type[Agent]:
     if not (isinstance(cls, type) and issubclass(cls, Agent)):
         raise InputError(source, "policies", f"{spec!r} is not an Agent class (subclass rosmeery_jax.gym.Agent "
                          "and implement act)")
-    if cls.act is Agent.act:
+    if getattr(cls.act, "__isabstractmethod__", False):
         raise InputError(source, "policies", f"{spec!r} lacks an act(obs) method")
     if not isinstance(cls.name, str) or cls.name == Agent.name or not plain_name(cls.name):
         raise InputError(source, "policies", f"{spec!r} needs a class attribute name: a plain name that labels "

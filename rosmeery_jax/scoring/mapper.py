@@ -18,6 +18,7 @@ points. Shapes: H x W the detector frame, D detections, V points, I instances.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import NamedTuple
 
 import numpy as np
@@ -90,7 +91,7 @@ class MapState(NamedTuple):
     confidence: np.ndarray
 
 
-class Mapper:
+class Mapper(ABC):
     """The protocol: subclass it, give ``name`` (a plain name: results' ``mapper`` column)
     and implement :meth:`add` and :meth:`semantic_map`. One instance per robot."""
 
@@ -99,13 +100,13 @@ class Mapper:
     def __init__(self, camera: Camera, categories: tuple[str, ...]):
         self.camera, self.categories = camera, categories
 
+    @abstractmethod
     def add(self, frame: Frame) -> None:
         """Fold one detector frame into the map."""
-        raise NotImplementedError
 
+    @abstractmethod
     def semantic_map(self) -> MapState:
         """The map now."""
-        raise NotImplementedError
 
 
 def mapper_class(spec: str, source: str = "config") -> type[Mapper]:
@@ -116,7 +117,7 @@ def mapper_class(spec: str, source: str = "config") -> type[Mapper]:
         raise InputError(source, "mappers", f"plugin {spec!r} is not a Mapper class (subclass rosmeery_jax.Mapper "
                          "and implement add and semantic_map)")
     for method in ("add", "semantic_map"):
-        if getattr(cls, method) is getattr(Mapper, method):
+        if getattr(getattr(cls, method), "__isabstractmethod__", False):
             raise InputError(source, "mappers", f"plugin {spec!r} lacks a {method} method")
     if not isinstance(cls.name, str) or cls.name in ("mapper", *BUILT_IN) or not plain_name(cls.name):
         raise InputError(source, "mappers", f"plugin {spec!r} needs a class attribute name: a plain name, not "

@@ -410,14 +410,6 @@ class Simulation(NamedTuple):
     digests: list | None = None  # per chunk: {part: (B,) digests} (session.digest)
 
 
-class Mapped(NamedTuple):
-    """One env's mapper: its map scored after each frame count of ``Plan.score_at`` (count ->
-    ObjectLog with (N,) fields) and the map at the last of them."""
-
-    logs: dict
-    final: MapState
-
-
 class Keys(NamedTuple):
     """Per env (B,): the reset's, the policies' and the run's keys, all from its seed."""
 
@@ -524,9 +516,10 @@ class Finished(NamedTuple):
 
 
 @dataclass
-class _Online:
-    """One env's mapper in the worker thread: the entry, the mapper, its scorer, and its
-    scored maps so far (frame count -> ObjectLog; the last planned map)."""
+class Mapped:
+    """One env's mapper, fed in the worker thread: the entry, the mapper, its scorer, its
+    maps scored so far (frame count of ``Plan.score_at`` -> ObjectLog with (N,) fields) and
+    the map at the last planned count."""
 
     spec: str
     mapper: Any
@@ -556,12 +549,12 @@ class _Detection:
         out = {}
         for spec in self.plan.mappers:
             cls = PerceivedMapper if spec == "perceived" else mapper_class(spec)
-            out[spec] = _Online(spec, cls(self.camera, env.world.taxonomy.names),
+            out[spec] = Mapped(spec, cls(self.camera, env.world.taxonomy.names),
                                 OnlineScorer(env.world, TOLERANCE))
             self._score(out[spec], 0)
         return out
 
-    def _score(self, online: "_Online", count: int) -> None:
+    def _score(self, online: "Mapped", count: int) -> None:
         """Ask the mapper for its map after ``count`` frames and score it, if planned."""
         if count not in self.plan.score_at:
             return
@@ -642,7 +635,7 @@ def _collect(group: Group, start: Start, state, data, blocks, pose0, done: list[
     mapped = None
     if worker.mappers:
         real = [m for m in worker.mappers if m is not None]
-        mapped = {spec: [Mapped(m[spec].logs, m[spec].final) for m in real] for spec in worker.plan.mappers}
+        mapped = {spec: [m[spec] for m in real] for spec in worker.plan.mappers}
     return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
                       jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, mapped, worker.plan.log_every)
 
