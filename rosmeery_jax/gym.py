@@ -52,7 +52,7 @@ from gymnasium.vector.utils import batch_space
 
 from rosmeery_jax.core import overrides, plugins, xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.env import EnvConfig, Track
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
 from rosmeery_jax.rl.env import REWARDS, score
@@ -84,8 +84,8 @@ class VectorEnv(gymnasium.vector.VectorEnv):
     def __init__(self, worlds: list[str] | str, num_envs: int = 1, config: GymConfig = GymConfig(),
                  log_every: int = 0):
         """``log_every`` > 0 also keeps each robot's object log every ``log_every`` control
-        steps and its pose at every step (``last_logs`` (B, spans, N), ``last_poses``
-        (B, decide_every, 3)), as sessions record them."""
+        steps and its pose and navigation status at every step (``last_logs`` (B, spans, N),
+        ``last_track`` an ``env.Track`` of (B, decide_every, ...)), as sessions record them."""
         worlds = [worlds] if isinstance(worlds, str) else list(worlds)
         if config.action_mode not in ("target", "velocity"):
             raise ValueError(f"action_mode {config.action_mode!r} is not 'target' or 'velocity'")
@@ -157,14 +157,15 @@ class VectorEnv(gymnasium.vector.VectorEnv):
 
         def one(s, _):
             s = env.step(s, action)
-            return s, s.pose
+            return s, Track.of(s)
 
         def span(s, _):  # log_every steps, then the object log (as a session's chunk function)
-            s, poses = jax.lax.scan(one, s, None, length=self.log_every)
-            return s, (env.log(s), poses)
+            s, track = jax.lax.scan(one, s, None, length=self.log_every)
+            return s, (env.log(s), track)
 
-        s, (logs, poses) = jax.lax.scan(span, s, None, length=self.config.decide_every // self.log_every)
-        return s, self._observe(env, s, t), score(env, s, self.config.reward), (logs, poses.reshape(-1, 3))
+        s, (logs, track) = jax.lax.scan(span, s, None, length=self.config.decide_every // self.log_every)
+        track = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), track)
+        return s, self._observe(env, s, t), score(env, s, self.config.reward), (logs, track)
 
     def _observe(self, env, s, t) -> dict:
         obs = {}
@@ -213,7 +214,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         self.state, obs, new, recorded = self._step(jnp.asarray(self.world), self.state, actions,
                                                     jnp.full(self.num_envs, self.t, jnp.int32))
         if recorded is not None:
-            self.last_logs, self.last_poses = recorded
+            self.last_logs, self.last_track = recorded
         reward = np.asarray(new - self._score, np.float64)
         self._score = new
         truncated = np.full(self.num_envs, self.t >= self.horizon)

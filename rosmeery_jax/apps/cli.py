@@ -28,7 +28,7 @@ from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
 from rosmeery_jax.env import make
 from rosmeery_jax.rl import ppo
 from rosmeery_jax.scoring import evaluate as map_eval
-from rosmeery_jax.scoring import metrics, plots, results, stats
+from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
 from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
@@ -186,6 +186,8 @@ def _print_summary(out: Path) -> None:
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
         ci = f"[{final.low:.3f}, {final.high:.3f}]" if final.low == final.low else "[< 3 seeds]"  # NaN: too few
         print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} {ci:<16}{auc:>8.3f}{t90:>8.1f}")
+    if (out / "navigation.csv").exists():
+        print(navigation.summary(pd.read_csv(out / "navigation.csv")))
     if (out / "timing.json").exists():
         t = json.loads((out / "timing.json").read_text())
         print(f"engine: {t['env_steps']:,} env-steps in {t['wall_s']:.1f} s ({t['env_steps_per_s']:,.0f} env-steps/s "

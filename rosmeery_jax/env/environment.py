@@ -53,6 +53,18 @@ class State(NamedTuple):
     knowledge: Knowledge
 
 
+class Track(NamedTuple):
+    """Where the robot was and what its navigator reported at each control step: pose
+    (..., 3) and status (...) int8 (``sim.navigation``'s codes)."""
+
+    pose: jax.Array
+    status: jax.Array
+
+    @staticmethod
+    def of(state: State) -> "Track":
+        return Track(state.pose, state.nav.status.astype(jnp.int8))
+
+
 class Env:
     """The semantic-mapping robot in one world.
 
@@ -76,7 +88,7 @@ class Env:
         self.data = data
         self.platform = Platform(r, self.model.replace(**data.physics), data.spawn[:2], self.near_model)
         self.rays, self.laser_rays, self.grid = data.rays, data.laser_rays, data.grid
-        self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate)
+        self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate, r.radius)
         self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)
 
     def with_data(self, data: WorldData) -> "Env":

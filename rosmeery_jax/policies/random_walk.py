@@ -1,11 +1,12 @@
 """``random``: a random walker on the robot's own map.
 
-A target drawn uniformly over the cells of the robot's map that the map does not show
-occupied (free or still unknown; ``tries`` uniform draws over the map's extent, the first
-that qualifies), with a uniform yaw; a new one whenever the navigator reports the current
-one reached, stuck, unreachable or timed out. It reads nothing of the world beyond the
-map's frame and size: an unknown cell may lie behind a wall, and the navigator then gives
-up on it and the walker draws again.
+A target drawn uniformly over the cells the robot can reach on its own map (the navigator's
+planning cells, free or still unknown, connected to the robot's through cells the map does
+not show blocked; ``Navigator.reachable``), with a uniform yaw; a new one whenever the
+navigator reports the current one reached, stuck, unreachable or timed out. It reads
+nothing of the world beyond its own map: an unknown cell may still turn out to lie behind a
+wall the robot has not seen, and the navigator then gives up on it once the map shows it
+enclosed.
 """
 
 from __future__ import annotations
@@ -20,22 +21,16 @@ from rosmeery_jax.sim import occupancy
 class RandomPolicy(Policy):
     name = "random"
 
-    def __init__(self, env, tries: int = 16):
-        super().__init__(env)
-        self.tries = tries
-
     def init(self, key):
         return jnp.zeros(3, jnp.float32)  # the current target
 
     def decide(self, state, target, key):
         k_cell, k_yaw = jax.random.split(key)
-        geo = self.env.grid
-        u = jax.random.uniform(k_cell, (self.tries, 2))
-        i = jnp.floor(u[:, 0] * geo.extent[0]).astype(jnp.int32)
-        j = jnp.floor(u[:, 1] * geo.extent[1]).astype(jnp.int32)
-        ok = self.env.occupancy(state)[i, j] != occupancy.OCCUPIED
-        pick = jnp.argmax(ok)  # the first that qualifies (the first draw if none does)
-        xy = geo.center(i[pick], j[pick])
+        nav = self.env.navigator
+        reach = nav.reachable(state.nav, state.pose, self.env.occupancy(state) == occupancy.OCCUPIED)  # (Hc, Wc)
+        # Uniform over the reachable cells (never empty: the robot's own cell is one).
+        cell = jax.random.categorical(k_cell, jnp.where(reach.reshape(-1), 0.0, -jnp.inf))
+        xy = nav.coarse.center(cell // reach.shape[1], cell % reach.shape[1])
         fresh = jnp.concatenate([xy, jax.random.uniform(k_yaw, (1,), minval=-jnp.pi, maxval=jnp.pi)])
         target = jnp.where(needs_target(state), fresh, target)
         return target, target

@@ -18,6 +18,7 @@ import numpy as np
 
 from rosmeery_jax.core import interrupt
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.env import Track
 from rosmeery_jax.gym import AGENT, GymConfig, VectorEnv, agent_class
 from rosmeery_jax.session.config import SessionConfig, decisions, log_every
 from rosmeery_jax.session.outputs import RunResult
@@ -31,17 +32,18 @@ def run_agent(cfg: SessionConfig, world: str, spec: str, bar) -> tuple[RunResult
                     log_every(cfg))
     agent = cls(vec)
     obs, _ = vec.reset(seed=0)  # robot k is seed k, as in the engine
-    logs, poses = [jax.tree.map(lambda a: np.asarray(a)[:, None], vec.log())], [vec.poses()[:, None]]
+    logs = [jax.tree.map(lambda a: np.asarray(a)[:, None], vec.log())]
+    track = [jax.tree.map(lambda a: np.asarray(a)[:, None], Track.of(vec.state))]
     t1 = None
     for k in range(decisions(cfg)):
         interrupt.check()
         obs, *_ = vec.step(_checked(spec, agent.act(obs), vec))
         logs.append(jax.tree.map(np.asarray, vec.last_logs))
-        poses.append(np.asarray(vec.last_poses))
+        track.append(jax.tree.map(np.asarray, vec.last_track))
         bar.update(cfg.decide_every * vec.bank.env.dt)
         t1 = t1 or time.perf_counter()  # the first decision compiled the step
     logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), *logs)
-    result = RunResult(vec.bank.env, agent.name, logs, np.concatenate(poses, axis=1),
+    result = RunResult(vec.bank.env, agent.name, logs, jax.tree.map(lambda *a: np.concatenate(a, axis=1), *track),
                        jax.tree.map(np.asarray, vec.knowledge()), None, log_every(cfg))
     steps = cfg.seeds * (decisions(cfg) - 1) * cfg.decide_every  # timed: the decisions after the first
     return result, {"envs": cfg.seeds, "env_steps": steps, "sim_s": time.perf_counter() - t1,

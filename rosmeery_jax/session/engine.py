@@ -50,7 +50,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from rosmeery_jax.core import interrupt, xla
 from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.detector.detections import pad
-from rosmeery_jax.env import Env, EnvConfig, world_bank
+from rosmeery_jax.env import Env, EnvConfig, Track, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
 from rosmeery_jax.scoring.evaluate import TOLERANCE
@@ -290,13 +290,13 @@ class Frames(NamedTuple):
 
 class Chunk(NamedTuple):
     """One call of the chunk function, per env: the state, policy states and key after it,
-    logs (per_call * spans, N), poses (per_call * decide_every, 3), frames or None."""
+    logs (per_call * spans, N), track (per_call * decide_every, ...), frames or None."""
 
     state: Any
     pstates: tuple
     key: jax.Array
     logs: ObjectLog
-    poses: jax.Array
+    track: Track
     frames: Frames | None
 
 
@@ -313,10 +313,11 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
         if capture:
             state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
         decide = _decision(env, policies, block[0], plan, capture)
-        (state, pstates, key), ((logs, poses), frames) = jax.lax.scan(decide, (state, pstates, key), None,
+        (state, pstates, key), ((logs, track), frames) = jax.lax.scan(decide, (state, pstates, key), None,
                                                                       length=plan.per_call)
         logs = jax.tree.map(lambda a: a.reshape(plan.per_call * plan.spans, *a.shape[2:]), logs)
-        return Chunk(state, pstates, key, logs, poses.reshape(plan.per_call * plan.decide_every, 3), frames)
+        track = jax.tree.map(lambda a: a.reshape(plan.per_call * plan.decide_every, *a.shape[3:]), track)
+        return Chunk(state, pstates, key, logs, track, frames)
 
     return blocked(one, group.devices)
 
@@ -335,7 +336,7 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
 
     def step(s, a, action):
         s = env.step(s, a if per_step else action)
-        return s, s.pose
+        return s, Track.of(s)
 
     def decide(carry, _):
         s, pss, k = carry
@@ -347,8 +348,8 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
 
         def span(s, a):  # log_every steps, then the log: the per-object log took 7 % of a
             # paper session's step when taken every step, and metrics are written every sample_s
-            s, poses = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
-            return s, (env.log(s), poses)
+            s, track = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
+            return s, (env.log(s), track)
 
         actions = jax.tree.map(lambda a: a.reshape(plan.spans, plan.log_every, *a.shape[1:]), action) \
             if per_step else None
@@ -397,12 +398,12 @@ class Compiled(NamedTuple):
 
 class Simulation(NamedTuple):
     """A group's results, real envs only, in row order. logs: ObjectLog (B, T / log_every +
-    1, N), at steps 0, log_every, 2 log_every, ...; poses (B, T + 1, 3) at every step;
+    1, N), at steps 0, log_every, 2 log_every, ...; track (B, T + 1, ...) at every step;
     knowledge: the final labelled knowledge (batched); timing; mapped: per mapper entry, one
     :class:`Mapped` per env."""
 
     logs: ObjectLog
-    poses: np.ndarray
+    track: Track
     knowledge: Any
     timing: dict
     mapped: dict | None = None
@@ -451,9 +452,9 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     xla_before = dict(CompileClock._counts)
     with clock:
         start = _start(group, plan, capture, data, blocks, keys, empty)
-    pose0 = np.asarray(start.state.pose)
+    track0 = jax.tree.map(np.asarray, Track.of(start.state))
     for run in group.runs:
-        run.host_policy.check_start(pose0[run.rows])
+        run.host_policy.check_start(track0.pose[run.rows])
     worker = _Detection(group, plan, detectors, start, data, blocks, bar)
     state, pstates, key, jobs, wait_s, digests = start.state, start.pstates, keys.run, [], 0.0, []
     try:
@@ -468,7 +469,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
                     wait_s += time.perf_counter() - t1
                 out = start.chunk(data, blocks, state, pstates, key, pending)
                 state, pstates, key = out.state, out.pstates, out.key
-                jobs.append(worker.submit(c, out.logs, out.poses, out.frames))
+                jobs.append(worker.submit(c, out.logs, out.track, out.frames))
                 if plan.digest:  # waits for the chunk: a debugging aid, not for timed runs
                     digests.append(digest.of_state(state))
     except BaseException:  # Ctrl-C or an error: queued detections are dropped, not waited for
@@ -485,7 +486,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     if plan.digest:
         for part, d in zip(digests, done):
             part["detections"] = digest.rows(d.dets) if d.dets is not None else [""] * group.size
-    return _collect(group, start, state, data, blocks, pose0, done, worker, timing)._replace(
+    return _collect(group, start, state, data, blocks, track0, done, worker, timing)._replace(
         digests=[{k: [v[r] for r in np.flatnonzero(group.real)] for k, v in part.items()} for part in digests]
         if plan.digest else None)
 
@@ -507,11 +508,11 @@ def _start(group: Group, plan: Plan, capture: bool, data, blocks, keys: Keys, em
 
 
 class Finished(NamedTuple):
-    """Chunk c on the host: logs (B, n, N) with the label fields rebuilt, poses (B, steps, 3),
+    """Chunk c on the host: logs (B, n, N) with the label fields rebuilt, track (B, steps, ...),
     detections (obj, label, conf (B, F, D), box (B, F, D, 4)) or None."""
 
     logs: ObjectLog
-    poses: np.ndarray
+    track: Track
     dets: tuple | None
 
 
@@ -565,15 +566,15 @@ class _Detection:
         if count == max(self.plan.score_at):
             online.final = m
 
-    def submit(self, c: int, logs, poses, frames) -> Future:
-        return self.pool.submit(self._finish, c, logs, poses, frames)
+    def submit(self, c: int, logs, track, frames) -> Future:
+        return self.pool.submit(self._finish, c, logs, track, frames)
 
     def close(self) -> None:
         self.pool.shutdown()
 
-    def _finish(self, c: int, logs, poses, frames) -> Finished:
+    def _finish(self, c: int, logs, track, frames) -> Finished:
         """Chunk c: fetch it, detect its frames, rebuild the log's label fields."""
-        logs, poses = jax.tree.map(np.asarray, logs), np.asarray(poses)
+        logs, track = jax.tree.map(np.asarray, logs), jax.tree.map(np.asarray, track)
         dets, plan = None, self.plan
         if self.detectors is not None:
             t0 = time.perf_counter()
@@ -581,14 +582,14 @@ class _Detection:
             logs = self._relabel(c, logs, dets)
             t1 = time.perf_counter()
             if self.mappers:
-                self._feed(c * plan.per_call, poses, frames, dets)
+                self._feed(c * plan.per_call, track.pose, frames, dets)
             self.timing["detector_s"] += t1 - t0  # this thread alone writes them; read after close()
             self.timing["mapper_s"] += time.perf_counter() - t1
             self.timing["frames"] += int(self.group.real.sum()) * plan.per_call
         self.bar.update(plan.per_call * plan.decide_every * self.group.env.dt)
         done_steps = int(self.group.real.sum()) * (c + 1) * plan.per_call * plan.decide_every
         self.bar.set_postfix_str(f"{done_steps / (time.perf_counter() - self.started):,.0f} env-steps/s")
-        return Finished(logs, poses, dets)
+        return Finished(logs, track, dets)
 
     def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
         """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
@@ -620,12 +621,13 @@ class _Detection:
         return _relabel(logs, per_frame, self.plan.decide_every, self.plan.log_every)
 
 
-def _collect(group: Group, start: Start, state, data, blocks, pose0, done: list[Finished], worker: _Detection,
+def _collect(group: Group, start: Start, state, data, blocks, track0, done: list[Finished], worker: _Detection,
              timing: dict) -> Simulation:
-    """The group's logs, poses and final knowledge, real envs only, in row order."""
+    """The group's logs, track and final knowledge, real envs only, in row order."""
     first = jax.tree.map(lambda a: np.asarray(a)[:, None], start.first_log)
     logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d.logs for d in done])
-    poses = np.concatenate([pose0[:, None]] + [d.poses for d in done], axis=1)
+    track = jax.tree.map(lambda *a: np.concatenate(a, axis=1), jax.tree.map(lambda a: a[:, None], track0),
+                         *[d.track for d in done])
     knowledge = start.fns.knowledge(data, blocks, state)
     if worker.detectors is not None:
         lab = worker.labels
@@ -636,7 +638,7 @@ def _collect(group: Group, start: Start, state, data, blocks, pose0, done: list[
     if worker.mappers:
         real = [m for m in worker.mappers if m is not None]
         mapped = {spec: [m[spec] for m in real] for spec in worker.plan.mappers}
-    return Simulation(jax.tree.map(lambda a: a[keep], logs), poses[keep],
+    return Simulation(jax.tree.map(lambda a: a[keep], logs), jax.tree.map(lambda a: a[keep], track),
                       jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, mapped, worker.plan.log_every)
 
 

@@ -5,8 +5,11 @@
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end (mapper "oracle";
         ``__seed<k>__<mapper>`` for another mapper's, e.g. ``perceived``: rosmeery_jax.scoring.mapper)
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
+    OUT/runs/<world>__<policy>.navigation.csv where each seed's time went (scoring.navigation;
+        runs in target mode: the navigator drives)
     OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
-    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv   all finished runs, merged once at the end
+    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv, OUT/navigation.csv   all finished
+        runs, merged once at the end
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
     OUT/timing.json                           compile (``compiles``), simulation, detector and wall times
 
@@ -25,7 +28,8 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.scoring import metrics, plots, results
+from rosmeery_jax.env import Track
+from rosmeery_jax.scoring import metrics, navigation, plots, results
 from rosmeery_jax.scoring.mapper import mapper_label
 from rosmeery_jax.scoring.semantic_map import build_map, write_map, write_semantic_map
 from rosmeery_jax.session.config import SessionConfig, frames_before, run_label, sampled_rows
@@ -39,14 +43,14 @@ def run_name(world: str, policy: str) -> str:
 
 class RunResult(NamedTuple):
     """One run's simulation, per seed (S, in seed order): env (its world's); policy, the
-    results' label; logs ObjectLog (S, T, N) one row every ``log_every`` steps; poses
-    (S, steps + 1, 3); knowledge: the final labelled knowledge (S, ...); mapped: per mapper
+    results' label; logs ObjectLog (S, T, N) one row every ``log_every`` steps; track
+    (S, steps + 1, ...) pose and navigation status at every step; knowledge: the final labelled knowledge (S, ...); mapped: per mapper
     entry, one ``engine.Mapped`` per seed (None without mappers)."""
 
     env: Any
     policy: str
     logs: ObjectLog
-    poses: np.ndarray
+    track: Track
     knowledge: Any
     mapped: dict | None
     log_every: int
@@ -60,7 +64,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     world = env.world
     n, s = world.truth.num_objects, len(world.truth.samples.object)
     logs = jax.tree.map(lambda a: a[..., :n], run.logs)
-    poses = run.poses
+    poses = run.track.pose
     step = np.arange(logs.ps.shape[1]) * run.log_every  # each log row's step
     times = step * env.dt
     keep = sampled_rows(cfg)
@@ -99,6 +103,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         {**timing, "note": "simulated in one batch with the other runs of its group: the times are the group's"},
         indent=2))
     results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
+    if env.config.action_mode == "target":
+        results.write_csv(navigation.frame(run.track.status, poses, env.dt, world=world.name, policy=policy),
+                          runs / f"{name}.navigation.csv")
     if run.digests is not None:
         results.write_csv(run.digests, runs / f"{name}.digest.csv")
     results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
@@ -118,7 +125,8 @@ def merge(out: Path) -> None:
         return
     df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
     results.write_csv(df, out / "metrics.csv")
-    for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv")):
+    for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv"),
+                           (".navigation.csv", "navigation.csv")):
         parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
         parts = [pd.read_csv(p) for p in parts if p.exists()]
         if parts:

@@ -131,7 +131,7 @@ def _result(group, run, sim) -> RunResult:
         digests = pd.DataFrame([{"seed": seed, "chunk": c, "time_s": round((c + 1) * span * env.dt, 6),
                                  **{k: v[r] for k, v in part.items()}}
                                 for seed, r in enumerate(rows) for c, part in enumerate(sim.digests)])
-    return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), sim.poses[rows],
+    return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), pick(sim.track),
                      pick(sim.knowledge), mapped, sim.log_every, digests)
 
 

@@ -42,6 +42,48 @@ def grow(mask: jax.Array, diagonal: bool = True) -> jax.Array:
     return rows[:, :-2] | rows[:, 1:-1] | rows[:, 2:]
 
 
+def spread(reached: jax.Array, open_: jax.Array, passes: int) -> jax.Array:
+    """(H, W) bool: ``reached`` grown through ``open_`` cells (8-neighbourhood) by ``passes``
+    passes. A pass fills every row run and then every column run of open cells that holds a
+    reached cell, then steps one cell in any direction: a pass crosses the grid along a line,
+    so a path with k turns is found in about k passes (a cell-by-cell wave would need one
+    pass per cell of its length)."""
+
+    def one(m, _):
+        for axis in (1, 0):
+            m = _fill_runs(m, open_, axis)
+        return grow(m) & open_, None
+
+    m, _ = jax.lax.scan(one, reached & open_, None, length=passes)
+    return m
+
+
+def connected(reached: jax.Array, open_: jax.Array) -> jax.Array:
+    """(H, W) bool: the open cells connected to ``reached`` (8-neighbourhood), to the fixpoint."""
+
+    def more(c):
+        return c[1]
+
+    def once(c):
+        m = spread(c[0], open_, 1)
+        return m, jnp.any(m != c[0])
+
+    return jax.lax.while_loop(more, once, (reached & open_, jnp.bool_(True)))[0]
+
+
+def _fill_runs(m: jax.Array, open_: jax.Array, axis: int) -> jax.Array:
+    """Every run of open cells along ``axis`` that holds a cell of ``m``, filled. A run's id
+    is the count of closed cells before it, so a running max of (2 id + reached) equals
+    2 id + 1 exactly where the run holds a reached cell so far (both directions)."""
+    closed = (~open_).astype(jnp.int32)
+    hit = m.astype(jnp.int32)
+    out = jnp.zeros_like(m)
+    for reverse in (False, True):
+        run = jax.lax.cumsum(closed, axis, reverse=reverse)
+        out = out | (jax.lax.cummax(2 * run + hit, axis, reverse=reverse) == 2 * run + 1)
+    return out & open_
+
+
 def wrap_angle(a):
     """Angles wrapped into [-pi, pi) (numpy or jax)."""
     return (a + np.pi) % (2 * np.pi) - np.pi

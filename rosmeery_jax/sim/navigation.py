@@ -1,4 +1,5 @@
-"""Drive to a target pose on the robot's own map: a wavefront planner and a local controller.
+"""Drive to a target pose on the robot's own map: a wavefront planner, a local controller
+and recovery, in the manner of move_base / Nav2.
 
 Planner: a cost-to-go field on a coarse grid (``plan_resolution``) over the robot's own
 occupancy map, where unknown counts as traversable, occupied cells grown by one coarse cell
@@ -7,12 +8,25 @@ every control step (``sweeps``) instead of being solved from scratch: the wave o
 robot, costs rise again where new obstacles appear, and every env does the same fixed work,
 so the whole thing vmaps with no data-dependent loop.
 
+Reachability: the open cells connected to the robot (``NavState.reach``), grown by one pass
+of :func:`grid.spread` per step and restarted from the robot every ``reach_cycle`` seconds;
+each finished flood replaces the last. A target outside it is enclosed on the map the flood
+ran over (and so on every later map, which only gains obstacles) and is declared
+UNREACHABLE at once, not after the wave has had time to cross the world.
+
 Controller: head for the lowest cost-to-go on a ring around the robot, slow down for sharp
 turns, and at the target position turn to the target yaw.
 
-Status, reported in the state so policies can react: MOVING, REACHED, STUCK (no progress
-for ``stuck_time``), UNREACHABLE (target blocked, or no path once the wave had time to
-arrive), TIMEOUT (``timeout`` seconds without reaching). IDLE before any target.
+Recovery: no progress for ``stuck_time`` (away from the goal) starts a recovery
+(RECOVERING): the planning cell just ahead of the robot is marked blocked (``bumps``, kept
+for the rest of the run: what a bumper reports, for obstacles the laser's plane misses, such
+as chair feet and seats), then the robot backs off (``backoff_time`` at ``backoff_speed``), turns towards the new plan (at most
+``turn_time``) and drives on. After ``recoveries`` of them without reaching the target the
+navigator gives up: STUCK.
+
+Status, reported in the state so policies can react: MOVING, RECOVERING, REACHED, STUCK,
+UNREACHABLE (target blocked or enclosed, or no path once the wave had time to arrive),
+TIMEOUT (``timeout`` seconds without reaching). IDLE before any target.
 """
 
 from __future__ import annotations
@@ -27,8 +41,8 @@ import numpy as np
 from rosmeery_jax.sim import grid
 from rosmeery_jax.sim.occupancy import GridGeometry
 
-IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT = range(6)
-STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout")
+IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT, RECOVERING = range(7)
+STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout", "recovering")
 BIG = 1e6
 
 
@@ -41,14 +55,23 @@ class NavConfig:
     yaw_tolerance: float = 0.15
     near_cost: float = 4.0
     k_turn: float = 2.5
-    stuck_time: float = 4.0
+    stuck_time: float = 3.0
     stuck_progress: float = 0.15
     timeout: float = 60.0
+    recoveries: int = 2  # back-off-and-turn attempts per target before STUCK
+    backoff_time: float = 0.8
+    backoff_speed: float = 0.5  # at 0.25 m/s the velocity servo's force cap cannot break a wedged contact
+    turn_time: float = 2.0
+    reach_cycle: float = 4.0  # seconds between fresh reachability floods (one pass per step)
 
 
 class NavState(NamedTuple):
     """Per env. target (3,); field (Hc, Wc) cost-to-go in coarse cells; status int32;
-    elapsed / since_progress int32 control steps; best float32 best cost-to-go so far."""
+    elapsed / since_progress int32 control steps; best float32 best cost-to-go so far;
+    recovery int32 steps into the current recovery; tries int32 recoveries for this
+    target; reach (Hc, Wc) bool the last finished reachability flood, flood (Hc, Wc) bool
+    the one growing, flood_age int32 its steps; bumps (Hc, Wc) bool cells found blocked by
+    driving into them."""
 
     target: jax.Array
     field: jax.Array
@@ -56,19 +79,29 @@ class NavState(NamedTuple):
     elapsed: jax.Array
     since_progress: jax.Array
     best: jax.Array
+    recovery: jax.Array
+    tries: jax.Array
+    reach: jax.Array
+    flood: jax.Array
+    flood_age: jax.Array
+    bumps: jax.Array
 
 
 class Navigator:
     """Pure functions over :class:`NavState`; vmap over envs."""
 
-    def __init__(self, geo: GridGeometry, cfg: NavConfig, control_dt: float, max_speed: float, max_turn: float):
-        self.geo, self.cfg = geo, cfg
+    def __init__(self, geo: GridGeometry, cfg: NavConfig, control_dt: float, max_speed: float, max_turn: float,
+                 robot_radius: float):
+        self.geo, self.cfg, self.robot_radius = geo, cfg, robot_radius
         self.factor = max(1, int(round(cfg.plan_resolution / geo.resolution)))
         self.coarse = geo.coarse(self.factor)
         self.coarse_shape = self.coarse.shape
         self.dt, self.vmax, self.wmax = control_dt, max_speed, max_turn
         self.stuck_steps = int(round(cfg.stuck_time / control_dt))
         self.timeout_steps = int(round(cfg.timeout / control_dt))
+        self.backoff_steps = int(round(cfg.backoff_time / control_dt))
+        self.recovery_steps = self.backoff_steps + int(round(cfg.turn_time / control_dt))
+        self.cycle_steps = max(1, int(round(cfg.reach_cycle / control_dt)))
         # Steps for the wave to cross the world's grid: only then is "no path" believed.
         self.settle_steps = -(-jnp.sum(self.coarse.extent) // cfg.sweeps) + 2
         ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
@@ -76,14 +109,45 @@ class Navigator:
 
     def init(self) -> NavState:
         z = jnp.int32(0)
+        everywhere = self.coarse.inside()  # before the first flood ends, nothing is known enclosed
         return NavState(jnp.zeros(3, jnp.float32), jnp.full(self.coarse_shape, BIG, jnp.float32),
-                        jnp.int32(IDLE), z, z, jnp.float32(BIG))
+                        jnp.int32(IDLE), z, z, jnp.float32(BIG), z, z, everywhere, jnp.zeros_like(everywhere), z,
+                        jnp.zeros_like(everywhere))
 
     def set_target(self, nav: NavState, target: jax.Array, new: jax.Array) -> NavState:
         """Start driving to ``target`` (3,) when ``new`` (bool) is set; else keep going."""
-        fresh = NavState(target.astype(jnp.float32), jnp.full(self.coarse_shape, BIG, jnp.float32),
-                         jnp.int32(MOVING), jnp.int32(0), jnp.int32(0), jnp.float32(BIG))
+        z = jnp.int32(0)
+        fresh = nav._replace(target=target.astype(jnp.float32), field=jnp.full(self.coarse_shape, BIG, jnp.float32),
+                             status=jnp.int32(MOVING), elapsed=z, since_progress=z, best=jnp.float32(BIG),
+                             recovery=z, tries=z)
         return jax.tree.map(lambda a, b: jnp.where(new, a, b), fresh, nav)
+
+    def open_cells(self, pose: jax.Array, occupied: jax.Array, bumps: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Coarse (open bool (Hc, Wc), step cost float32) for the robot at ``pose`` on the
+        fine occupied map (H, W) bool and its ``bumps`` (Hc, Wc): open = inside the world and
+        neither blocked nor bumped, the robot's own cell always open (it may hug a wall)."""
+        blocked, cost = self.costs(occupied)
+        blocked = blocked | bumps
+        ri, rj = self.coarse.cell(pose[:2])
+        open_ = (~blocked & self.coarse.inside()).at[ri, rj].set(True)
+        return open_, cost
+
+    def reachable(self, nav: NavState, pose: jax.Array, occupied: jax.Array) -> jax.Array:
+        """(Hc, Wc) bool: the open cells connected to the robot at ``pose`` on this map."""
+        open_, _ = self.open_cells(pose, occupied, nav.bumps)
+        return grid.connected(self._here(pose), open_)
+
+    def _here(self, pose: jax.Array) -> jax.Array:
+        ri, rj = self.coarse.cell(pose[:2])
+        return jnp.zeros(self.coarse_shape, bool).at[ri, rj].set(True)
+
+    def _flood(self, nav: NavState, pose: jax.Array, open_: jax.Array) -> NavState:
+        """One step of the reachability flood; every ``cycle_steps`` the finished flood
+        becomes ``reach`` and a new one starts from the robot."""
+        flood = grid.spread(nav.flood | self._here(pose), open_, 1)
+        done = nav.flood_age + 1 >= self.cycle_steps
+        return nav._replace(reach=jnp.where(done, flood, nav.reach), flood=jnp.where(done, False, flood),
+                            flood_age=jnp.where(done, 0, nav.flood_age + 1))
 
     def costs(self, occupied: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Coarse (blocked bool, step cost float32) from the fine occupied map (H, W) bool."""
@@ -116,13 +180,12 @@ class Navigator:
     def step(self, nav: NavState, pose: jax.Array, occupied: jax.Array) -> tuple[NavState, jax.Array]:
         """One control step: refine the plan, pick (v, w), update status. Returns (nav, cmd)."""
         cfg = self.cfg
-        blocked, cost = self.costs(occupied)
+        open_, cost = self.open_cells(pose, occupied, nav.bumps)
+        nav = self._flood(nav, pose, open_)
         goal_ij = self.coarse.cell(nav.target[:2])
-        # The robot's own cell is never treated as blocked (it may hug a wall).
         ri, rj = self.coarse.cell(pose[:2])
-        blocked = blocked.at[ri, rj].set(False)
-        target_blocked = blocked[goal_ij]
-        field = self.sweep(nav.field, blocked, cost, goal_ij)
+        enclosed = ~open_[goal_ij] | ~nav.reach[goal_ij]
+        field = self.sweep(nav.field, ~open_, cost, goal_ij)
 
         to_goal = nav.target[:2] - pose[:2]
         dist = jnp.linalg.norm(to_goal)
@@ -138,7 +201,7 @@ class Navigator:
         w = jnp.clip(cfg.k_turn * yaw_err, -self.wmax, self.wmax)
         v = jnp.where(at_goal, 0.0, self.vmax * jnp.clip(jnp.cos(yaw_err), 0.0, 1.0) ** 2 * jnp.clip(dist / 0.5, 0.3, 1.0))
 
-        moving = nav.status == MOVING
+        active = (nav.status == MOVING) | (nav.status == RECOVERING)
         progress = here * self.coarse.resolution < nav.best - cfg.stuck_progress
         best = jnp.where(progress, here * self.coarse.resolution, nav.best)
         # Before the wave reaches the robot there is nothing to make progress on.
@@ -146,13 +209,37 @@ class Navigator:
         elapsed = nav.elapsed + 1
         reached = at_goal & (jnp.abs(yaw_err) < cfg.yaw_tolerance)
         no_path = (here >= BIG) & (elapsed > self.settle_steps)
+        recovering = nav.status == RECOVERING
+        recovery = jnp.where(recovering, nav.recovery + 1, 0)
+        # A recovery ends after its steps, or once turned towards the plan after backing off.
+        recovered = recovering & ((recovery >= self.recovery_steps)
+                                  | ((recovery > self.backoff_steps) & (jnp.abs(yaw_err) < cfg.yaw_tolerance)))
+        no_progress = ~recovering & ~at_goal & (since > self.stuck_steps)
+        # Wedged with no open cell around: no plan can start, so back off first.
+        boxed = ~jnp.any(jax.lax.dynamic_slice(jnp.pad(open_, 1), (ri, rj), (3, 3)).at[1, 1].set(False))
+        retry = nav.tries < cfg.recoveries
         status = jnp.select(
-            [~moving, reached, target_blocked | no_path, since > self.stuck_steps, elapsed > self.timeout_steps],
-            [nav.status, REACHED, UNREACHABLE, STUCK, TIMEOUT], MOVING).astype(jnp.int32)
-        cmd = jnp.where(moving & (status == MOVING), jnp.stack([v, w]), 0.0)
+            [~active, reached, recovering & ~recovered, boxed & retry, boxed, enclosed | no_path,
+             elapsed > self.timeout_steps, no_progress & retry, no_progress],
+            [nav.status, REACHED, RECOVERING, RECOVERING, STUCK, UNREACHABLE, TIMEOUT, RECOVERING, STUCK],
+            MOVING).astype(jnp.int32)
+        starts = (status == RECOVERING) & ~recovering
+        tries = nav.tries + starts
+        # A recovery (and the drive after it) measures its progress afresh.
+        since = jnp.where(starts | recovered, 0, since)
+        best = jnp.where(recovered, BIG, best)
+        cmd = jnp.where(status == MOVING, jnp.stack([v, w]), 0.0)
         # Reaching the position may still need the final turn.
-        cmd = jnp.where(moving & at_goal & ~reached, jnp.stack([0.0, w]), cmd)
-        return NavState(nav.target, field, status, elapsed, since, best), cmd
+        cmd = jnp.where((status == MOVING) & at_goal & ~reached, jnp.stack([0.0, w]), cmd)
+        cmd = jnp.where(status == RECOVERING, self._recover(recovery, w), cmd)
+        ahead = pose[:2] + (self.robot_radius + 0.5 * self.coarse.resolution) * jnp.stack(
+            [jnp.cos(pose[2]), jnp.sin(pose[2])])
+        bumps = nav.bumps.at[self.coarse.cell(ahead)].max(starts)
+        return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=since, best=best,
+                            recovery=jnp.where(status == RECOVERING, recovery, 0), tries=tries, bumps=bumps), cmd
 
-
-
+    def _recover(self, recovery: jax.Array, w: jax.Array) -> jax.Array:
+        """(v, w) in a recovery: back straight off, then turn. Backing off is not checked
+        against the map: what wedged the robot is often missing from it, and the physics
+        stops a robot that backs into a wall without harm."""
+        return jnp.where(recovery <= self.backoff_steps, jnp.stack([-self.cfg.backoff_speed, 0.0]), jnp.stack([0.0, w]))
