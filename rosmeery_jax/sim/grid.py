@@ -72,15 +72,16 @@ def connected(reached: jax.Array, open_: jax.Array) -> jax.Array:
 
 
 def _fill_runs(m: jax.Array, open_: jax.Array, axis: int) -> jax.Array:
-    """Every run of open cells along ``axis`` that holds a cell of ``m``, filled. A run's id
-    is the count of closed cells before it, so a running max of (2 id + reached) equals
-    2 id + 1 exactly where the run holds a reached cell so far (both directions)."""
-    closed = (~open_).astype(jnp.int32)
-    hit = m.astype(jnp.int32)
+    """Every run of open cells along ``axis`` that holds a cell of ``m``, filled: a
+    segmented OR-scan each way, restarted at closed cells (``associative_scan``; XLA's CPU
+    cumulative ops are quadratic in the row length, 60x slower here)."""
+
+    def carry(a, b):  # (restart, reached) pairs: b restarts, or inherits a's reach
+        return a[0] | b[0], b[1] | (~b[0] & a[1])
+
     out = jnp.zeros_like(m)
     for reverse in (False, True):
-        run = jax.lax.cumsum(closed, axis, reverse=reverse)
-        out = out | (jax.lax.cummax(2 * run + hit, axis, reverse=reverse) == 2 * run + 1)
+        out = out | jax.lax.associative_scan(carry, (~open_, m & open_), reverse=reverse, axis=axis)[1]
     return out & open_
 
 

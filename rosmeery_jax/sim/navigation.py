@@ -8,16 +8,17 @@ every control step (``sweeps``) instead of being solved from scratch: the wave o
 robot, costs rise again where new obstacles appear, and every env does the same fixed work,
 so the whole thing vmaps with no data-dependent loop.
 
-Reachability: the open cells connected to the robot (``NavState.reach``), grown by one pass
-of :func:`grid.spread` per step and restarted from the robot every ``reach_cycle`` seconds;
-each finished flood replaces the last. A target outside it is enclosed on the map the flood
-ran over (and so on every later map, which only gains obstacles) and is declared
+Reachability: the open cells connected to the robot (``NavState.reach``): a flood from the
+robot grows ``flood_cells`` cells per step; once it stops growing it is complete, replaces
+``reach`` and a new one starts from the robot. A target outside it is enclosed on the map
+the flood ran over (and so on later maps, which only gain obstacles) and is declared
 UNREACHABLE at once, not after the wave has had time to cross the world.
 
 Controller: head for the lowest cost-to-go on a ring around the robot, slow down for sharp
 turns, and at the target position turn to the target yaw.
 
-Recovery: no progress for ``stuck_time`` (away from the goal) starts a recovery
+Recovery: no progress for ``stuck_time``, or no motion (within ``still_distance``) for
+``still_time``, away from the goal, starts a recovery
 (RECOVERING): the planning cell just ahead of the robot is marked blocked (``bumps``, kept
 for the rest of the run: what a bumper reports, for obstacles the laser's plane misses, such
 as chair feet and seats), then the robot backs off (``backoff_time`` at ``backoff_speed``), turns towards the new plan (at most
@@ -57,12 +58,14 @@ class NavConfig:
     k_turn: float = 2.5
     stuck_time: float = 3.0
     stuck_progress: float = 0.15
+    still_time: float = 2.0  # driving yet within still_distance of one spot this long: wedged
+    still_distance: float = 0.05
     timeout: float = 60.0
     recoveries: int = 2  # back-off-and-turn attempts per target before STUCK
     backoff_time: float = 0.8
     backoff_speed: float = 0.5  # at 0.25 m/s the velocity servo's force cap cannot break a wedged contact
     turn_time: float = 2.0
-    reach_cycle: float = 4.0  # seconds between fresh reachability floods (one pass per step)
+    flood_cells: int = 2  # cells the reachability flood grows per control step
 
 
 class NavState(NamedTuple):
@@ -70,8 +73,8 @@ class NavState(NamedTuple):
     elapsed / since_progress int32 control steps; best float32 best cost-to-go so far;
     recovery int32 steps into the current recovery; tries int32 recoveries for this
     target; reach (Hc, Wc) bool the last finished reachability flood, flood (Hc, Wc) bool
-    the one growing, flood_age int32 its steps; bumps (Hc, Wc) bool cells found blocked by
-    driving into them."""
+    the one growing; bumps (Hc, Wc) bool cells found blocked by
+    driving into them; anchor (2,) where the robot last moved to, still int32 steps since."""
 
     target: jax.Array
     field: jax.Array
@@ -83,8 +86,9 @@ class NavState(NamedTuple):
     tries: jax.Array
     reach: jax.Array
     flood: jax.Array
-    flood_age: jax.Array
     bumps: jax.Array
+    anchor: jax.Array
+    still: jax.Array
 
 
 class Navigator:
@@ -100,8 +104,8 @@ class Navigator:
         self.stuck_steps = int(round(cfg.stuck_time / control_dt))
         self.timeout_steps = int(round(cfg.timeout / control_dt))
         self.backoff_steps = int(round(cfg.backoff_time / control_dt))
+        self.still_steps = int(round(cfg.still_time / control_dt))
         self.recovery_steps = self.backoff_steps + int(round(cfg.turn_time / control_dt))
-        self.cycle_steps = max(1, int(round(cfg.reach_cycle / control_dt)))
         # Steps for the wave to cross the world's grid: only then is "no path" believed.
         self.settle_steps = -(-jnp.sum(self.coarse.extent) // cfg.sweeps) + 2
         ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
@@ -111,15 +115,15 @@ class Navigator:
         z = jnp.int32(0)
         everywhere = self.coarse.inside()  # before the first flood ends, nothing is known enclosed
         return NavState(jnp.zeros(3, jnp.float32), jnp.full(self.coarse_shape, BIG, jnp.float32),
-                        jnp.int32(IDLE), z, z, jnp.float32(BIG), z, z, everywhere, jnp.zeros_like(everywhere), z,
-                        jnp.zeros_like(everywhere))
+                        jnp.int32(IDLE), z, z, jnp.float32(BIG), z, z, everywhere, jnp.zeros_like(everywhere),
+                        jnp.zeros_like(everywhere), jnp.zeros(2, jnp.float32), z)
 
     def set_target(self, nav: NavState, target: jax.Array, new: jax.Array) -> NavState:
         """Start driving to ``target`` (3,) when ``new`` (bool) is set; else keep going."""
         z = jnp.int32(0)
         fresh = nav._replace(target=target.astype(jnp.float32), field=jnp.full(self.coarse_shape, BIG, jnp.float32),
                              status=jnp.int32(MOVING), elapsed=z, since_progress=z, best=jnp.float32(BIG),
-                             recovery=z, tries=z)
+                             recovery=z, tries=z, still=z)
         return jax.tree.map(lambda a, b: jnp.where(new, a, b), fresh, nav)
 
     def open_cells(self, pose: jax.Array, occupied: jax.Array, bumps: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -142,12 +146,15 @@ class Navigator:
         return jnp.zeros(self.coarse_shape, bool).at[ri, rj].set(True)
 
     def _flood(self, nav: NavState, pose: jax.Array, open_: jax.Array) -> NavState:
-        """One step of the reachability flood; every ``cycle_steps`` the finished flood
-        becomes ``reach`` and a new one starts from the robot."""
-        flood = grid.spread(nav.flood | self._here(pose), open_, 1)
-        done = nav.flood_age + 1 >= self.cycle_steps
-        return nav._replace(reach=jnp.where(done, flood, nav.reach), flood=jnp.where(done, False, flood),
-                            flood_age=jnp.where(done, 0, nav.flood_age + 1))
+        """One step of the reachability flood (plain dilation: a row-and-column pass of
+        ``grid.spread`` costs 16 dilations here); a flood that stopped growing is complete,
+        becomes ``reach``, and a new one starts from the robot."""
+        start = (nav.flood | self._here(pose)) & open_
+        flood = start
+        for _ in range(self.cfg.flood_cells):
+            flood = grid.grow(flood) & open_
+        done = jnp.all(flood == start)
+        return nav._replace(reach=jnp.where(done, flood, nav.reach), flood=jnp.where(done, False, flood))
 
     def costs(self, occupied: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Coarse (blocked bool, step cost float32) from the fine occupied map (H, W) bool."""
@@ -214,7 +221,10 @@ class Navigator:
         # A recovery ends after its steps, or once turned towards the plan after backing off.
         recovered = recovering & ((recovery >= self.recovery_steps)
                                   | ((recovery > self.backoff_steps) & (jnp.abs(yaw_err) < cfg.yaw_tolerance)))
-        no_progress = ~recovering & ~at_goal & (since > self.stuck_steps)
+        moved = jnp.linalg.norm(pose[:2] - nav.anchor) > cfg.still_distance
+        anchor = jnp.where(moved, pose[:2], nav.anchor)
+        still = jnp.where(moved | recovering, 0, nav.still + 1)
+        no_progress = ~recovering & ~at_goal & ((since > self.stuck_steps) | (still > self.still_steps))
         # Wedged with no open cell around: no plan can start, so back off first.
         boxed = ~jnp.any(jax.lax.dynamic_slice(jnp.pad(open_, 1), (ri, rj), (3, 3)).at[1, 1].set(False))
         retry = nav.tries < cfg.recoveries
@@ -227,6 +237,7 @@ class Navigator:
         tries = nav.tries + starts
         # A recovery (and the drive after it) measures its progress afresh.
         since = jnp.where(starts | recovered, 0, since)
+        still = jnp.where(starts | recovered, 0, still)
         best = jnp.where(recovered, BIG, best)
         cmd = jnp.where(status == MOVING, jnp.stack([v, w]), 0.0)
         # Reaching the position may still need the final turn.
@@ -236,7 +247,8 @@ class Navigator:
             [jnp.cos(pose[2]), jnp.sin(pose[2])])
         bumps = nav.bumps.at[self.coarse.cell(ahead)].max(starts)
         return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=since, best=best,
-                            recovery=jnp.where(status == RECOVERING, recovery, 0), tries=tries, bumps=bumps), cmd
+                            recovery=jnp.where(status == RECOVERING, recovery, 0), tries=tries, bumps=bumps,
+                            anchor=anchor, still=still), cmd
 
     def _recover(self, recovery: jax.Array, w: jax.Array) -> jax.Array:
         """(v, w) in a recovery: back straight off, then turn. Backing off is not checked
