@@ -19,7 +19,7 @@ turns, and at the target position turn to the target yaw.
 
 Recovery: no progress for ``stuck_time``, or no motion (within ``still_distance``) for
 ``still_time``, away from the goal, starts a recovery
-(RECOVERING): the planning cell just ahead of the robot is marked blocked (``bumps``, kept
+(RECOVERING): the planning cells across the robot's front are marked blocked (``bumps``, kept
 for the rest of the run: what a bumper reports, for obstacles the laser's plane misses, such
 as chair feet and seats), then the robot backs off (``backoff_time`` at ``backoff_speed``), turns towards the new plan (at most
 ``turn_time``) and drives on. After ``recoveries`` of them without reaching the target the
@@ -130,8 +130,7 @@ class Navigator:
         """Coarse (open bool (Hc, Wc), step cost float32) for the robot at ``pose`` on the
         fine occupied map (H, W) bool and its ``bumps`` (Hc, Wc): open = inside the world and
         neither blocked nor bumped, the robot's own cell always open (it may hug a wall)."""
-        blocked, cost = self.costs(occupied)
-        blocked = blocked | bumps
+        blocked, cost = self.costs(occupied, bumps)
         ri, rj = self.coarse.cell(pose[:2])
         open_ = (~blocked & self.coarse.inside()).at[ri, rj].set(True)
         return open_, cost
@@ -156,9 +155,10 @@ class Navigator:
         done = jnp.all(flood == start)
         return nav._replace(reach=jnp.where(done, flood, nav.reach), flood=jnp.where(done, False, flood))
 
-    def costs(self, occupied: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """Coarse (blocked bool, step cost float32) from the fine occupied map (H, W) bool."""
-        blocked = grid.grow(grid.block_any(occupied, self.factor))
+    def costs(self, occupied: jax.Array, bumps: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Coarse (blocked bool, step cost float32) from the fine occupied map (H, W) bool and
+        the bumped coarse cells (Hc, Wc), grown alike."""
+        blocked = grid.grow(grid.block_any(occupied, self.factor) | bumps)
         near = grid.grow(blocked)
         return blocked, 1.0 + self.cfg.near_cost * near.astype(jnp.float32)
 
@@ -223,7 +223,7 @@ class Navigator:
                                   | ((recovery > self.backoff_steps) & (jnp.abs(yaw_err) < cfg.yaw_tolerance)))
         moved = jnp.linalg.norm(pose[:2] - nav.anchor) > cfg.still_distance
         anchor = jnp.where(moved, pose[:2], nav.anchor)
-        still = jnp.where(moved | recovering, 0, nav.still + 1)
+        still = jnp.where(moved | recovering | (here >= BIG), 0, nav.still + 1)  # not while the wave is coming
         no_progress = ~recovering & ~at_goal & ((since > self.stuck_steps) | (still > self.still_steps))
         # Wedged with no open cell around: no plan can start, so back off first.
         boxed = ~jnp.any(jax.lax.dynamic_slice(jnp.pad(open_, 1), (ri, rj), (3, 3)).at[1, 1].set(False))
@@ -243,12 +243,17 @@ class Navigator:
         # Reaching the position may still need the final turn.
         cmd = jnp.where((status == MOVING) & at_goal & ~reached, jnp.stack([0.0, w]), cmd)
         cmd = jnp.where(status == RECOVERING, self._recover(recovery, w), cmd)
-        ahead = pose[:2] + (self.robot_radius + 0.5 * self.coarse.resolution) * jnp.stack(
-            [jnp.cos(pose[2]), jnp.sin(pose[2])])
-        bumps = nav.bumps.at[self.coarse.cell(ahead)].max(starts)
+        bumps = nav.bumps.at[self.coarse.cell(self._front(pose))].max(starts)
         return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=since, best=best,
                             recovery=jnp.where(status == RECOVERING, recovery, 0), tries=tries, bumps=bumps,
                             anchor=anchor, still=still), cmd
+
+    def _front(self, pose: jax.Array) -> jax.Array:
+        """(3, 2) points just ahead of the robot: in front of its centre and of either side."""
+        c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
+        ahead = pose[:2] + (self.robot_radius + 0.5 * self.coarse.resolution) * jnp.stack([c, s])
+        side = 0.75 * self.robot_radius * jnp.stack([-s, c])
+        return jnp.stack([ahead - side, ahead, ahead + side])
 
     def _recover(self, recovery: jax.Array, w: jax.Array) -> jax.Array:
         """(v, w) in a recovery: back straight off, then turn. Backing off is not checked

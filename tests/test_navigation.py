@@ -1,0 +1,132 @@
+"""Navigation that recovers, targets known enclosed at once, reachable random targets, and
+where a run's time went (navigation.csv)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import ndimage
+
+from conftest import room_xml
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.env import make
+from rosmeery_jax.policies.random_walk import RandomPolicy
+from rosmeery_jax.scoring import navigation
+from rosmeery_jax.sim import grid, occupancy
+from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STATUS_NAMES, STUCK
+from rosmeery_jax.world import load_world
+
+# A kerb 0.15 m high across the robot's way: below the laser's plane (0.3 m), so the robot's
+# map never shows it, but high enough to stop the robot's body.
+KERB = '<body name="kerb" pos="0 0 0"><geom type="box" pos="0 0 0.075" size="0.1 0.35 0.075"/></body>'
+
+
+def _drive(env, state, target, steps):
+    """Hold ``target`` for ``steps`` steps (one env, jitted); the final state and statuses (steps,)."""
+
+    def body(s, _):
+        s = env.step(s, target)
+        return s, s.nav.status
+
+    return jax.jit(lambda s: jax.lax.scan(body, s, None, length=steps))(state)
+
+
+def test_robot_pushed_against_an_unseen_obstacle_backs_off_and_reaches_the_target_behind_it(write_world):
+    world = load_world(str(write_world(room_xml(KERB, {"kerb": "boxes"}, spawn=(-0.35, 0.0, 0.0)))))
+    env = make(world, start_yaw="spawn")
+    target = jnp.array([1.0, 0.0, 0.0])
+    final, status = _drive(env, env.reset(jax.random.PRNGKey(0)), target, 400)
+    status = np.asarray(status)
+    assert RECOVERING in status, [STATUS_NAMES[s] for s in np.unique(status)]
+    first = int(np.argmax(status == RECOVERING))
+    assert STATUS_NAMES[int(final.nav.status)] == "reached", [STATUS_NAMES[s] for s in status[first::20]]
+    assert np.linalg.norm(np.asarray(final.pose[:2]) - [1.0, 0.0]) < env.config.nav.goal_tolerance + 0.02
+    # The kerb is still missing from the map: what routed the robot round it was what it bumped into.
+    assert np.asarray(env.occupancy(final))[env.grid.cell(jnp.zeros(2))] != occupancy.OCCUPIED
+    assert np.asarray(final.nav.bumps).any()
+
+
+def test_target_enclosed_on_the_map_is_unreachable_at_once():
+    # A hand-drawn map: a closed square of occupied cells 1 m across, the robot outside it.
+    env = make("small_office")
+    nav, geo = env.navigator, env.grid
+    occupied = np.zeros(geo.shape, bool)
+    (i0, j0), (i1, j1) = (tuple(int(v) for v in geo.cell(jnp.array(p))) for p in ([1.0, 1.0], [2.0, 2.0]))
+    occupied[i0:i1 + 1, [j0, j1]] = occupied[[i0, i1], j0:j1 + 1] = True
+    occupied = jnp.asarray(occupied)
+    pose = jnp.array([-0.5, 0.0, 0.0])
+    step = jax.jit(lambda s, target, new: nav.step(nav.set_target(s, target, new), pose, occupied))
+    state = nav.init()
+    for _ in range(100):  # no target yet: the reachability flood runs to completion meanwhile
+        state, _ = step(state, jnp.zeros(3), jnp.bool_(False))
+    assert not np.asarray(state.reach)[nav.coarse.cell(jnp.array([1.5, 1.5]))]
+    inside, _ = step(state, jnp.array([1.5, 1.5, 0.0]), jnp.bool_(True))
+    assert STATUS_NAMES[int(inside.status)] == "unreachable"
+    outside, cmd = step(state, jnp.array([0.5, 2.5, 0.0]), jnp.bool_(True))
+    assert STATUS_NAMES[int(outside.status)] == "moving"
+
+
+def test_random_walker_targets_are_reachable_on_its_own_map():
+    env = make("small_office")
+    policy = RandomPolicy(env)
+
+    def one(state, key):
+        target, _ = policy.decide(state, jnp.zeros(3), key)
+        return target
+
+    state = env.reset(jax.random.PRNGKey(3))
+    state, _ = _drive(env, state, jnp.array([1.0, 0.5, 0.0]), 50)  # a map with walls in it
+    targets = np.asarray(jax.jit(jax.vmap(one, in_axes=(None, 0)))(state, jax.random.split(jax.random.PRNGKey(0), 200)))
+    # Reachability by hand: SciPy's connected components of the navigator's open cells.
+    nav = env.navigator
+    open_, _ = nav.open_cells(state.pose, env.occupancy(state) == occupancy.OCCUPIED, state.nav.bumps)
+    labels, _ = ndimage.label(np.asarray(open_), structure=np.ones((3, 3)))
+    here = tuple(int(v) for v in nav.coarse.cell(state.pose[:2]))
+    cells = np.asarray(jnp.stack(nav.coarse.cell(jnp.asarray(targets[:, :2])), -1))
+    assert (labels[cells[:, 0], cells[:, 1]] == labels[here]).all()
+    assert (~np.asarray(open_)).sum() > 0 and len({tuple(c) for c in cells}) > 100  # a real map, spread targets
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(3, 30), st.integers(3, 30), st.floats(0.3, 0.8), st.integers(0, 2**31 - 1))
+def test_flood_is_the_connected_component(h, w, density, seed):
+    rng = np.random.default_rng(seed)
+    open_ = rng.random((h, w)) < density
+    start = np.zeros_like(open_)
+    start[rng.integers(h), rng.integers(w)] = True
+    labels, _ = ndimage.label(open_, structure=np.ones((3, 3)))
+    want = np.isin(labels, labels[start & open_]) & open_ & (labels > 0)
+    np.testing.assert_array_equal(np.asarray(grid.connected(jnp.asarray(start), jnp.asarray(open_))), want)
+    # One pass of spread never claims a cell outside the component.
+    assert not (np.asarray(grid.spread(jnp.asarray(start), jnp.asarray(open_), 1)) & ~want).any()
+
+
+def test_account_by_hand():
+    # 30 steps of 0.1 s: 10 moving 0.2 m each along x, 10 recovering in place, 5 stuck, 5 reached.
+    status = np.array([IDLE] + [MOVING] * 10 + [RECOVERING] * 10 + [STUCK] * 5 + [REACHED] * 5)
+    x = np.concatenate([0.2 * np.arange(11), np.full(20, 2.0)])
+    poses = np.stack([x, np.zeros(31), np.zeros(31)], -1)
+    row = navigation.account(status, poses, 0.1)
+    assert row["moving_s"] == 1.0 and row["recovering_s"] == 1.0 and row["stuck_s"] == 0.5
+    assert row["idle_s"] == 0.5 and row["unreachable_s"] == 0.0 and row["timeout_s"] == 0.0
+    # Driving yet within 0.1 m of one spot: the last moving step and the 10 recovering ones.
+    assert abs(row["longest_stuck_s"] - 1.1) < 1e-9
+    assert row["still_s"] == 0.0  # 3 s: no whole 10 s window
+    still = navigation.account(np.full(201, MOVING), np.zeros((201, 3)), 0.1)
+    assert still["still_s"] == 20.0 and abs(still["longest_stuck_s"] - 20.0) < 1e-9
+
+
+def test_session_names_a_cause_for_every_second(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--worlds", "small_office", "--policies", "random,frontier", "--duration", "6", "--seeds",
+                 "2", "--detector", "off", "--quiet", "--out", str(out)]) == 0
+    df = pd.read_csv(out / "navigation.csv")
+    assert len(df) == 4 and set(df.policy) == {"random", "frontier"}
+    causes = df[[f"{c}_s" for c in navigation.CAUSES]].sum(axis=1)
+    np.testing.assert_allclose(causes, 6.0, atol=1e-9)
+    assert (df.moving_s > 0).all()
+    assert "navigation: moving" in capsys.readouterr().out
