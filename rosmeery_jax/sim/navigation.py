@@ -91,6 +91,17 @@ class NavState(NamedTuple):
     still: jax.Array
 
 
+class Control(NamedTuple):
+    """The controller's output for one step: cmd (2,) (v, w), yaw_err, at_goal and reached
+    (bool), here: the cost-to-go at the robot's cell."""
+
+    cmd: jax.Array
+    yaw_err: jax.Array
+    at_goal: jax.Array
+    reached: jax.Array
+    here: jax.Array
+
+
 class Navigator:
     """Pure functions over :class:`NavState`; vmap over envs."""
 
@@ -190,63 +201,64 @@ class Navigator:
         open_, cost = self.open_cells(pose, occupied, nav.bumps)
         nav = self._flood(nav, pose, open_)
         goal_ij = self.coarse.cell(nav.target[:2])
-        ri, rj = self.coarse.cell(pose[:2])
         enclosed = ~open_[goal_ij] | ~nav.reach[goal_ij]
         field = self.sweep(nav.field, ~open_, cost, goal_ij)
-
-        to_goal = nav.target[:2] - pose[:2]
-        dist = jnp.linalg.norm(to_goal)
-        at_goal = dist < cfg.goal_tolerance
-        # Lowest cost-to-go on the lookahead ring (straight at the goal when it is that close).
-        ring = pose[:2] + self.ring
-        ci, cj = self.coarse.cell(ring)
-        vals = field[ci, cj]
-        aim = jnp.where(dist < cfg.lookahead * 1.5, jnp.arctan2(to_goal[1], to_goal[0]),
-                        jnp.arctan2(self.ring[jnp.argmin(vals), 1], self.ring[jnp.argmin(vals), 0]))
-        here = field[ri, rj]
-        yaw_err = grid.wrap_angle(jnp.where(at_goal, nav.target[2], aim) - pose[2])
-        w = jnp.clip(cfg.k_turn * yaw_err, -self.wmax, self.wmax)
-        v = jnp.where(at_goal, 0.0, self.vmax * jnp.clip(jnp.cos(yaw_err), 0.0, 1.0) ** 2 * jnp.clip(dist / 0.5, 0.3, 1.0))
+        c = self._control(nav, pose, field)
 
         active = (nav.status == MOVING) | (nav.status == RECOVERING)
-        progress = here * self.coarse.resolution < nav.best - cfg.stuck_progress
-        best = jnp.where(progress, here * self.coarse.resolution, nav.best)
-        # Before the wave reaches the robot there is nothing to make progress on.
-        since = jnp.where(progress | (here >= BIG), 0, nav.since_progress + 1)
-        elapsed = nav.elapsed + 1
-        reached = at_goal & (jnp.abs(yaw_err) < cfg.yaw_tolerance)
-        no_path = (here >= BIG) & (elapsed > self.settle_steps)
         recovering = nav.status == RECOVERING
+        progress = c.here * self.coarse.resolution < nav.best - cfg.stuck_progress
+        best = jnp.where(progress, c.here * self.coarse.resolution, nav.best)
+        # Before the wave reaches the robot there is nothing to make progress on.
+        since = jnp.where(progress | (c.here >= BIG), 0, nav.since_progress + 1)
+        moved = jnp.linalg.norm(pose[:2] - nav.anchor) > cfg.still_distance
+        still = jnp.where(moved | recovering | (c.here >= BIG), 0, nav.still + 1)
+        elapsed = nav.elapsed + 1
+        no_path = (c.here >= BIG) & (elapsed > self.settle_steps)
         recovery = jnp.where(recovering, nav.recovery + 1, 0)
         # A recovery ends after its steps, or once turned towards the plan after backing off.
         recovered = recovering & ((recovery >= self.recovery_steps)
-                                  | ((recovery > self.backoff_steps) & (jnp.abs(yaw_err) < cfg.yaw_tolerance)))
-        moved = jnp.linalg.norm(pose[:2] - nav.anchor) > cfg.still_distance
-        anchor = jnp.where(moved, pose[:2], nav.anchor)
-        still = jnp.where(moved | recovering | (here >= BIG), 0, nav.still + 1)  # not while the wave is coming
-        no_progress = ~recovering & ~at_goal & ((since > self.stuck_steps) | (still > self.still_steps))
-        # Wedged with no open cell around: no plan can start, so back off first.
-        boxed = ~jnp.any(jax.lax.dynamic_slice(jnp.pad(open_, 1), (ri, rj), (3, 3)).at[1, 1].set(False))
+                                  | ((recovery > self.backoff_steps) & (jnp.abs(c.yaw_err) < cfg.yaw_tolerance)))
+        no_progress = ~recovering & ~c.at_goal & ((since > self.stuck_steps) | (still > self.still_steps))
+        boxed = self._boxed(open_, pose)
         retry = nav.tries < cfg.recoveries
         status = jnp.select(
-            [~active, reached, recovering & ~recovered, boxed & retry, boxed, enclosed | no_path,
+            [~active, c.reached, recovering & ~recovered, boxed & retry, boxed, enclosed | no_path,
              elapsed > self.timeout_steps, no_progress & retry, no_progress],
             [nav.status, REACHED, RECOVERING, RECOVERING, STUCK, UNREACHABLE, TIMEOUT, RECOVERING, STUCK],
             MOVING).astype(jnp.int32)
         starts = (status == RECOVERING) & ~recovering
-        tries = nav.tries + starts
         # A recovery (and the drive after it) measures its progress afresh.
-        since = jnp.where(starts | recovered, 0, since)
-        still = jnp.where(starts | recovered, 0, still)
-        best = jnp.where(recovered, BIG, best)
-        cmd = jnp.where(status == MOVING, jnp.stack([v, w]), 0.0)
-        # Reaching the position may still need the final turn.
-        cmd = jnp.where((status == MOVING) & at_goal & ~reached, jnp.stack([0.0, w]), cmd)
-        cmd = jnp.where(status == RECOVERING, self._recover(recovery, w), cmd)
-        bumps = nav.bumps.at[self.coarse.cell(self._front(pose))].max(starts)
-        return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=since, best=best,
-                            recovery=jnp.where(status == RECOVERING, recovery, 0), tries=tries, bumps=bumps,
-                            anchor=anchor, still=still), cmd
+        afresh = starts | recovered
+        cmd = jnp.where(status == MOVING, c.cmd, 0.0)
+        cmd = jnp.where(status == RECOVERING, self._recover(recovery, c.cmd[1]), cmd)
+        return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=jnp.where(afresh, 0, since),
+                            best=jnp.where(recovered, BIG, best), recovery=jnp.where(status == RECOVERING, recovery, 0),
+                            tries=nav.tries + starts, bumps=nav.bumps.at[self.coarse.cell(self._front(pose))].max(starts),
+                            anchor=jnp.where(moved, pose[:2], nav.anchor), still=jnp.where(afresh, 0, still)), cmd
+
+    def _control(self, nav: NavState, pose: jax.Array, field: jax.Array) -> "Control":
+        """The local controller: head for the lowest cost-to-go on the lookahead ring
+        (straight at the goal when it is that close), slow for sharp turns, and at the goal
+        position turn to the target yaw."""
+        cfg = self.cfg
+        to_goal = nav.target[:2] - pose[:2]
+        dist = jnp.linalg.norm(to_goal)
+        at_goal = dist < cfg.goal_tolerance
+        ci, cj = self.coarse.cell(pose[:2] + self.ring)
+        best = self.ring[jnp.argmin(field[ci, cj])]
+        aim = jnp.where(dist < cfg.lookahead * 1.5, jnp.arctan2(to_goal[1], to_goal[0]), jnp.arctan2(best[1], best[0]))
+        yaw_err = grid.wrap_angle(jnp.where(at_goal, nav.target[2], aim) - pose[2])
+        w = jnp.clip(cfg.k_turn * yaw_err, -self.wmax, self.wmax)
+        v = jnp.where(at_goal, 0.0, self.vmax * jnp.clip(jnp.cos(yaw_err), 0.0, 1.0) ** 2 * jnp.clip(dist / 0.5, 0.3, 1.0))
+        ri, rj = self.coarse.cell(pose[:2])
+        return Control(jnp.stack([v, w]), yaw_err, at_goal, at_goal & (jnp.abs(yaw_err) < cfg.yaw_tolerance),
+                       field[ri, rj])
+
+    def _boxed(self, open_: jax.Array, pose: jax.Array) -> jax.Array:
+        """Wedged with no open cell around the robot's: no plan can start, so back off first."""
+        ri, rj = self.coarse.cell(pose[:2])
+        return ~jnp.any(jax.lax.dynamic_slice(jnp.pad(open_, 1), (ri, rj), (3, 3)).at[1, 1].set(False))
 
     def _front(self, pose: jax.Array) -> jax.Array:
         """(3, 2) points just ahead of the robot: in front of its centre and of either side."""
