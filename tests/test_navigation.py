@@ -83,7 +83,7 @@ def test_random_walker_targets_are_reachable_on_its_own_map():
     targets = np.asarray(jax.jit(jax.vmap(one, in_axes=(None, 0)))(state, jax.random.split(jax.random.PRNGKey(0), 200)))
     # Reachability by hand: SciPy's connected components of the navigator's open cells.
     nav = env.navigator
-    open_, _ = nav.open_cells(state.pose, env.occupancy(state) == occupancy.OCCUPIED, state.nav.bumps)
+    open_, _ = nav.open_cells(state.nav, state.pose, env.occupancy(state) == occupancy.OCCUPIED)
     labels, _ = ndimage.label(np.asarray(open_), structure=np.ones((3, 3)))
     here = tuple(int(v) for v in nav.coarse.cell(state.pose[:2]))
     cells = np.asarray(jnp.stack(nav.coarse.cell(jnp.asarray(targets[:, :2])), -1))

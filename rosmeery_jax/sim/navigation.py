@@ -74,7 +74,8 @@ class NavState(NamedTuple):
     recovery int32 steps into the current recovery; tries int32 recoveries for this
     target; reach (Hc, Wc) bool the last finished reachability flood, flood (Hc, Wc) bool
     the one growing; bumps (Hc, Wc) bool cells found blocked by
-    driving into them; anchor (2,) where the robot last moved to, still int32 steps since."""
+    driving into them; trail (Hc, Wc) bool cells the robot's centre has been in; anchor (2,)
+    where the robot last moved to, still int32 steps since."""
 
     target: jax.Array
     field: jax.Array
@@ -87,6 +88,7 @@ class NavState(NamedTuple):
     reach: jax.Array
     flood: jax.Array
     bumps: jax.Array
+    trail: jax.Array
     anchor: jax.Array
     still: jax.Array
 
@@ -127,7 +129,7 @@ class Navigator:
         everywhere = self.coarse.inside()  # before the first flood ends, nothing is known enclosed
         return NavState(jnp.zeros(3, jnp.float32), jnp.full(self.coarse_shape, BIG, jnp.float32),
                         jnp.int32(IDLE), z, z, jnp.float32(BIG), z, z, everywhere, jnp.zeros_like(everywhere),
-                        jnp.zeros_like(everywhere), jnp.zeros(2, jnp.float32), z)
+                        jnp.zeros_like(everywhere), jnp.zeros_like(everywhere), jnp.zeros(2, jnp.float32), z)
 
     def set_target(self, nav: NavState, target: jax.Array, new: jax.Array) -> NavState:
         """Start driving to ``target`` (3,) when ``new`` (bool) is set; else keep going."""
@@ -137,18 +139,19 @@ class Navigator:
                              recovery=z, tries=z, still=z)
         return jax.tree.map(lambda a, b: jnp.where(new, a, b), fresh, nav)
 
-    def open_cells(self, pose: jax.Array, occupied: jax.Array, bumps: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def open_cells(self, nav: NavState, pose: jax.Array, occupied: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Coarse (open bool (Hc, Wc), step cost float32) for the robot at ``pose`` on the
-        fine occupied map (H, W) bool and its ``bumps`` (Hc, Wc): open = inside the world and
-        neither blocked nor bumped, the robot's own cell always open (it may hug a wall)."""
-        blocked, cost = self.costs(occupied, bumps)
+        fine occupied map (H, W) bool: open = inside the world and neither blocked nor
+        bumped, or on the robot's trail and its own cell (it got there: growing obstacles
+        by a cell must not wall it in where it has driven)."""
+        blocked, cost = self.costs(occupied, nav.bumps)
         ri, rj = self.coarse.cell(pose[:2])
-        open_ = (~blocked & self.coarse.inside()).at[ri, rj].set(True)
+        open_ = ((~blocked | nav.trail) & self.coarse.inside()).at[ri, rj].set(True)
         return open_, cost
 
     def reachable(self, nav: NavState, pose: jax.Array, occupied: jax.Array) -> jax.Array:
         """(Hc, Wc) bool: the open cells connected to the robot at ``pose`` on this map."""
-        open_, _ = self.open_cells(pose, occupied, nav.bumps)
+        open_, _ = self.open_cells(nav, pose, occupied)
         return grid.connected(self._here(pose), open_)
 
     def _here(self, pose: jax.Array) -> jax.Array:
@@ -198,7 +201,7 @@ class Navigator:
     def step(self, nav: NavState, pose: jax.Array, occupied: jax.Array) -> tuple[NavState, jax.Array]:
         """One control step: refine the plan, pick (v, w), update status. Returns (nav, cmd)."""
         cfg = self.cfg
-        open_, cost = self.open_cells(pose, occupied, nav.bumps)
+        open_, cost = self.open_cells(nav, pose, occupied)
         nav = self._flood(nav, pose, open_)
         goal_ij = self.coarse.cell(nav.target[:2])
         enclosed = ~open_[goal_ij] | ~nav.reach[goal_ij]
@@ -227,15 +230,24 @@ class Navigator:
              elapsed > self.timeout_steps, no_progress & retry, no_progress],
             [nav.status, REACHED, RECOVERING, RECOVERING, STUCK, UNREACHABLE, TIMEOUT, RECOVERING, STUCK],
             MOVING).astype(jnp.int32)
-        starts = (status == RECOVERING) & ~recovering
+        starts = (status == RECOVERING) & (~recovering | recovered)
+        recovery = jnp.where((status == RECOVERING) & ~starts, recovery, 0)
         # A recovery (and the drive after it) measures its progress afresh.
         afresh = starts | recovered
         cmd = jnp.where(status == MOVING, c.cmd, 0.0)
         cmd = jnp.where(status == RECOVERING, self._recover(recovery, c.cmd[1]), cmd)
         return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=jnp.where(afresh, 0, since),
-                            best=jnp.where(recovered, BIG, best), recovery=jnp.where(status == RECOVERING, recovery, 0),
-                            tries=nav.tries + starts, bumps=nav.bumps.at[self.coarse.cell(self._front(pose))].max(starts),
+                            best=jnp.where(recovered, BIG, best), recovery=recovery, tries=nav.tries + starts,
+                            bumps=self._bump(nav.bumps, pose, starts, boxed),
+                            trail=nav.trail.at[self.coarse.cell(pose[:2])].set(True),
                             anchor=jnp.where(moved, pose[:2], nav.anchor), still=jnp.where(afresh, 0, still)), cmd
+
+    def _bump(self, bumps: jax.Array, pose: jax.Array, starts: jax.Array, boxed: jax.Array) -> jax.Array:
+        """The bumped cells after this step: a recovery from no progress marks the cells
+        across the robot's front; one from being boxed in clears them all, as Nav2's first
+        recovery clears its costmap (the robot's own bumps may be what boxed it in)."""
+        bumps = jnp.where(starts & boxed, False, bumps)
+        return bumps.at[self.coarse.cell(self._front(pose))].max(starts & ~boxed)
 
     def _control(self, nav: NavState, pose: jax.Array, field: jax.Array) -> "Control":
         """The local controller: head for the lowest cost-to-go on the lookahead ring
