@@ -19,7 +19,7 @@ if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
 # xdist workers (pyproject: a file per worker at a time) finish together rather than one
 # waiting for the other's last long file. Within a file the order is unchanged.
 SLOWEST_FIRST = ("test_rl", "test_cluster", "test_hardening", "test_engine", "test_session", "test_teleop",
-                 "test_platform", "test_procedural")
+                 "test_platform", "test_procedural", "test_navigation")
 
 
 def pytest_collection_modifyitems(items):
