@@ -42,20 +42,16 @@ def grow(mask: jax.Array, diagonal: bool = True) -> jax.Array:
     return rows[:, :-2] | rows[:, 1:-1] | rows[:, 2:]
 
 
-def spread(reached: jax.Array, open_: jax.Array, passes: int) -> jax.Array:
-    """(H, W) bool: ``reached`` grown through ``open_`` cells (8-neighbourhood) by ``passes``
-    passes. A pass fills every row run and then every column run of open cells that holds a
-    reached cell, then steps one cell in any direction: a pass crosses the grid along a line,
+def spread(reached: jax.Array, open_: jax.Array) -> jax.Array:
+    """(H, W) bool: ``reached`` grown through ``open_`` cells (8-neighbourhood) by one pass.
+    A pass fills every row run and then every column run of open cells that holds a
+    reached cell, then steps one cell in any direction: it crosses the grid along a line,
     so a path with k turns is found in about k passes (a cell-by-cell wave would need one
     pass per cell of its length)."""
-
-    def one(m, _):
-        for axis in (1, 0):
-            m = _fill_runs(m, open_, axis)
-        return grow(m) & open_, None
-
-    m, _ = jax.lax.scan(one, reached & open_, None, length=passes)
-    return m
+    m = reached & open_
+    for axis in (1, 0):
+        m = _fill_runs(m, open_, axis)
+    return grow(m) & open_
 
 
 def connected(reached: jax.Array, open_: jax.Array) -> jax.Array:
@@ -65,7 +61,7 @@ def connected(reached: jax.Array, open_: jax.Array) -> jax.Array:
         return c[1]
 
     def once(c):
-        m = spread(c[0], open_, 1)
+        m = spread(c[0], open_)
         return m, jnp.any(m != c[0])
 
     return jax.lax.while_loop(more, once, (reached & open_, jnp.bool_(True)))[0]
