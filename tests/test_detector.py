@@ -21,7 +21,8 @@ from rosmeery_jax.detector import checkpoint  # noqa: E402
 from rosmeery_jax.detector.dataset import visible_boxes  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, OracleDetector, associate  # noqa: E402
 from rosmeery_jax.detector.evaluate import average_precision, mean_ap  # noqa: E402
-from rosmeery_jax.detector.yolo import YOLOv5, nms  # noqa: E402
+from rosmeery_jax.detector.boxes import nms  # noqa: E402
+from rosmeery_jax.detector.yolo import YOLOv5  # noqa: E402
 from rosmeery_jax.core.errors import InputError  # noqa: E402
 
 # The official yolov5n.pt is not shipped (no downloads at run time): point this variable at
@@ -77,13 +78,13 @@ def test_nano_and_small_have_the_official_layout():
 
 def test_nms_keeps_the_best_of_overlapping_boxes_per_class():
     # decoded rows: cx, cy, w, h, objectness, class probabilities (2 classes)
-    pred = torch.tensor([[[50, 50, 20, 20, 0.9, 0.9, 0.1],
+    pred = np.array([[[50, 50, 20, 20, 0.9, 0.9, 0.1],
                           [52, 50, 20, 20, 0.8, 0.9, 0.1],   # overlaps the first, same class: dropped
                           [52, 50, 20, 20, 0.8, 0.1, 0.9],   # same place, other class: kept
-                          [150, 50, 20, 20, 0.1, 0.9, 0.1]]])  # below the threshold
+                          [150, 50, 20, 20, 0.1, 0.9, 0.1]]], np.float32)  # below the threshold
     out = nms(pred, conf=0.25, iou=0.45)[0]
     assert out.shape == (2, 6)
-    assert torch.allclose(out[:, 4], torch.tensor([0.81, 0.72]))
+    np.testing.assert_allclose(out[:, 4], [0.81, 0.72], rtol=1e-6)
     assert out[:, 5].tolist() == [0.0, 1.0]
 
 

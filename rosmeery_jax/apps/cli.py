@@ -24,6 +24,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector import evaluate as detector_eval
+from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
 from rosmeery_jax.env import make
 from rosmeery_jax.rl import ppo
@@ -166,7 +167,7 @@ def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
-                      detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
+                      detector_runtime=args.detector_runtime, detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
                       digest=args.digest or None)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
@@ -232,6 +233,24 @@ def _cmd_detector_train(args) -> int:
     return 0
 
 
+def _cmd_detector_export(args) -> int:
+    from rosmeery_jax.detector import checkpoint  # torch (the detector extra): only here
+
+    _positive(args, "batch")
+    out = require_new(args.out, kind="file")
+    try:
+        w, h = (int(v) for v in args.size.lower().split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+    except ValueError:
+        raise InputError("--size", "value", f"{args.size!r} is not WxH in whole pixels, e.g. 160x128") from None
+    model = checkpoint.load(Path(args.weights) if args.weights else DEFAULT_WEIGHTS)
+    runtimes.export(model, out, args.batch, h + (-h) % 32, w + (-w) % 32)
+    print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{h + (-h) % 32}x"
+          f"{w + (-w) % 32}")
+    return 0
+
+
 def _positive(args, *names: str) -> None:
     """Whole-number options that must be >= 1 (a seed >= 0); None is unset."""
     for name in names:
@@ -241,10 +260,11 @@ def _positive(args, *names: str) -> None:
 
 
 def _cmd_detector_eval(args) -> int:
-    from rosmeery_jax.detector import checkpoint  # torch (the detector extra): only here
+    from rosmeery_jax.detector.detections import YoloDetector  # torch (the detector extra): only here
 
     weights = Path(args.weights) if args.weights else DEFAULT_WEIGHTS
-    model = checkpoint.load(weights)
+    detector = YoloDetector((), weights, runtime=args.runtime)
+    model = detector.model
     if args.data:
         images, rows, _ = dataset.read(args.data, "val")
         source = f"{args.data} (val)"
@@ -253,15 +273,16 @@ def _cmd_detector_eval(args) -> int:
         images = np.stack([f[3] for f in frames])
         rows = [f[4] for f in frames]
         source = "default dataset, held-out viewpoints (rendered now)"
-    r = detector_eval.evaluate(model, images, rows)
+    r = detector_eval.evaluate(detector.forward(images, **detector_eval.SCORING_NMS), images, rows, model.nc)
     names = model.names
     if args.json:
-        print(json.dumps({"weights": str(weights), "data": source, "images": len(images), "map50": r["map50"],
+        print(json.dumps({"weights": str(weights), "runtime": args.runtime, "data": source, "images": len(images),
+                          "map50": r["map50"],
                           "precision": r["precision"], "recall": r["recall"],
                           "ap50": {names[c]: v for c, v in r["ap"].items()},
                           "instances": {names[c]: v for c, v in r["n_gt"].items()}}, indent=2))
         return 0
-    print(f"weights {weights}\ndata {source}: {len(images)} images")
+    print(f"weights {weights} ({args.runtime})\ndata {source}: {len(images)} images")
     print(f"{'class':<16}{'instances':>10}{'AP@0.5':>8}")
     for c, v in sorted(r["ap"].items(), key=lambda kv: names[kv[0]]):
         print(f"{names[c]:<16}{r['n_gt'][c]:>10}{v:>8.3f}")
@@ -460,6 +481,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--conf-threshold", type=float, metavar="C", help=f"drop detections below C (default "
                    f"{d.conf_threshold:g})")
     p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
+    p.add_argument("--detector-runtime", choices=runtimes.RUNTIMES, help="where YOLO's network runs (default "
+                   f"{d.detector_runtime}; docs/detector.md)")
     p.add_argument("--metrics", metavar="M,N", help=f"active metrics (default: {','.join(d.metrics)})")
     p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (the built-in knowledge, "
                    "ground-truth association), perceived (depth inside detector boxes) and/or your own mapper as "
@@ -527,8 +550,17 @@ def _detector_parser(sub, d: SessionConfig) -> None:
     s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
     s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
     s.add_argument("--data", metavar="DIR", help="a dataset folder (default: render the default held-out split)")
+    s.add_argument("--runtime", default=runtimes.DEFAULT, choices=runtimes.RUNTIMES, help="where the network "
+                   f"runs (default {runtimes.DEFAULT})")
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=_cmd_detector_eval)
+    s = dsub.add_parser("export", help="write the network as an ONNX graph (for onnxruntime / openvino)")
+    s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
+    s.add_argument("--out", required=True, metavar="FILE.onnx")
+    s.add_argument("--batch", type=int, default=32, help="frames per call (default 32, a session's)")
+    s.add_argument("--size", default="160x128", metavar="WxH", help="frame size, padded to whole strides of 32 "
+                   "(default 160x128, a session's)")
+    s.set_defaults(func=_cmd_detector_export)
 
 
 def _teleop_parser(sub, d: SessionConfig) -> None:

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rosmeery_jax.detector import runtime as runtimes
+from rosmeery_jax.detector.boxes import nms
 from rosmeery_jax.detector.dataset import visible_boxes
 
 MIN_SHARE = 0.1  # share of a detection's box an object must cover to take the detection
@@ -63,7 +65,7 @@ class YoloDetector:
     name = "yolo"
 
     def __init__(self, categories: tuple[str, ...], weights: str | Path | None = None, conf: float = 0.25,
-                 batch: int = 32, threads: int | None = None, memory: int = 50_000):
+                 batch: int = 32, threads: int | None = None, memory: int = 50_000, runtime: str = runtimes.DEFAULT):
         import torch  # the detector extra: imported only when YOLO runs
 
         from rosmeery_jax.detector import checkpoint  # imports torch
@@ -74,8 +76,10 @@ class YoloDetector:
         self.model = checkpoint.load(self.path)
         index = {c: i for i, c in enumerate(categories)}
         self.class_map = np.array([index.get(n, -1) for n in self.model.names], np.int32)
-        self.conf, self.batch = conf, batch
-        self.network = (str(self.path.resolve()), conf, batch)
+        runtimes.check(runtime)
+        self.conf, self.batch, self.runtime, self.threads = conf, batch, runtime, threads
+        self._nets: dict[tuple[int, int], object] = {}  # padded (H, W) -> the network at that input shape
+        self.network = (str(self.path.resolve()), conf, batch, runtime)
         self.memory, self._known = memory, OrderedDict()  # image digest -> raw detections
 
     def __call__(self, images: np.ndarray, seg: np.ndarray, frame_ids=None) -> list[tuple]:
@@ -99,27 +103,30 @@ class YoloDetector:
             self._known.popitem(last=False)
         return out
 
-    def forward(self, images: np.ndarray) -> list[np.ndarray]:
-        """:meth:`raw` without the memory: the network on every frame."""
-        import torch  # the detector extra: imported only when YOLO runs
+    def forward(self, images: np.ndarray, conf: float | None = None, iou: float = 0.45,
+                max_det: int = 100) -> list[np.ndarray]:
+        """:meth:`raw` without the memory: the network on every frame, then NMS at ``conf``
+        (default: the detector's threshold)."""
+        return nms(self.head(images), self.conf if conf is None else conf, iou, max_det)
 
-        out = []
+    def head(self, images: np.ndarray) -> np.ndarray:
+        """images (I, H, W, 3) uint8 -> the network's decoded head (I, A, 5 + C) on the runtime."""
         h, w = images.shape[1:3]
-        ph, pw = (-h) % 32, (-w) % 32
+        padded = (h + (-h) % 32, w + (-w) % 32)  # whole strides
+        if padded not in self._nets:
+            self._nets[padded] = runtimes.network(self.runtime, self.model, self.path, self.batch, *padded,
+                                                  self.threads)
+        out = []
         for i in range(0, len(images), self.batch):
             part = images[i:i + self.batch]
-            # Always a full batch (zero frames pad the last one): torch's numerics depend on
-            # the batch size; with it fixed, a frame's detections do not depend on its
+            # Always a full batch (zero frames pad the last one): the runtimes' numerics depend
+            # on the batch size; with it fixed, a frame's detections do not depend on its
             # batch-mates or its place in the batch (tests/test_detector.py).
-            full = np.zeros((self.batch, *part.shape[1:]), np.uint8)
-            full[:len(part)] = part
-            # scaled in the frames' own (I, H, W, 3) layout, then viewed as (I, 3, H, W): the
-            # same values and strides as scaling the permuted view, 5x faster
-            x = torch.from_numpy(full).float().div_(255).permute(0, 3, 1, 2)
-            if ph or pw:  # pad to whole strides with the official grey
-                x = torch.nn.functional.pad(x, (0, pw, 0, ph), value=114 / 255)
-            out += [d.numpy() for d in self.model.detect(x, conf=self.conf)[:len(part)]]
-        return out
+            x = np.full((self.batch, 3, *padded), np.float32(114 / 255))  # the official grey pad
+            x[:, :, :h, :w] = 0
+            x[:len(part), :, :h, :w] = part.transpose(0, 3, 1, 2) / np.float32(255)
+            out.append(self._nets[padded](x)[:len(part)])
+        return np.concatenate(out) if out else np.zeros((0, 0, 5 + len(self.model.names)), np.float32)
 
     def finish(self, raw: list[np.ndarray], seg: np.ndarray) -> list[tuple]:
         """This world's (obj, label, conf, box) per frame from :meth:`raw`'s detections."""
@@ -185,9 +192,9 @@ def _digest(image: np.ndarray) -> bytes:
     return h.digest()
 
 
-def make_detector(name: str, world, conf: float, weights: str | None = None):
+def make_detector(name: str, world, conf: float, weights: str | None = None, runtime: str = runtimes.DEFAULT):
     if name == "yolo":
-        return YoloDetector(world.taxonomy.names, weights, conf)
+        return YoloDetector(world.taxonomy.names, weights, conf, runtime=runtime)
     if name == "oracle":
         return OracleDetector(world.truth.category_index, world.taxonomy, conf)
     raise ValueError(f"unknown detector {name!r}")

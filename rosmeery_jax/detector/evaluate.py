@@ -11,13 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    lt = np.maximum(a[:, None, :2], b[None, :, :2])
-    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    inter = np.clip(rb - lt, 0, None).prod(-1)
-    area = lambda x: (x[:, 2:] - x[:, :2]).prod(-1)  # noqa: E731
-    return inter / (area(a)[:, None] + area(b)[None] - inter + 1e-9)
+from rosmeery_jax.detector.boxes import box_iou
 
 
 def rows_to_xyxy(rows: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -52,7 +46,7 @@ def mean_ap(dets: list[np.ndarray], gts: list[np.ndarray], nc: int, iou_thr: flo
             continue
         d = d[np.argsort(-d[:, 4], kind="stable")]
         used = np.zeros(len(g), bool)
-        iou = _iou(d[:, :4], g[:, 1:5]) if len(g) else np.zeros((len(d), 0))
+        iou = box_iou(d[:, :4], g[:, 1:5]) if len(g) else np.zeros((len(d), 0))
         for i, row in enumerate(d):
             c = int(row[5])
             ok = (~used) & (g_cls == c) & (iou[i] >= iou_thr) if len(g) else np.zeros(0, bool)
@@ -72,15 +66,27 @@ def mean_ap(dets: list[np.ndarray], gts: list[np.ndarray], nc: int, iou_thr: flo
             "recall": float(tp[sel].sum() / max(1, n_gt.sum()))}
 
 
-def evaluate(model, images: np.ndarray, rows: list[np.ndarray], batch: int = 64) -> dict:
-    """mAP of a model on images (I, H, W, 3) uint8 with YOLO rows per image."""
+# NMS for scoring: every detection down to confidence 0.001 (module docstring)
+SCORING_NMS = {"conf": 0.001, "iou": 0.6, "max_det": 300}
+
+
+def model_detections(model, images: np.ndarray, batch: int = 64) -> list[np.ndarray]:
+    """A torch YOLOv5's detections (D, 6) per image at :data:`SCORING_NMS`, in torch eager
+    (what training scores each epoch)."""
     import torch  # the detector extra: imported only when a model is scored
 
-    h, w = images.shape[1:3]
     dets = []
     model.eval()
-    for i in range(0, len(images), batch):
-        x = torch.from_numpy(images[i:i + batch]).permute(0, 3, 1, 2).float() / 255
-        dets += [d.numpy() for d in model.detect(x, conf=0.001, iou=0.6, max_det=300)]
+    with torch.inference_mode():
+        for i in range(0, len(images), batch):
+            x = torch.from_numpy(images[i:i + batch]).permute(0, 3, 1, 2).float() / 255
+            dets += model.detect(x, **SCORING_NMS)
+    return dets
+
+
+def evaluate(dets: list[np.ndarray], images: np.ndarray, rows: list[np.ndarray], nc: int) -> dict:
+    """mAP of detections ``dets`` (per image (D, 6), at :data:`SCORING_NMS`) on images
+    (I, H, W, 3) uint8 with YOLO rows per image."""
+    h, w = images.shape[1:3]
     gts = [np.concatenate([r[:, :1], rows_to_xyxy(r, h, w)], 1) for r in rows]
-    return mean_ap(dets, gts, model.nc)
+    return mean_ap(dets, gts, nc)

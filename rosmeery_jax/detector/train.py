@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.detector import checkpoint
 from rosmeery_jax.detector.dataset import read
-from rosmeery_jax.detector.evaluate import evaluate
+from rosmeery_jax.detector.evaluate import evaluate, model_detections
 from rosmeery_jax.detector.loss import YoloLoss
 from rosmeery_jax.detector.yolo import YOLOv5
 
@@ -157,7 +157,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
                 parts_sum += parts
                 step += 1
                 bar.set_postfix(loss=f"{float(parts.sum()):.3f}")
-            result = evaluate(ema.model, val_images, val_rows)
+            result = evaluate(model_detections(ema.model, val_images), val_images, val_rows, model.nc)
             mean = (parts_sum / steps_per_epoch).tolist()
             log.writerow([epoch + 1, *[f"{v:.5f}" for v in mean], f"{result['map50']:.4f}",
                           f"{result['precision']:.4f}", f"{result['recall']:.4f}", f"{lr_at(step - 1):.2e}",

@@ -6,7 +6,7 @@ so official checkpoints load with ``strict=True`` (see :mod:`.checkpoint`). Size
 and ``s`` (and ``m``, ``l``, ``x``) from depth / width multiples, any number of classes.
 
 Shapes: I images, C classes, A anchors per level (3), D detections.
-torchvision does not work with this machine's CPU torch, so NMS is written here.
+NMS is :func:`rosmeery_jax.detector.boxes.nms` (numpy).
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ import math
 
 import torch
 from torch import nn
+
+from rosmeery_jax.detector.boxes import nms
 
 SIZES = {"n": (0.33, 0.25), "s": (0.33, 0.50), "m": (0.67, 0.75), "l": (1.0, 1.0), "x": (1.33, 1.25)}
 ANCHORS = ((10, 13, 16, 30, 33, 23), (30, 61, 62, 45, 59, 119), (116, 90, 156, 198, 373, 326))  # pixels
@@ -190,46 +192,5 @@ class YOLOv5(nn.Module):
     def detect(self, images: torch.Tensor, conf: float = 0.25, iou: float = 0.45, max_det: int = 100):
         """images (I, 3, H, W) in [0, 1] -> list of I tensors (D, 6): x1, y1, x2, y2 (pixels),
         confidence (objectness x class probability), class index."""
-        return nms(self.model[24].decode(self(images)), conf, iou, max_det)
-
-
-def box_iou(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """(P, 4) x (Q, 4) corner boxes -> (P, Q) IoU."""
-    lt = torch.maximum(a[:, None, :2], b[None, :, :2])
-    rb = torch.minimum(a[:, None, 2:], b[None, :, 2:])
-    inter = (rb - lt).clamp(min=0).prod(-1)
-    area = lambda x: (x[:, 2:] - x[:, :2]).prod(-1)  # noqa: E731
-    return inter / (area(a)[:, None] + area(b)[None] - inter + 1e-9)
-
-
-def xywh2xyxy(x: torch.Tensor) -> torch.Tensor:
-    return torch.cat((x[..., :2] - x[..., 2:] / 2, x[..., :2] + x[..., 2:] / 2), -1)
-
-
-def nms_indices(boxes: torch.Tensor, scores: torch.Tensor, iou: float) -> torch.Tensor:
-    """Greedy non-maximum suppression: indices kept, by decreasing score."""
-    order = scores.argsort(descending=True)
-    boxes = boxes[order]
-    overlap = box_iou(boxes, boxes) > iou
-    keep = torch.ones(len(order), dtype=torch.bool)
-    for i in range(len(order)):  # D is small after the confidence filter
-        if keep[i]:
-            keep[i + 1:] &= ~overlap[i, i + 1:]
-    return order[keep]
-
-
-def nms(pred: torch.Tensor, conf: float = 0.25, iou: float = 0.45, max_det: int = 100) -> list[torch.Tensor]:
-    """Decoded predictions (I, P, 5 + C) -> per image (D, 6) after class-aware NMS."""
-    out = []
-    for p in pred.float():
-        p = p[p[:, 4] > conf]
-        score, cls = (p[:, 5:] * p[:, 4:5]).max(1)
-        keep = score > conf
-        boxes, score, cls = xywh2xyxy(p[keep, :4]), score[keep], cls[keep].float()
-        if len(score) > 3000:
-            top = score.topk(3000).indices
-            boxes, score, cls = boxes[top], score[top], cls[top]
-        # Class-aware: shift each class's boxes apart so one pass serves all classes.
-        k = nms_indices(boxes + cls[:, None] * 4096.0, score, iou)[:max_det]
-        out.append(torch.cat((boxes[k], score[k, None], cls[k, None]), 1))
-    return out
+        with torch.inference_mode():
+            return nms(self.model[24].decode(self(images)).numpy(), conf, iou, max_det)

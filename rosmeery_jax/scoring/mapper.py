@@ -183,10 +183,11 @@ def check_map(spec: str, m, categories: int) -> MapState:
 class OnlineScorer:
     """Scores one robot's maps as they grow (module docstring): ``score(map) -> Score``.
 
-    While a map only grows, each new point is tied once, each new (instance, sample) pair
-    is added once to the instances' shared samples, and a map unchanged since the last
-    call is not scored again; any other change scores the map from scratch. The result
-    is the same either way."""
+    While a map's points only grow, each new point is tied once, each new (instance, sample)
+    pair is added once to the instances' shared samples, and a map unchanged since the last
+    call is not scored again. Old points given other instance ids (instances merged) are
+    counted again from their ties; any other change scores the map from scratch. The
+    result is the same either way."""
 
     def __init__(self, world, tolerance: float):
         self.world, self.tolerance = world, tolerance
@@ -196,33 +197,38 @@ class OnlineScorer:
 
     def _clear(self) -> None:
         self.points, self.instance = np.zeros((0, 3)), np.zeros(0, np.int64)
+        self.sample = np.zeros(0, np.int64)  # per point: its tied sample (-1 none)
         self.shared = np.zeros((0, self.world.truth.num_objects), np.int64)  # per instance id
         self.present = np.zeros(0, bool)  # per instance id: holds a point
         self.pairs: set[int] = set()
-        self.on = 0
         self.last = None  # (label, confidence, Score) of the last call
 
     def score(self, m: MapState) -> Score:
         old = len(self.points)
-        grown = (len(m.points) >= old and np.array_equal(m.points[:old], self.points)
-                 and np.array_equal(m.instance[:old], self.instance))
-        if not grown:
+        if not (len(m.points) >= old and np.array_equal(m.points[:old], self.points)):
             self._clear()
             old = 0
+        elif not np.array_equal(m.instance[:old], self.instance):  # instances merged: same ties, new pairs
+            sample = self.sample
+            self._clear()
+            self.points, self.sample = m.points[:old], sample
+            self._count(m.instance[:old], sample)
         elif len(m.points) == old and self.last is not None and np.array_equal(self.last[0], m.label) \
                 and np.array_equal(self.last[1], m.confidence):
             return self.last[2]
-        self._add(m.points[old:], m.instance[old:])
-        self.points, self.instance = m.points, m.instance
+        sample = tie(self.world, m.points[old:], self.tolerance, self.tree) if len(m.points) > old \
+            else np.zeros(0, np.int64)
+        self._count(m.instance[old:], sample)
+        self.points, self.instance, self.sample = m.points, m.instance, np.r_[self.sample[:old], sample]
         ids = np.flatnonzero(self.present)
-        sc = score_instances(self.world, ids, self.shared[ids], lambda i: (m.label[i], m.confidence[i]), self.on,
-                             len(self.points))
+        sc = score_instances(self.world, ids, self.shared[ids], lambda i: (m.label[i], m.confidence[i]),
+                             int((self.sample >= 0).sum()), len(self.points))
         self.last = (m.label.copy(), m.confidence.copy(), sc)
         return sc
 
-    def _add(self, points: np.ndarray, instance: np.ndarray) -> None:
-        """Tie new points and count their new (instance, sample) pairs."""
-        if not len(points):
+    def _count(self, instance: np.ndarray, sample: np.ndarray) -> None:
+        """Count the new (instance, sample) pairs of points with these ids and ties."""
+        if not len(instance):
             return
         top = int(instance.max()) + 1
         if top > len(self.present):
@@ -230,9 +236,7 @@ class OnlineScorer:
             self.present = np.r_[self.present, np.zeros(grow, bool)]
             self.shared = np.r_[self.shared, np.zeros((grow, self.shared.shape[1]), np.int64)]
         self.present[instance] = True
-        sample = tie(self.world, points, self.tolerance, self.tree)
         on = sample >= 0
-        self.on += int(on.sum())
         n = len(self.objects)
         fresh = [k for k in np.unique(instance[on] * n + sample[on]).tolist() if k not in self.pairs]
         self.pairs.update(fresh)

@@ -8,20 +8,33 @@ is scored by the same evaluator as a user's map (:mod:`rosmeery_jax.scoring.eval
 that spill onto the wall or a neighbour, objects merged or split, and labels on the wrong
 instance all lower the scores.
 
-Per detection (box, label, confidence) in a frame:
+Per frame (pose, depth, detections), each rule measured in docs/byo.md:
 
-1. **Points**: the box's pixels with a depth return, back-projected to the world; pixels
-   more than ``depth_band`` from the box's median depth (background behind the object or
-   a nearer occluder) and points below ``floor_z`` (the floor, whose height the robot
-   knows) are dropped.
-2. **Voxels**: points are binned into ``voxel`` cubes; a voxel belongs to the first
-   instance that claimed it and keeps its first point (a point on the surface, so it ties
-   to a sample like any mapper's point).
-3. **Association**: the instance owning the most of the detection's voxels takes it if it
-   owns at least ``overlap`` of them; otherwise the detection starts a new instance. The
-   detection's unclaimed voxels join that instance.
-4. **Label**: an instance holds the label of its most confident detection so far, the
-   built-in knowledge's rule.
+1. **Pixels to boxes**: a pixel inside several boxes goes to the box it lies most inside
+   (smallest distance to the box centre in half-widths), so two touching objects' boxes,
+   which overlap, do not take each other's pixels.
+2. **The object's segment**: the pixels with a depth return above the floor (``floor_z``),
+   in the box and in a ``ring`` of pixels around it, are cut into segments at depth
+   discontinuities (4-neighbours further apart than ``edge_abs + edge_rel * depth``). An
+   object ends at its box, so a segment that fills more than ``max_ring`` of the ring is
+   background running on past the box (a wall, a large piece of furniture behind). The
+   nearest of the other segments that holds at least ``min_share`` of the box's pixels is
+   the object; if none does, the detection adds no points. The rest (the wall or furniture
+   behind, a nearer occluder's edge) is dropped.
+3. **Voxels**: the segment's points are binned into ``voxel`` cubes; a voxel belongs to the
+   first instance that claimed it and keeps its first point (a point on the surface, so it
+   ties to a sample like any mapper's point).
+4. **Association**: coarse cells (``cell``: two views of one surface rarely hit the same
+   5 cm voxels) record the first instance seen in them or in a neighbouring cell (so a
+   view of another face of the object still meets it). The instance holding the most of
+   the detection's cells takes it if it holds at least ``overlap`` of them (of several such
+   instances, one carrying the detection's label first); otherwise the detection starts a
+   new instance. Its unclaimed voxels join that instance. The other instances that hold
+   ``overlap`` of the detection's cells and carry its label are merged into it (one object
+   split by earlier views).
+5. **Label**: an instance holds the label of its most confident detection so far.
+6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
+   single spurious box, or a box on a poster, never does).
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -35,6 +48,9 @@ from itertools import repeat
 
 import numpy as np
 
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
 from rosmeery_jax.scoring.mapper import Camera, Frame, Mapper, MapState
 from rosmeery_jax.sim.sensors import camera_rays
 
@@ -42,10 +58,16 @@ from rosmeery_jax.sim.sensors import camera_rays
 @dataclass(frozen=True)
 class PerceivedConfig:
     voxel: float = 0.05  # m: the surface samples' spacing, so a voxel holds about one sample
-    depth_band: float = 0.5  # m: a box keeps pixels within this of its median depth
     floor_z: float = 0.03  # m: points lower than this are floor
-    overlap: float = 0.2  # share of a detection's voxels an instance must own to take it
+    edge_abs: float = 0.03  # m: neighbouring pixels further apart in depth than edge_abs +
+    edge_rel: float = 0.03  # edge_rel * depth lie on different surfaces (rule 2)
+    min_share: float = 0.2  # the nearest segment with this share of a box's pixels is the object,
+    max_ring: float = 0.3  # unless it fills more than this share of the ring around the box
+    ring: int = 2  # pixels: the ring's width
+    cell: float = 0.05  # m: the association's coarse cells (rule 4)
+    overlap: float = 0.2  # share of a detection's cells an instance must hold to take it
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
+    min_views: int = 2  # detections that confirm an instance (rule 6)
 
 
 class PerceivedMapper(Mapper):
@@ -63,21 +85,33 @@ class PerceivedMapper(Mapper):
         axis = np.array([np.cos(camera.pitch), 0.0, -np.sin(camera.pitch)])
         rays = (rays / (rays @ axis)[:, None]).reshape(h, w, 3)  # a point is ray * depth
         self.rays = tuple(np.ascontiguousarray(rays[..., i]) for i in range(3))  # (H, W) each: x, y, z
-        self.owner: dict[int, int] = {}  # voxel key -> instance
-        self.points: list[np.ndarray] = []  # per claimed voxel batch: (k, 3)
-        self.point_instance: list[np.ndarray] = []
-        self.label: list[int] = []  # per instance: the held label (-1 none) and its confidence (step 4)
+        self.owner: dict[int, int] = {}  # voxel key -> instance that claimed it
+        self.cells: dict[int, int] = {}  # coarse cell key -> the first instance seen in it or beside it
+        self.claimed: set[int] = set()  # coarse cells some instance was seen in
+        self.pending: list[list[np.ndarray]] = []  # per instance: point batches not in the map yet
+        self.views: list[int] = []  # per instance: detections that support it
+        self.parent: list[int] = []  # per instance: the instance it was merged into (itself if none)
+        self.label: list[int] = []  # per instance: the held label (-1 none) and its confidence (rule 5)
         self.conf: list[float] = []
-        self.instances = 0
-        self._last: tuple | None = None  # (pose, depth, {box bytes: voxels}) of the latest frame
+        self.points: list[np.ndarray] = []  # the map's point batches (k, 3), in the order they entered it
+        self.point_instance: list[np.ndarray] = []
+        self._last: tuple | None = None  # (pose, depth, boxes, [voxels per box]) of the latest frame
+
+    @property
+    def instances(self) -> int:
+        """Instances in the map (confirmed, and not merged into another)."""
+        return sum(1 for i, p in enumerate(self.parent) if p == i and self.views[i] >= self.cfg.min_views)
 
     def add(self, frame: Frame) -> None:
         self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)
 
     def semantic_map(self) -> MapState:
-        """The map of every frame folded so far."""
+        """The map of every frame folded so far: confirmed instances only, merged ids resolved.
+        Points only ever join the end, so the scorer ties each point once."""
         if self.points:
-            points, instance = np.concatenate(self.points), np.concatenate(self.point_instance)
+            points = np.concatenate(self.points)
+            instance = np.array([self._root(i) for i in range(len(self.parent))], np.int64)[
+                np.concatenate(self.point_instance)]
         else:
             points, instance = np.zeros((0, 3)), np.zeros(0, np.int64)
         return MapState(points, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
@@ -86,78 +120,162 @@ class PerceivedMapper(Mapper):
              conf: np.ndarray) -> None:
         """Fold one frame: pose (3,) x, y, yaw; depth (H, W) (0 = no return); boxes (D, 4)
         pixel corners x1, y1, x2, y2; label (D,) category index (-1 = padding); conf (D,)."""
-        memo = self._frame_memo(pose, depth)
-        for box, k, c in zip(boxes, label, conf):
-            if k < 0:
-                continue
-            if (key := box.tobytes()) not in memo:
-                memo[key] = self._voxels(pose, depth, box)
-            keys, pts = memo[key]
+        keep = np.asarray(label) >= 0
+        boxes, label, conf = np.asarray(boxes)[keep], np.asarray(label)[keep], np.asarray(conf)[keep]
+        for (keys, cells, pts), k, c in zip(self._frame_voxels(pose, depth, boxes), label, conf):
             if len(keys) < max(self.cfg.min_voxels, 1):
                 continue
+            inst = self._associate(cells, int(k))
             owners = np.fromiter(map(self.owner.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
-            inst = self._associate(owners)
             new = owners < 0
             self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
+            fresh = [c for c in cells.tolist() if c not in self.claimed]
+            self.claimed.update(fresh)
+            for cell in (np.asarray(fresh, np.int64)[:, None] + _NEIGHBOURS).ravel().tolist():
+                self.cells.setdefault(cell, inst)
             if new.any():
-                self.points.append(pts[new])
-                self.point_instance.append(np.full(int(new.sum()), inst, np.int64))
+                self.pending[inst].append(pts[new])
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
+            self.views[inst] += 1
+            self._publish(inst)
 
-    def _frame_memo(self, pose: np.ndarray, depth: np.ndarray) -> dict:
-        """The voxels of each box already seen in this frame, kept while the frame repeats: a
-        robot at rest sends the same pose and depth after every decision, and a box's voxels
-        depend on pose, depth and box alone."""
+    def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list:
+        """Each box's (voxel keys, cell keys, points) in this frame (rules 1-3), kept while the
+        frame repeats: a robot at rest sends the same pose, depth and boxes after every
+        decision."""
         last = self._last
-        if last is None or not (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)):
-            self._last = last = (np.array(pose), np.array(depth), {})
-        return last[2]
+        if last is None or not (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)
+                                and np.array_equal(last[2], boxes)):
+            owner = _box_owner(boxes, depth.shape)
+            self._last = last = (np.array(pose), np.array(depth), np.array(boxes),
+                                 [self._voxels(pose, depth, box, owner == i) for i, box in enumerate(boxes)])
+        return last[3]
 
-    def _voxels(self, pose: np.ndarray, depth: np.ndarray, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The detection's distinct voxel keys (V,) ascending and the first of its points in
-        each, (V, 3) in the world frame (steps 1-2). Per column and only for the points kept,
-        which is where the time goes; each value is computed as for a whole (P, 3) cloud."""
+    def _voxels(self, pose: np.ndarray, depth: np.ndarray, box: np.ndarray, mine: np.ndarray) -> tuple:
+        """The detection's distinct voxel keys (V,) ascending, its coarse cell keys, and the
+        first of its points in each voxel, (V, 3) in the world frame (rules 2-3)."""
         h, w = depth.shape
         x1, y1 = int(np.clip(np.floor(box[0]), 0, w)), int(np.clip(np.floor(box[1]), 0, h))
         x2, y2 = int(np.clip(np.ceil(box[2]), 0, w)), int(np.clip(np.ceil(box[3]), 0, h))
-        d = depth[y1:y2, x1:x2]
-        valid = d > 0
-        if not valid.any():
-            return np.zeros(0, np.int64), np.zeros((0, 3))
-        valid &= np.abs(d - _median(d[valid])) <= self.cfg.depth_band
-        d = d[valid]
-        rx, ry, rz = (r[y1:y2, x1:x2][valid] for r in self.rays)
+        r = self.cfg.ring
+        area = np.s_[max(y1 - r, 0):y2 + r, max(x1 - r, 0):x2 + r]  # the box and a ring around it
+        d = depth[area]
+        rx, ry, rz = (rays[area] for rays in self.rays)
         z = self.config.mount_height + rz * d
-        up = z >= self.cfg.floor_z  # the floor's points are dropped before the rest is computed
-        d, rx, ry, z = d[up], rx[up], ry[up], z[up]
+        inner = np.zeros(d.shape, bool)
+        inner[y1 - area[0].start:y2 - area[0].start, x1 - area[1].start:x2 - area[1].start] = True
+        valid = (d > 0) & (z >= self.cfg.floor_z)  # the floor is dropped here
+        valid &= _segment(d, valid & (mine[area] | ~inner), inner, self.cfg)
+        if not valid.any():
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+        d, rx, ry, z = d[valid], rx[valid], ry[valid], z[valid]
         px, py = rx * d, ry * d  # camera frame, x forward
         c, s = np.cos(pose[2]), np.sin(pose[2])
         x = pose[0] + self.config.mount_x * c + c * px - s * py
         y = pose[1] + self.config.mount_x * s + s * px + c * py
-        cell = [np.floor(a / self.cfg.voxel).astype(np.int64) + (1 << 20) for a in (x, y, z)]
-        keys = (cell[0] << 42) | (cell[1] << 21) | cell[2]  # 21 bits per axis: a 100 km cube at 5 cm
-        keys, first = np.unique(keys, return_index=True)
-        return keys, np.stack([x[first], y[first], z[first]], -1)
+        keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
+        cells = np.unique(_keys((x, y, z), self.cfg.cell))
+        return keys, cells, np.stack([x[first], y[first], z[first]], -1)
 
-    def _associate(self, owners: np.ndarray) -> int:
-        """The instance a detection joins, from the owner of each of its voxels (-1 none)
-        (step 3)."""
-        held = owners[owners >= 0]
-        if len(held):
-            ids, counts = np.unique(held, return_counts=True)
-            best = int(np.argmax(counts))
-            if counts[best] >= self.cfg.overlap * len(owners):
-                return int(ids[best])
-        self.instances += 1
+    def _associate(self, cells: np.ndarray, label: int) -> int:
+        """The instance a detection joins, from the instances seen in its cells (rule 4):
+        of those holding ``overlap`` of them, the one holding most among those of the
+        detection's label, else among all; the others of that label merge into it."""
+        held = np.fromiter((self._root(self.cells.get(c, -1)) for c in cells.tolist()), np.int64, len(cells))
+        ids, counts = np.unique(held[held >= 0], return_counts=True)
+        keep = counts >= self.cfg.overlap * len(cells)
+        ids, counts = ids[keep], counts[keep]
+        if len(ids):
+            same = np.array([self.label[i] == label for i in ids.tolist()])
+            pool = same if same.any() else np.ones(len(ids), bool)
+            inst = int(ids[pool][np.argmax(counts[pool])])
+            for j in ids[same].tolist():
+                if j != inst:
+                    self._merge(j, inst)
+            return inst
+        self.pending.append([])
+        self.views.append(0)
+        self.parent.append(len(self.parent))
         self.label.append(-1)
         self.conf.append(np.float32(0.0))
-        return self.instances - 1
+        return len(self.parent) - 1
+
+    def _merge(self, j: int, into: int) -> None:
+        """Instance j becomes part of ``into``: its points, views and (if more confident) label."""
+        self.parent[j] = into
+        self.views[into] += self.views[j]
+        if self.conf[j] > self.conf[into]:
+            self.label[into], self.conf[into] = self.label[j], self.conf[j]
+        self.label[j], self.conf[j] = -1, np.float32(0.0)
+        self.pending[into] += self.pending[j]
+        self.pending[j] = []
+        self._publish(into)
+
+    def _publish(self, inst: int) -> None:
+        """A confirmed instance's pending points join the map's end (rule 6)."""
+        if self.views[inst] >= self.cfg.min_views and self.pending[inst]:
+            pts = np.concatenate(self.pending[inst])
+            self.points.append(pts)
+            self.point_instance.append(np.full(len(pts), inst, np.int64))
+            self.pending[inst] = []
+
+    def _root(self, i: int) -> int:
+        while i >= 0 and self.parent[i] != i:
+            i = self.parent[i]
+        return i
 
 
-def _median(v: np.ndarray):
-    """np.median of a non-empty 1-D array, bitwise (the middle two averaged in v's dtype),
-    without its general-purpose overhead."""
-    n = len(v)
-    part = np.partition(v, [(n - 1) // 2, n // 2])
-    return (part[(n - 1) // 2] + part[n // 2]) / 2
+# key offsets of a cube and its 26 neighbours (the bit layout of _keys)
+_NEIGHBOURS = np.array([(dx << 42) + (dy << 21) + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)],
+                       np.int64)
+
+
+def _keys(xyz: tuple, size: float) -> np.ndarray:
+    """Cube keys of points: 21 bits per axis (a 100 km cube at 5 cm)."""
+    cell = [np.floor(a / size).astype(np.int64) + (1 << 20) for a in xyz]
+    return (cell[0] << 42) | (cell[1] << 21) | cell[2]
+
+
+def _box_owner(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) index of the box each pixel lies most inside (rule 1), -1 outside every box."""
+    h, w = shape
+    owner = np.full(shape, -1, np.int64)
+    best = np.full(shape, np.inf)
+    v, u = np.mgrid[0:h, 0:w] + 0.5  # pixel centres in the boxes' corner coordinates
+    for i, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, np.float64)):
+        inside = np.maximum(np.abs(u - (x1 + x2) / 2) / max((x2 - x1) / 2, 1e-6),
+                            np.abs(v - (y1 + y2) / 2) / max((y2 - y1) / 2, 1e-6))
+        take = (inside <= 1) & (inside < best)
+        owner[take], best[take] = i, inside[take]
+    return owner
+
+
+def _segment(d: np.ndarray, valid: np.ndarray, inner: np.ndarray, cfg: PerceivedConfig) -> np.ndarray:
+    """(h, w) mask of the object's segment among the ``valid`` depth pixels of a box
+    (``inner``) and the ring around it (rule 2); empty when no segment qualifies."""
+    out = np.zeros_like(valid)
+    n = int((valid & inner).sum())
+    if n == 0:
+        return out
+    index = np.full(d.shape, -1, np.int64)
+    index[valid] = np.arange(int(valid.sum()))
+    rows, cols = [], []
+    for a, b in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):  # right and down neighbours
+        da, db = d[a], d[b]
+        joined = valid[a] & valid[b] & (np.abs(da - db) <= cfg.edge_abs + cfg.edge_rel * np.minimum(da, db))
+        rows.append(index[a][joined])
+        cols.append(index[b][joined])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    total = int(valid.sum())
+    count, part = connected_components(coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(total, total)),
+                                       directed=False)
+    at_box = inner[valid]
+    size = np.bincount(part[at_box], minlength=count)  # a segment's pixels inside the box
+    ring = np.bincount(part[~at_box], minlength=count) / max(int((~inner).sum()), 1)  # its share of the ring
+    near = np.full(count, np.inf)
+    np.minimum.at(near, part[at_box], d[valid][at_box])  # a segment's nearest point: how near it stands
+    fit = (size >= cfg.min_share * n) & (ring <= cfg.max_ring)
+    if fit.any():
+        out[valid] = (part == int(np.argmin(np.where(fit, near, np.inf)))) & at_box
+    return out

@@ -15,6 +15,7 @@ from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import overrides, plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import memory_bytes
+from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.gym import AGENT, agent_class
 from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
@@ -36,7 +37,7 @@ CAMERA_BYTES_PER_PIXEL = 64  # depth, labels and the ray kernel's per-pixel work
 FRAME_BYTES_PER_PIXEL = 16  # a detector frame held for the worker: RGB, labels, depth, with copies
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
-                 "metrics", "env", "mappers")
+                 "metrics", "env", "mappers", "detector_runtime")
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ class SessionConfig:
     detector: str = "yolo"  # "yolo" (torch), "oracle" (simulated from ground truth), "off"
     conf_threshold: float = 0.25  # detections below it are dropped
     weights: str = ""  # YOLO-v5 weights for "yolo" ("" = the shipped ones)
+    detector_runtime: str = runtimes.DEFAULT  # where YOLO's network runs: torch, onnxruntime, openvino
     metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
     decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
     chunk_s: float = 30.0  # simulated seconds per jitted call without a detector (progress
@@ -103,6 +105,9 @@ class SessionConfig:
         if self.detector == "yolo" and importlib.util.find_spec("torch") is None:  # found, not imported
             raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
                              "(or use --detector oracle / off)")
+        if self.detector == "yolo":
+            with _as_source(source):
+                runtimes.check(self.detector_runtime)
         _check_size(self, worlds, source)
         return self
 

@@ -171,7 +171,7 @@ def _detectors(cfg: SessionConfig, group) -> dict | None:
     """{world index: detector} for the group's worlds, or None with the detector off."""
     if cfg.detector == "off":
         return None
-    return {w: make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None)
+    return {w: make_detector(cfg.detector, env.world, cfg.conf_threshold, cfg.weights or None, cfg.detector_runtime)
             for w, env in enumerate(group.envs)}
 
 

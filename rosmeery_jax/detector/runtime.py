@@ -1,0 +1,206 @@
+"""Where the detector's network runs: torch eager, or its exported ONNX graph in ONNX Runtime,
+in float32 or quantised to int8.
+
+Every runtime maps a batch (B, 3, H, W) float32 in [0, 1] to the decoded head (B, A, 5 + C):
+box centre and size in pixels, objectness, class probabilities (A anchors over the three
+strides, C classes). Non-maximum suppression stays in :mod:`rosmeery_jax.detector.yolo`, so
+the runtimes differ only in the network's arithmetic (docs/detector.md gives the measured
+speed and the mAP of each).
+
+The ONNX graph is exported from the weights by ``torch.onnx.export`` at one fixed input shape
+(the session's batch and padded frame), never downloaded: ``rosmeery detector export``
+writes it where asked, and a session builds it on first use into
+``$XDG_CACHE_HOME/rosmeery-jax/detector/`` (``~/.cache/...``), named by the weights' content,
+so other weights or another shape never reuse it. The int8 graph is ONNX Runtime's static
+quantisation of it (QDQ, int8 weights per channel, uint8 activations), its activation ranges
+calibrated on frames rendered from procedural worlds (never the paper worlds the detector
+is scored in).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import importlib.util
+import io
+import logging
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.files import atomic_path
+
+RUNTIMES = ("torch", "onnxruntime", "onnxruntime-int8")
+DEFAULT = "onnxruntime-int8"  # the fastest measured; its mAP cost is in docs/detector.md
+_MODULE = {"torch": "torch", "onnxruntime": "onnxruntime", "onnxruntime-int8": "onnxruntime"}
+EXPORT_VERSION = 1  # bump when the exported graph changes: old cached files are then not reused
+# Calibration frames for int8: procedural worlds of all four kinds, none a paper world
+CALIBRATION_WORLDS = ("procedural:apartment:2000", "procedural:office:2000", "procedural:kitchen:2000",
+                      "procedural:lab:2000")
+CALIBRATION_FRAMES = 128
+
+
+def available(runtime: str) -> bool:
+    return importlib.util.find_spec(_MODULE[runtime]) is not None
+
+
+def check(runtime: str) -> None:
+    """One line naming the runtime and the package to install, for one that is missing."""
+    if runtime not in RUNTIMES:
+        raise InputError("config", "detector_runtime", f"unknown runtime {runtime!r}; one of {', '.join(RUNTIMES)}")
+    if not available(runtime):
+        raise InputError("config", "detector_runtime", f"{runtime} is not installed: pip install "
+                         f"'rosmeery-jax[detector]' (or pip install {_MODULE[runtime]})")
+
+
+def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:
+    """Write the ONNX graph of ``model`` (a YOLOv5 in eval mode) for inputs (batch, 3, height,
+    width), decode included, as one self-contained file (atomically). Class names go into the
+    file's metadata."""
+    import torch  # exporting needs torch; running the file does not
+
+    class Head(torch.nn.Module):
+        def __init__(self, net):
+            super().__init__()
+            self.net = net
+
+        def forward(self, x):
+            return self.net.model[24].decode(self.net(x))
+
+    x = torch.zeros(batch, 3, height, width)
+    with _quiet():
+        program = torch.onnx.export(Head(model.float().eval()), (x,), input_names=["images"], output_names=["pred"],
+                                    dynamo=True, optimize=True, verbose=False)
+    onnx = program.model_proto
+    for key, value in (("names", "\n".join(model.names)), ("export_version", str(EXPORT_VERSION))):
+        entry = onnx.metadata_props.add()
+        entry.key, entry.value = key, value
+    with atomic_path(out) as tmp:
+        tmp.write_bytes(onnx.SerializeToString())
+    return Path(out)
+
+
+def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool = False) -> Path:
+    """The ONNX graph of ``weights`` at this shape (int8: quantised), from the cache or
+    built into it now."""
+    digest = hashlib.sha256(Path(weights).read_bytes()).hexdigest()[:20]
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rosmeery-jax" / "detector"
+    path = base / f"{digest}-v{EXPORT_VERSION}-b{batch}-{height}x{width}.onnx"
+    if not path.is_file():
+        from rosmeery_jax.detector import checkpoint  # imports torch
+
+        export(checkpoint.load(weights), path, batch, height, width)
+    if not int8:
+        return path
+    quantised = path.with_suffix(".int8.onnx")
+    if not quantised.is_file():
+        quantise(path, quantised, calibration_frames(height, width))
+    return quantised
+
+
+def calibration_frames(height: int, width: int) -> np.ndarray:
+    """(F, H, W, 3) uint8 frames of :data:`CALIBRATION_WORLDS` (the detector dataset's
+    viewpoints), padded to height x width."""
+    from rosmeery_jax.detector.dataset import DatasetConfig, generate
+
+    cfg = DatasetConfig(worlds=CALIBRATION_WORLDS, per_world=CALIBRATION_FRAMES // len(CALIBRATION_WORLDS), seed=1)
+    frames = np.stack([f[3] for f in generate(cfg, splits=("train", "val"), progress=False)])[:CALIBRATION_FRAMES]
+    out = np.full((len(frames), height, width, 3), 114, np.uint8)
+    out[:, :frames.shape[1], :frames.shape[2]] = frames
+    return out
+
+
+def quantise(src: Path, out: Path, frames: np.ndarray) -> Path:
+    """ONNX Runtime's static int8 quantisation of the graph ``src`` (QDQ), activation ranges
+    from ``frames`` (F, H, W, 3) uint8 in batches of the graph's size; written atomically."""
+    import onnxruntime as ort
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+
+    batch = ort.InferenceSession(str(src), providers=["CPUExecutionProvider"]).get_inputs()[0].shape[0]
+    x = frames.transpose(0, 3, 1, 2).astype(np.float32) / np.float32(255)
+
+    class Batches(CalibrationDataReader):
+        def __init__(self):
+            self.parts = iter([x[i:i + batch] for i in range(0, len(x) - batch + 1, batch)])
+
+        def get_next(self):
+            return {"images": part} if (part := next(self.parts, None)) is not None else None
+
+    with atomic_path(out) as tmp, _quiet():
+        quantize_static(str(src), str(tmp), Batches(), quant_format=QuantFormat.QDQ, per_channel=True,
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                        nodes_to_exclude=_decode_nodes(src))
+    return Path(out)
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Silence the exporter's and the quantiser's progress lines and advice (stdout, warnings,
+    logging): a session's output stays its own."""
+    level = logging.root.manager.disable
+    logging.disable(logging.WARNING)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        logging.disable(level)
+
+
+def _decode_nodes(path: Path) -> list[str]:
+    """The graph's nodes after the head's three convolutions (the decode), kept in float: it
+    joins pixel coordinates and probabilities in one tensor, which one int8 scale would ruin."""
+    import onnx
+
+    graph = onnx.load(str(path)).graph
+    frontier = {o for n in graph.node if n.op_type == "Conv" and any(i.startswith("net.model.24.") for i in n.input)
+                for o in n.output}
+    excluded: list[str] = []
+    for node in graph.node:  # topological order: a node's inputs come before it
+        if frontier.intersection(node.input):
+            excluded.append(node.name)
+            frontier.update(node.output)
+    return excluded
+
+
+class TorchNetwork:
+    """The YOLOv5 module itself, in torch eager."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        import torch
+
+        with torch.inference_mode():
+            return self.model.model[24].decode(self.model(torch.from_numpy(x))).numpy()
+
+
+class OnnxRuntimeNetwork:
+    """An exported graph in ONNX Runtime's CPU provider, all graph optimisations on."""
+
+    def __init__(self, path: Path, threads: int | None):
+        import onnxruntime as ort
+
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads or 0  # 0: ONNX Runtime's default, one per core
+        opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3  # errors only
+        # No spinning after a run: its threads would wait busy while torch does the NMS
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {"images": x})[0]
+
+
+def network(runtime: str, model, weights: Path, batch: int, height: int, width: int, threads: int | None = None):
+    """The network of ``model`` (loaded from ``weights``) on ``runtime``, for inputs (batch, 3,
+    height, width)."""
+    check(runtime)
+    if runtime == "torch":
+        return TorchNetwork(model)
+    return OnnxRuntimeNetwork(cached_export(weights, batch, height, width, int8=runtime.endswith("int8")), threads)

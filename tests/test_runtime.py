@@ -1,0 +1,117 @@
+"""The detector's runtimes: the exported ONNX graph in ONNX Runtime gives torch's detections
+(float32: equal to float rounding; int8: within the stated tolerance), built by our own
+export, cached by the weights' content, and a missing runtime is one clear line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("onnxruntime")
+
+from rosmeery_jax.detector import runtime  # noqa: E402
+from rosmeery_jax.detector.boxes import box_iou  # noqa: E402
+from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector  # noqa: E402
+from rosmeery_jax.core.errors import InputError  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """One cache folder for the module: each graph is exported (and quantised) once."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """A fixed batch: 32 frames of the Small Office at the session's resolution (160 x 128)."""
+    import jax
+    import jax.numpy as jnp
+
+    from rosmeery_jax.apps.bench import random_targets
+    from rosmeery_jax.env import make
+    from rosmeery_jax.sim.sensors import rgb
+
+    env = make("small_office")
+    poses = jnp.asarray(random_targets(env.world, 32, 4))
+    return np.asarray(jax.jit(jax.vmap(lambda p: rgb(env.rays, env.config.camera, p)))(poses)[0])
+
+
+@pytest.fixture(scope="module")
+def torch_detections(frames):
+    out = YoloDetector((), runtime="torch").forward(frames)
+    assert sum(len(d) for d in out) > 30  # not vacuous: the frames hold detections
+    return out
+
+
+def _matches(ref: list[np.ndarray], got: list[np.ndarray]):
+    """Per detection of ``ref``: the best IoU with a same-class detection of ``got`` in the
+    same frame, and the confidence difference to it; and how many of ``got`` match none."""
+    ious, dconf, extra = [], [], 0
+    for a, b in zip(ref, got):
+        iou = box_iou(a[:, :4], b[:, :4]) * (a[:, None, 5] == b[None, :, 5]) if len(a) and len(b) \
+            else np.zeros((len(a), len(b)))
+        if len(a):
+            best = iou.argmax(1) if len(b) else np.zeros(len(a), int)
+            ious += list(iou.max(1) if len(b) else np.zeros(len(a)))
+            dconf += list(np.abs(a[:, 4] - b[best, 4]) if len(b) else np.ones(len(a)))
+        extra += int((iou.max(0) < 0.5).sum()) if len(a) and len(b) else len(b)
+    return np.array(ious), np.array(dconf), extra
+
+
+def test_onnxruntime_float32_detections_equal_torchs(cache, frames, torch_detections):
+    got = YoloDetector((), runtime="onnxruntime").forward(frames)
+    assert [len(d) for d in got] == [len(d) for d in torch_detections]
+    for a, b in zip(torch_detections, got):
+        np.testing.assert_array_equal(a[:, 5], b[:, 5])
+        np.testing.assert_allclose(a[:, :4], b[:, :4], atol=1e-2)  # pixels
+        np.testing.assert_allclose(a[:, 4], b[:, 4], atol=1e-4)
+
+
+def test_int8_detections_match_torchs_within_the_stated_tolerance(cache, frames, torch_detections):
+    """docs/detector.md: every torch detection has an int8 one of the same class with IoU >= 0.6
+    and a confidence within 0.2; at most 15 % more detections than torch."""
+    got = YoloDetector((), runtime="onnxruntime-int8").forward(frames)
+    iou, dconf, extra = _matches(torch_detections, got)
+    assert iou.min() >= 0.6 and dconf.max() <= 0.2
+    assert extra <= 0.15 * len(iou)
+    assert np.median(iou) > 0.9
+
+
+def test_the_export_is_cached_by_content_and_shape_and_quantised_the_same_twice(cache, tmp_path):
+    first = runtime.cached_export(DEFAULT_WEIGHTS, 32, 128, 160, int8=True)
+    assert runtime.cached_export(DEFAULT_WEIGHTS, 32, 128, 160, int8=True) == first  # reused
+    other = runtime.cached_export(DEFAULT_WEIGHTS, 8, 128, 160)
+    assert other != first.with_suffix("").with_suffix(".onnx") and other.is_file()
+    again = runtime.quantise(first.with_suffix("").with_suffix(".onnx"), tmp_path / "again.onnx",
+                             runtime.calibration_frames(128, 160))
+    assert again.read_bytes() == first.read_bytes()  # calibration and quantisation are deterministic
+
+
+def test_export_command_writes_a_file_onnxruntime_runs_and_never_overwrites(cache, tmp_path, capsys):
+    import onnxruntime as ort
+
+    from rosmeery_jax.apps.cli import main
+
+    out = tmp_path / "yolo.onnx"
+    assert main(["detector", "export", "--out", str(out), "--batch", "2", "--size", "100x60"]) == 0
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    assert session.get_inputs()[0].shape == [2, 3, 64, 128]  # padded to whole strides of 32
+    pred = session.run(None, {"images": np.zeros((2, 3, 64, 128), np.float32)})[0]
+    assert pred.shape[0] == 2 and pred.shape[2] == 5 + 27
+    before = out.read_bytes()
+    assert main(["detector", "export", "--out", str(out)]) == 2  # exists: refused, kept
+    assert out.read_bytes() == before and "never overwritten" in capsys.readouterr().err
+    assert main(["detector", "export", "--out", str(tmp_path / "b.onnx"), "--size", "160"]) == 2
+    assert "WxH" in capsys.readouterr().err and not (tmp_path / "b.onnx").exists()
+
+
+def test_a_missing_or_unknown_runtime_is_one_clear_line(monkeypatch):
+    with pytest.raises(InputError, match="unknown runtime 'tensorrt'"):
+        runtime.check("tensorrt")
+    monkeypatch.setattr(runtime, "available", lambda name: False)
+    with pytest.raises(InputError, match=r"onnxruntime-int8 is not installed: pip install"):
+        runtime.check("onnxruntime-int8")
