@@ -35,7 +35,9 @@ from rosmeery_jax.core.files import atomic_path
 
 RUNTIMES = ("torch", "onnxruntime", "onnxruntime-int8")
 DEFAULT = "onnxruntime-int8"  # the fastest measured; its mAP cost is in docs/detector.md
-_MODULE = {"torch": "torch", "onnxruntime": "onnxruntime", "onnxruntime-int8": "onnxruntime"}
+# the packages each runtime needs (onnx and onnxscript export the graph)
+_NEEDS = {"torch": ("torch",), "onnxruntime": ("onnxruntime", "onnx", "onnxscript"),
+          "onnxruntime-int8": ("onnxruntime", "onnx", "onnxscript")}
 EXPORT_VERSION = 1  # bump when the exported graph changes: old cached files are then not reused
 # Calibration frames for int8: procedural worlds of all four kinds, none a paper world
 CALIBRATION_WORLDS = ("procedural:apartment:2000", "procedural:office:2000", "procedural:kitchen:2000",
@@ -43,17 +45,18 @@ CALIBRATION_WORLDS = ("procedural:apartment:2000", "procedural:office:2000", "pr
 CALIBRATION_FRAMES = 128
 
 
-def available(runtime: str) -> bool:
-    return importlib.util.find_spec(_MODULE[runtime]) is not None
+def missing(runtime: str) -> list[str]:
+    """The packages ``runtime`` needs that are not installed."""
+    return [m for m in _NEEDS[runtime] if importlib.util.find_spec(m) is None]
 
 
 def check(runtime: str) -> None:
-    """One line naming the runtime and the package to install, for one that is missing."""
+    """One line naming the runtime and the packages to install, for one that is missing."""
     if runtime not in RUNTIMES:
         raise InputError("config", "detector_runtime", f"unknown runtime {runtime!r}; one of {', '.join(RUNTIMES)}")
-    if not available(runtime):
-        raise InputError("config", "detector_runtime", f"{runtime} is not installed: pip install "
-                         f"'rosmeery-jax[detector]' (or pip install {_MODULE[runtime]})")
+    if lacking := missing(runtime):
+        raise InputError("config", "detector_runtime", f"{runtime} needs {', '.join(lacking)}: pip install "
+                         f"'rosmeery-jax[detector]' (or pip install {' '.join(lacking)})")
 
 
 def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:

@@ -34,7 +34,8 @@ Per frame (pose, depth, detections), each rule measured in docs/byo.md:
    split by earlier views).
 5. **Label**: an instance holds the label of its most confident detection so far.
 6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
-   single spurious box, or a box on a poster, never does).
+   spurious box in one frame never does; a frame sent again by a robot at rest counts
+   again, as it would for any mapper fed that stream).
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
