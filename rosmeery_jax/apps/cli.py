@@ -476,7 +476,7 @@ def _run_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--policies", metavar="P,Q", help=f"default: {','.join(d.policies)}")
     p.add_argument("--seeds", type=int, metavar="N", help=f"runs per world and policy, batched (default {d.seeds})")
     p.add_argument("--duration", type=float, metavar="S", help=f"simulated seconds per run (default {d.duration:g})")
-    p.add_argument("--detector", help=f"yolo (the torch YOLO-v5), oracle (simulated from ground truth) or off "
+    p.add_argument("--detector", help=f"yolo (the shipped YOLO-v5n), oracle (simulated from ground truth) or off "
                    f"(ground-truth labels of observed objects); default {d.detector}")
     p.add_argument("--conf-threshold", type=float, metavar="C", help=f"drop detections below C (default "
                    f"{d.conf_threshold:g})")

@@ -46,7 +46,7 @@ class SessionConfig:
     policies: tuple[str, ...] = ("frontier", "random")
     seeds: int = 5
     duration: float = 300.0  # simulated seconds per run
-    detector: str = "yolo"  # "yolo" (torch), "oracle" (simulated from ground truth), "off"
+    detector: str = "yolo"  # "yolo" (YOLO-v5n), "oracle" (simulated from ground truth), "off"
     conf_threshold: float = 0.25  # detections below it are dropped
     weights: str = ""  # YOLO-v5 weights for "yolo" ("" = the shipped ones)
     detector_runtime: str = runtimes.DEFAULT  # where YOLO's network runs: torch, onnxruntime, openvino
