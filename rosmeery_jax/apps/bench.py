@@ -293,7 +293,8 @@ def detector_bench(env, state, decide_every: int = 10, env_rate: float | None = 
         det.finish(det.forward(img), lab)
     ips = repeats * len(img) / (time.perf_counter() - t)
     cam = env.config.camera
-    out = {"images_per_s": round(ips, 1), "resolution": f"{cam.rgb_width}x{cam.rgb_height}", "batch": len(img),
+    out = {"images_per_s": round(ips, 1), "runtime": det.runtime, "resolution": f"{cam.rgb_width}x{cam.rgb_height}",
+           "batch": len(img),
            "detector_batch": det.batch, "render_ms_per_frame": round(1e3 * float(np.median(times)) / len(img), 3)}
     if env_rate:
         env_s = decide_every / env_rate  # wall seconds per env per decision
@@ -389,7 +390,7 @@ def format_table(r: dict) -> str:
     if "skipped" in d:
         lines.append(f"detector: skipped ({d['skipped']})")
     elif d:
-        lines.append(f"detector (YOLO-v5n, torch CPU): {d['images_per_s']:,.0f} images/s at {d['resolution']} "
+        lines.append(f"detector (YOLO-v5n, {d.get('runtime', 'torch')}): {d['images_per_s']:,.0f} images/s at {d['resolution']} "
                      f"({d['batch']} frames in batches of {d['detector_batch']}); "
                      f"rendering its frames {d['render_ms_per_frame']:.2f} ms each; "
                      f"share of a session's wall time (1 frame per env per second): "
