@@ -109,13 +109,19 @@ class YoloDetector:
         (default: the detector's threshold)."""
         return nms(self.head(images), self.conf if conf is None else conf, iou, max_det)
 
-    def head(self, images: np.ndarray) -> np.ndarray:
-        """images (I, H, W, 3) uint8 -> the network's decoded head (I, A, 5 + C) on the runtime."""
-        h, w = images.shape[1:3]
-        padded = (h + (-h) % 32, w + (-w) % 32)  # whole strides
+    def prepare(self, h: int, w: int) -> tuple[int, int]:
+        """Build the network for frames of h x w (padded to whole strides), exporting its graph
+        on first use; a session calls it while it compiles. Returns the padded (H, W)."""
+        padded = (h + (-h) % 32, w + (-w) % 32)
         if padded not in self._nets:
             self._nets[padded] = runtimes.network(self.runtime, self.model, self.path, self.batch, *padded,
                                                   self.threads)
+        return padded
+
+    def head(self, images: np.ndarray) -> np.ndarray:
+        """images (I, H, W, 3) uint8 -> the network's decoded head (I, A, 5 + C) on the runtime."""
+        h, w = images.shape[1:3]
+        padded = self.prepare(h, w)
         out = []
         for i in range(0, len(images), self.batch):
             part = images[i:i + self.batch]

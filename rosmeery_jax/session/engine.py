@@ -450,12 +450,13 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
         data, blocks = jax.device_put(data, whole), jax.device_put(blocks, split)
     empty = tuple(jnp.asarray(a) for a in _no_detections(group.size, plan.per_call if capture else 1)[:3])
     xla_before = dict(CompileClock._counts)
+    ready = _prepare(detectors, group.config.camera) if capture else None
     with clock:
         start = _start(group, plan, capture, data, blocks, keys, empty)
     track0 = jax.tree.map(np.asarray, Track.of(start.state))
     for run in group.runs:
         run.host_policy.check_start(track0.pose[run.rows])
-    worker = _Detection(group, plan, detectors, start, data, blocks, bar)
+    worker = _Detection(group, plan, detectors, start, data, blocks, bar, ready)
     state, pstates, key, jobs, wait_s, digests = start.state, start.pstates, keys.run, [], 0.0, []
     try:
         with interrupt.deferred():  # Ctrl-C between chunks, never inside a JAX callback
@@ -534,8 +535,9 @@ class _Detection:
     metrics' labels (no lag) and fed to the perceived mappers, one chunk at a time in
     order. Its own counters are ``timing``."""
 
-    def __init__(self, group: Group, plan: Plan, detectors: dict | None, start: Start, data, blocks, bar):
-        self.group, self.plan, self.detectors, self.bar = group, plan, detectors, bar
+    def __init__(self, group: Group, plan: Plan, detectors: dict | None, start: Start, data, blocks, bar,
+                 ready: Future | None = None):
+        self.group, self.plan, self.detectors, self.bar, self.ready = group, plan, detectors, bar, ready
         self.attach, self.labels, self.data, self.blocks = start.attach, start.labels, data, blocks
         self.camera = Camera.of(group.config.camera)
         self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0, "score_s": 0.0}  # score_s: within mapper_s
@@ -578,6 +580,8 @@ class _Detection:
         dets, plan = None, self.plan
         if self.detectors is not None:
             t0 = time.perf_counter()
+            if self.ready is not None:
+                self.ready.result()  # the networks built while the session compiled (errors raise here)
             dets = _detect(self.group, self.detectors, frames, c * plan.per_call)
             logs = self._relabel(c, logs, dets)
             t1 = time.perf_counter()
@@ -679,6 +683,19 @@ def _init_policies(group: Group, keys: jax.Array) -> tuple:
                 jax.tree.map(lambda f, p: f.__setitem__(run.rows, np.asarray(p)), full, part)
         out.append(jax.tree.map(jnp.asarray, full))
     return tuple(out)
+
+
+def _prepare(detectors: dict, camera) -> Future:
+    """Build every detector's network for the camera's frames in a thread of its own, while
+    the session compiles: a first use exports and quantises the graph (about 20 s)."""
+    shared: dict = {}  # the first detector of each network: _detect runs one pass per shared network
+    for d in detectors.values():
+        if hasattr(d, "prepare"):
+            shared.setdefault(getattr(d, "network", None), d)
+    pool = ThreadPoolExecutor(max_workers=1)
+    ready = pool.submit(lambda: [d.prepare(camera.rgb_height, camera.rgb_width) for d in shared.values()])
+    pool.shutdown(wait=False)  # the job runs on; nothing more is queued
+    return ready
 
 
 def _no_detections(b: int, frames: int) -> tuple[np.ndarray, ...]:
