@@ -3,7 +3,7 @@ in float32 or quantised to int8.
 
 Every runtime maps a batch (B, 3, H, W) float32 in [0, 1] to the decoded head (B, A, 5 + C):
 box centre and size in pixels, objectness, class probabilities (A anchors over the three
-strides, C classes). Non-maximum suppression stays in :mod:`rosmeery_jax.detector.yolo`, so
+strides, C classes). Non-maximum suppression is :mod:`rosmeery_jax.detector.boxes` (numpy), so
 the runtimes differ only in the network's arithmetic (docs/detector.md gives the measured
 speed and the mAP of each).
 
