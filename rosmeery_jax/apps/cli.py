@@ -167,8 +167,8 @@ def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
                       duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
-                      detector_runtime=args.detector_runtime, detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
-                      digest=args.digest or None)
+                      detector_runtime=args.detector_runtime, detector_period_s=args.detector_period_s,
+                      mappers=args.mapper, devices=args.devices, digest=args.digest or None)
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
           f"{cfg.duration:g} s -> {cfg.out}")
     out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
@@ -245,9 +245,9 @@ def _cmd_detector_export(args) -> int:
     except ValueError:
         raise InputError("--size", "value", f"{args.size!r} is not WxH in whole pixels, e.g. 160x128") from None
     model = checkpoint.load(Path(args.weights) if args.weights else DEFAULT_WEIGHTS)
-    runtimes.export(model, out, args.batch, h + (-h) % 32, w + (-w) % 32)
-    print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{h + (-h) % 32}x"
-          f"{w + (-w) % 32}")
+    size = runtimes.padded(h, w)
+    runtimes.export(model, out, args.batch, *size)
+    print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{size[0]}x{size[1]}")
     return 0
 
 
@@ -554,7 +554,7 @@ def _detector_parser(sub, d: SessionConfig) -> None:
                    f"runs (default {runtimes.DEFAULT})")
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=_cmd_detector_eval)
-    s = dsub.add_parser("export", help="write the network as an ONNX graph (for onnxruntime / openvino)")
+    s = dsub.add_parser("export", help="write the network as an ONNX graph (for ONNX Runtime)")
     s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
     s.add_argument("--out", required=True, metavar="FILE.onnx")
     s.add_argument("--batch", type=int, default=32, help="frames per call (default 32, a session's)")

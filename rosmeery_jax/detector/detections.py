@@ -112,7 +112,7 @@ class YoloDetector:
     def prepare(self, h: int, w: int) -> tuple[int, int]:
         """Build the network for frames of h x w (padded to whole strides), exporting its graph
         on first use; a session calls it while it compiles. Returns the padded (H, W)."""
-        padded = (h + (-h) % 32, w + (-w) % 32)
+        padded = runtimes.padded(h, w)
         if padded not in self._nets:
             self._nets[padded] = runtimes.network(self.runtime, self.model, self.path, self.batch, *padded,
                                                   self.threads)

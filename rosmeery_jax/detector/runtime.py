@@ -45,6 +45,11 @@ CALIBRATION_WORLDS = ("procedural:apartment:2000", "procedural:office:2000", "pr
 CALIBRATION_FRAMES = 128
 
 
+def padded(h: int, w: int) -> tuple[int, int]:
+    """A frame's size padded to whole strides of 32, the network's input (H, W)."""
+    return h + (-h) % 32, w + (-w) % 32
+
+
 def missing(runtime: str) -> list[str]:
     """The packages ``runtime`` needs that are not installed."""
     return [m for m in _NEEDS[runtime] if importlib.util.find_spec(m) is None]
@@ -65,13 +70,13 @@ def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:
     file's metadata."""
     import torch  # exporting needs torch; running the file does not
 
-    class Head(torch.nn.Module):
+    class Head(torch.nn.Module):  # what the exporter traces: forward() must be the decoded head
         def __init__(self, net):
             super().__init__()
             self.net = net
 
         def forward(self, x):
-            return self.net.model[24].decode(self.net(x))
+            return self.net.decoded(x)
 
     x = torch.zeros(batch, 3, height, width)
     with _quiet():
@@ -179,7 +184,7 @@ class TorchNetwork:
         import torch
 
         with torch.inference_mode():
-            return self.model.model[24].decode(self.model(torch.from_numpy(x))).numpy()
+            return self.model.decoded(torch.from_numpy(x)).numpy()
 
 
 class OnnxRuntimeNetwork:

@@ -189,8 +189,13 @@ class YOLOv5(nn.Module):
                 m.eps, m.momentum = 1e-3, 0.03
 
     @torch.no_grad()
+    def decoded(self, images: torch.Tensor) -> torch.Tensor:
+        """images (I, 3, H, W) in [0, 1] -> the decoded head (I, A, 5 + C): what every runtime
+        computes (rosmeery_jax.detector.runtime)."""
+        return self.model[24].decode(self(images))
+
     def detect(self, images: torch.Tensor, conf: float = 0.25, iou: float = 0.45, max_det: int = 100):
-        """images (I, 3, H, W) in [0, 1] -> list of I tensors (D, 6): x1, y1, x2, y2 (pixels),
+        """images (I, 3, H, W) in [0, 1] -> list of I arrays (D, 6): x1, y1, x2, y2 (pixels),
         confidence (objectness x class probability), class index."""
         with torch.inference_mode():
-            return nms(self.model[24].decode(self(images)).numpy(), conf, iou, max_det)
+            return nms(self.decoded(images).numpy(), conf, iou, max_det)

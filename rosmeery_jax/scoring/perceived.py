@@ -110,9 +110,10 @@ class PerceivedMapper(Mapper):
         """The map of every frame folded so far: confirmed instances only, merged ids resolved.
         Points only ever join the end, so the scorer ties each point once."""
         if self.points:
-            points = np.concatenate(self.points)
-            instance = np.array([self._root(i) for i in range(len(self.parent))], np.int64)[
-                np.concatenate(self.point_instance)]
+            root = np.array(self.parent, np.int64)
+            while not np.array_equal(root, root[root]):  # follow merges to their last instance
+                root = root[root]
+            points, instance = np.concatenate(self.points), root[np.concatenate(self.point_instance)]
         else:
             points, instance = np.zeros((0, 3)), np.zeros(0, np.int64)
         return MapState(points, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
@@ -176,7 +177,7 @@ class PerceivedMapper(Mapper):
         x = pose[0] + self.config.mount_x * c + c * px - s * py
         y = pose[1] + self.config.mount_x * s + s * px + c * py
         keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
-        cells = np.unique(_keys((x, y, z), self.cfg.cell))
+        cells = keys if self.cfg.cell == self.cfg.voxel else np.unique(_keys((x, y, z), self.cfg.cell))
         return keys, cells, np.stack([x[first], y[first], z[first]], -1)
 
     def _associate(self, cells: np.ndarray, label: int) -> int:
@@ -239,16 +240,20 @@ def _keys(xyz: tuple, size: float) -> np.ndarray:
 
 
 def _box_owner(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) index of the box each pixel lies most inside (rule 1), -1 outside every box."""
+    """(H, W) index of the box each pixel lies most inside (rule 1), -1 outside every box.
+    Each box is measured over its own rows and columns only."""
     h, w = shape
     owner = np.full(shape, -1, np.int64)
     best = np.full(shape, np.inf)
-    v, u = np.mgrid[0:h, 0:w] + 0.5  # pixel centres in the boxes' corner coordinates
     for i, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, np.float64)):
+        rows = np.s_[int(np.clip(np.floor(y1), 0, h)):int(np.clip(np.ceil(y2) + 1, 0, h))]
+        cols = np.s_[int(np.clip(np.floor(x1), 0, w)):int(np.clip(np.ceil(x2) + 1, 0, w))]
+        v = np.arange(h)[rows, None] + 0.5  # pixel centres in the boxes' corner coordinates
+        u = np.arange(w)[None, cols] + 0.5
         inside = np.maximum(np.abs(u - (x1 + x2) / 2) / max((x2 - x1) / 2, 1e-6),
                             np.abs(v - (y1 + y2) / 2) / max((y2 - y1) / 2, 1e-6))
-        take = (inside <= 1) & (inside < best)
-        owner[take], best[take] = i, inside[take]
+        take = (inside <= 1) & (inside < best[rows, cols])
+        owner[rows, cols][take], best[rows, cols][take] = i, inside[take]
     return owner
 
 
