@@ -26,15 +26,19 @@ RAY = str(Path(sys.executable).with_name("ray"))
 
 
 def _session(worlds: str, out: Path, *extra: str) -> list[str]:
-    return ["run", "--worlds", worlds, "--policies", "frontier,random", "--seeds", "2", "--duration", "10",
+    return ["run", "--worlds", worlds, "--policies", "frontier", "--seeds", "2", "--duration", "10",
             "--detector", "off", "--quiet", "--out", str(out), *extra]
 
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    path = tmp_path_factory.mktemp("world") / "room.xml"
-    path.write_text(room_xml(BODIES, {"chair_1": "chair", "desk_1": "desk"}, spawn=(0.3, -0.4, 0.0), half=2.2))
-    return str(path)
+    """Two rooms of one size (other spawns): a shard of either compiles the program a local
+    run of one room compiled, so the cluster's workers find it in the suite's cache."""
+    folder = tmp_path_factory.mktemp("world")
+    for name, spawn in (("room", (0.3, -0.4, 0.0)), ("room_b", (-0.6, 0.5, 1.0))):
+        (folder / f"{name}.xml").write_text(room_xml(BODIES, {"chair_1": "chair", "desk_1": "desk"}, spawn=spawn,
+                                                      half=2.2))
+    return f"{folder / 'room.xml'},{folder / 'room_b.xml'}"
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -72,21 +76,24 @@ def cluster(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def local(world, tmp_path_factory):
-    out = tmp_path_factory.mktemp("local") / "out"
-    assert main(_session(world, out)) == 0
-    return out
+    """Each room run alone on this machine (what a shard runs), one results folder per room."""
+    root = tmp_path_factory.mktemp("local")
+    for w in world.split(","):
+        assert main(_session(w, root / Path(w).stem)) == 0
+    return [root / Path(w).stem for w in world.split(",")]
 
 
-def _same_results(a: Path, b: Path) -> None:
+def _same_results(local: list[Path], b: Path) -> None:
+    """The tables and maps of folder ``b`` are those of the ``local`` folders together."""
     for table in ("metrics.csv", "objects.csv", "trajectories.csv"):
-        x, y = pd.read_csv(a / table), pd.read_csv(b / table)
+        x, y = pd.concat([pd.read_csv(a / table) for a in local]), pd.read_csv(b / table)
         assert not y.duplicated().any()
         key = [c for c in x.columns if c != "value"]
         pd.testing.assert_frame_equal(x.sort_values(key).reset_index(drop=True), y.sort_values(key).reset_index(drop=True))
-    maps = sorted(p.name for p in (a / "maps").iterdir())
-    assert maps == sorted(p.name for p in (b / "maps").iterdir()) and len(maps) == 2 * 2 * 2
-    for name in maps:
-        assert (a / "maps" / name).read_bytes() == (b / "maps" / name).read_bytes()
+    maps = {p.name: p for a in local for p in (a / "maps").iterdir()}
+    assert sorted(maps) == sorted(p.name for p in (b / "maps").iterdir()) and len(maps) == 2 * 2 * 2
+    for name, path in maps.items():
+        assert path.read_bytes() == (b / "maps" / name).read_bytes()
 
 
 def test_a_session_on_a_two_worker_cluster_equals_the_local_run(world, cluster, local, tmp_path):
@@ -146,7 +153,7 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
     from rosmeery_jax.session.engine import build_groups
 
     for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
-        group = build_groups([(world, p) for p in policies], {}, False, 3, 10, 100, devices)[0]
+        group = build_groups([(world.split(",")[0], p) for p in policies], {}, False, 3, 10, 100, devices)[0]
         assert len(group.blocks) == blocks and group.size == blocks * BLOCK
         assert group.real.sum() == 3 * len(policies)  # padding envs are never real
         assert [tuple(b) for b in group.blocks[:len(policies)]] == [(q, 0) for q in range(len(policies))]
@@ -162,7 +169,7 @@ def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(wor
     # (policies, seeds) -> (devices used, blocks): seeds <= 5 fill one block per run
     for policies, seeds, used, blocks in ((["frontier"], 3, 1, 1), (["frontier", "random"], 3, 2, 2),
                                           (["frontier", "random"], 7, 3, 6)):
-        group = build_groups([(world, p) for p in policies], {}, False, seeds, 10, 100)[0]
+        group = build_groups([(world.split(",")[0], p) for p in policies], {}, False, seeds, 10, 100)[0]
         assert (group.devices, len(group.blocks)) == (used, blocks)
         assert group.real.sum() == seeds * len(policies)
 
@@ -183,7 +190,7 @@ def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp
     from rosmeery_jax.core.errors import InputError
     from rosmeery_jax.session import Session, SessionConfig
 
-    cfg = SessionConfig(worlds=(world,), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
+    cfg = SessionConfig(worlds=tuple(world.split(",")), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
     with pytest.raises(InputError, match="--devices.*not with --cluster"):
         Session(cfg, cluster="auto").run()
     assert not (tmp_path / "o").exists()

@@ -98,15 +98,17 @@ def _host(a):
 
 
 def test_jit_and_vmap_agree_with_one_env(rl):
+    """One env alone equals its row of the batch (the batch the other tests compiled)."""
     env, params, reset, step = rl
-    key = jax.random.key(7)
-    obs1, state1 = jax.jit(env.reset)(key, params)
-    obs_b, state_b = reset(key[None], params)
-    np.testing.assert_allclose(obs1, obs_b[0], atol=1e-6)
-    out1 = jax.jit(env.step)(key, state1, jnp.int32(2), params)
-    out_b = step(key[None], state_b, jnp.asarray([2], jnp.int32), params)
-    np.testing.assert_allclose(out1[1].env.pose, out_b[1].env.pose[0], atol=1e-4)
-    np.testing.assert_allclose(out1[2], out_b[2][0], atol=1e-4)
+    keys = jax.random.split(jax.random.key(7), B)
+    obs1, state1 = jax.jit(env.reset)(keys[1], params)
+    obs_b, state_b = reset(keys, params)
+    np.testing.assert_allclose(obs1, obs_b[1], atol=1e-6)
+    out1 = jax.jit(env.step)(keys[1], state1, jnp.int32(2), params)
+    out_b = step(keys, state_b, jnp.full(B, 2, jnp.int32), params)
+    np.testing.assert_allclose(out1[1].env.pose, out_b[1].env.pose[1], atol=1e-4)
+    np.testing.assert_allclose(out1[2], out_b[2][1], atol=1e-4)
+    assert not np.allclose(out_b[1].env.pose[0], out_b[1].env.pose[1])  # the rows are different envs
 
 
 def test_goal_grid_by_hand():
