@@ -18,7 +18,7 @@ torch = pytest.importorskip("torch")
 
 from rosmeery_jax.apps.cli import main  # noqa: E402
 from rosmeery_jax.detector import checkpoint  # noqa: E402
-from rosmeery_jax.detector.dataset import visible_boxes  # noqa: E402
+from rosmeery_jax.detector.dataset import aim_shares, visible_boxes  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, OracleDetector, associate  # noqa: E402
 from rosmeery_jax.detector.evaluate import average_precision, mean_ap  # noqa: E402
 from rosmeery_jax.detector.boxes import nms  # noqa: E402
@@ -119,6 +119,12 @@ def _boxes_by_mask(labels: np.ndarray, min_pixels: int) -> np.ndarray:
         if len(xs) >= min_pixels:
             rows.append((o, xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, len(xs)))
     return np.array(rows, np.int64).reshape(-1, 6)
+
+
+def test_a_balanced_dataset_aims_at_every_category_equally_often():
+    """Three chairs and one table: each chair gets a sixth of the aims, the table half."""
+    np.testing.assert_allclose(aim_shares(np.array([4, 4, 4, 9])), [1 / 6, 1 / 6, 1 / 6, 1 / 2])
+    np.testing.assert_allclose(aim_shares(np.array([2, 7])), [0.5, 0.5])
 
 
 def test_visible_boxes_by_hand():

@@ -208,7 +208,7 @@ def _cmd_detector_dataset(args) -> int:
     worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
-    cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed)
+    cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed, balance=args.balance)
     with output_folder(out):
         summary = dataset.write(cfg, out, progress=not args.quiet)
     print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
@@ -535,6 +535,8 @@ def _detector_parser(sub, d: SessionConfig) -> None:
     s.add_argument("--out", default="data/detector", metavar="DIR")
     s.add_argument("--per-world", type=int, default=1500, metavar="N", help="viewpoints per world (train + val)")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--balance", action="store_true",
+                   help="aim at each object category equally often (more views of rare classes)")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_detector_dataset)
     s = dsub.add_parser("train", help="train YOLO-v5 from scratch on a dataset folder (CPU)")

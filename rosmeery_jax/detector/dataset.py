@@ -49,6 +49,8 @@ class DatasetConfig:
     block: float = 1.5  # metres: side of the squares the split holds out
     val_share: float = 0.2
     aim: float = 0.75  # share of viewpoints turned towards an object (the rest random yaw)
+    balance: bool = False  # aim at each category equally often, not each object (rare classes
+    # get more views: a world's one dining table as many as its twelve chairs)
 
 
 def visible_boxes(labels: np.ndarray, min_pixels: int) -> np.ndarray:
@@ -78,6 +80,13 @@ def _is_val(world: str, xy: np.ndarray, cfg: DatasetConfig) -> np.ndarray:
     return (h % 1000) < cfg.val_share * 1000
 
 
+def aim_shares(categories: np.ndarray) -> np.ndarray:
+    """(N,) probability of aiming at each object so that every category present is aimed at
+    equally often (objects of one category share its turn)."""
+    weight = 1.0 / np.bincount(categories)[categories]
+    return weight / weight.sum()
+
+
 def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarray:
     """(per_world, 3) camera poses at reachable cells, mostly looking at an object."""
     fs = world.free_space
@@ -86,7 +95,11 @@ def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarra
     xy = np.stack([fs.origin[0] + (jj[k] + rng.random(cfg.per_world)) * fs.resolution,
                    fs.origin[1] + (ii[k] + rng.random(cfg.per_world)) * fs.resolution], -1)
     centres = world.truth.bbox_center[:, :2]
-    pick = centres[rng.integers(len(centres), size=cfg.per_world)]
+    if cfg.balance:
+        share = aim_shares(np.asarray(world.truth.category_index))
+        pick = centres[rng.choice(len(centres), size=cfg.per_world, p=share)]
+    else:  # uniform over objects (drawn as before ``balance`` existed: same datasets)
+        pick = centres[rng.integers(len(centres), size=cfg.per_world)]
     towards = np.arctan2(pick[:, 1] - xy[:, 1], pick[:, 0] - xy[:, 0]) + rng.normal(0, 0.35, cfg.per_world)
     yaw = np.where(rng.random(cfg.per_world) < cfg.aim, towards, rng.uniform(-np.pi, np.pi, cfg.per_world))
     return np.concatenate([xy, yaw[:, None]], -1).astype(np.float32)
