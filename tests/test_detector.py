@@ -211,6 +211,21 @@ def test_shipped_weights_are_small_fp16_and_load():
     assert checkpoint.load(DEFAULT_WEIGHTS).nc == 27
 
 
+def test_the_held_out_detector_was_trained_on_generated_worlds_only():
+    """The weights carry their dataset's configuration; the manifest beside them lists the
+    same worlds, and every one is a procedural world (no paper world, no file)."""
+    import json
+
+    from rosmeery_jax.world.generate import parse_name
+
+    folder = Path(__file__).resolve().parents[1] / "experiments" / "detector"
+    meta = torch.load(folder / "yolov5n_procedural.pt", weights_only=True)["meta"]
+    manifest = json.loads((folder / "dataset.json").read_text())["dataset"]
+    assert meta["dataset"] == manifest and len(manifest["worlds"]) == 240
+    kinds = {parse_name(w).kind for w in manifest["worlds"]}  # raises on any other name
+    assert kinds == {"apartment", "office", "kitchen", "lab"}
+
+
 @pytest.mark.parametrize("detector", ["yolo", "oracle"])
 def test_session_with_a_detector_scores_confidences_and_labels(tmp_path, detector):
     out = tmp_path / detector
