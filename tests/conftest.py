@@ -10,24 +10,16 @@ import pytest
 # One persistent compilation cache for the whole suite (and across CI runs on one machine).
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".jax_cache"))
 # One host device per test process: a session's default (one per core) would compile a copy of
-# its program per device, twice the compiling beside the other xdist workers. Results do not
+# its program per device, twice the compiling beside the other xdist worker. Results do not
 # depend on the device count; test_cluster checks two devices in a process of its own.
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=1".strip()
 
-# The slowest files first (cold-cache minutes on 2 cores, most of them compiling), so the xdist
-# workers (pyproject: a file per worker at a time) finish together rather than one waiting
-# for another's last long file. Within a file the order is unchanged.
+# The slowest files first (cold-cache minutes on 2 cores, most of them compiling), so the two
+# xdist workers (pyproject: a file per worker at a time) finish together rather than one
+# waiting for the other's last long file. Within a file the order is unchanged.
 SLOWEST_FIRST = ("test_rl", "test_platform", "test_engine", "test_session", "test_gym", "test_cluster", "test_plugins",
                  "test_hardening", "test_teleop", "test_navigation", "test_procedural")
-
-
-def pytest_xdist_auto_num_workers(config):
-    """``-n auto`` (pyproject): one worker more than the cores. Most of the suite is XLA
-    compiling, which runs on one thread, so a third worker on two cores compiles while the
-    other two run; capped at 6 for memory (each worker holds its own JAX programs)."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return min(cores + 1, 6)
 
 
 def pytest_collection_modifyitems(items):
