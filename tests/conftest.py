@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -15,11 +16,19 @@ os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=1".strip()
 # The suite's sessions are short: most of their time is XLA compiling, not running. LLVM's
-# quick pipeline compiles a small session in half the time (22.6 -> 11 s measured, code ~7x
-# slower to run, which a few hundred steps do not feel). Sessions outside the suite keep
-# XLA's defaults.
+# quick pipeline compiles a 4 s two-robot session in 17 s instead of 23 s; the code runs about
+# 4x slower (a 120 s ten-robot session: 8 -> 34 s), which a few hundred steps do not feel.
+# Results may differ from a default build in the last bits, so a test's subprocess sessions
+# keep these flags (``suite_xla_flags``). Sessions outside the suite keep XLA's defaults.
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] += " --xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+    os.environ["XLA_FLAGS"] += (" --xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
+                                " --xla_cpu_parallel_codegen_split_count=1")
+
+
+def suite_xla_flags() -> str:
+    """The suite's XLA flags less the host device count, for a subprocess that sets its own."""
+    return re.sub(r"\s*--xla_force_host_platform_device_count=\d+", "", os.environ["XLA_FLAGS"]).strip()
+
 
 # The slowest files first (cold-cache minutes on 2 cores, most of them compiling), so the two
 # xdist workers (pyproject: a file per worker at a time) finish together rather than one

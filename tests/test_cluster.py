@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from conftest import room_xml
+from conftest import room_xml, suite_xla_flags
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.session.engine import BLOCK
 
@@ -140,7 +140,8 @@ def test_devices_split_the_batch_over_host_devices_and_change_nothing(world, loc
     """Two host devices made from the CPU's cores (a fresh process: XLA reads the flag at start)."""
     out = tmp_path / "devices"
     cmd = [str(Path(sys.executable).with_name("rosmeery")), *_session(world, out, "--devices", "2")]
-    done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "XLA_FLAGS": ""}, timeout=600)
+    done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "XLA_FLAGS": suite_xla_flags()},
+                          timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     _same_results(local, out)
     import json
