@@ -206,7 +206,9 @@ def test_ctrl_c_always_stops_a_run_and_leaves_it_resumable(tmp_path):
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 130, err[-2000:]
-        assert time.monotonic() - t0 < 20, "stopped within a chunk"
+        # Not lost: the run had 3000 s to simulate. The bound leaves room for a compile that a
+        # signal cannot cut short, on a machine busy with other tests.
+        assert time.monotonic() - t0 < 60, "stopped at the next chunk"
         assert "interrupted" in err and not (out / "metrics.csv").exists()
         claim_folder(out, resume=True)  # the same command with --resume is accepted
 
