@@ -25,20 +25,20 @@ BODIES = """
 RAY = str(Path(sys.executable).with_name("ray"))
 
 
-def _session(worlds: str, out: Path, *extra: str) -> list[str]:
-    return ["run", "--worlds", worlds, "--policies", "frontier", "--seeds", "2", "--duration", "10",
+def _session(worlds: list[str], out: Path, *extra: str) -> list[str]:
+    return ["run", "--worlds", ",".join(worlds), "--policies", "frontier", "--seeds", "2", "--duration", "10",
             "--detector", "off", "--quiet", "--out", str(out), *extra]
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory):
+def world(tmp_path_factory) -> list[str]:
     """Two rooms of one size (other spawns): a shard of either compiles the program a local
     run of one room compiled, so the cluster's workers find it in the suite's cache."""
     folder = tmp_path_factory.mktemp("world")
     for name, spawn in (("room", (0.3, -0.4, 0.0)), ("room_b", (-0.6, 0.5, 1.0))):
         (folder / f"{name}.xml").write_text(room_xml(BODIES, {"chair_1": "chair", "desk_1": "desk"}, spawn=spawn,
                                                       half=2.2))
-    return f"{folder / 'room.xml'},{folder / 'room_b.xml'}"
+    return [str(folder / "room.xml"), str(folder / "room_b.xml")]
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -78,9 +78,9 @@ def cluster(tmp_path_factory):
 def local(world, tmp_path_factory):
     """Each room run alone on this machine (what a shard runs), one results folder per room."""
     root = tmp_path_factory.mktemp("local")
-    for w in world.split(","):
-        assert main(_session(w, root / Path(w).stem)) == 0
-    return [root / Path(w).stem for w in world.split(",")]
+    for w in world:
+        assert main(_session([w], root / Path(w).stem)) == 0
+    return [root / Path(w).stem for w in world]
 
 
 def _same_results(local: list[Path], b: Path) -> None:
@@ -154,7 +154,7 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
     from rosmeery_jax.session.engine import build_groups
 
     for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
-        group = build_groups([(world.split(",")[0], p) for p in policies], {}, False, 3, 10, 100, devices)[0]
+        group = build_groups([(world[0], p) for p in policies], {}, False, 3, 10, 100, devices)[0]
         assert len(group.blocks) == blocks and group.size == blocks * BLOCK
         assert group.real.sum() == 3 * len(policies)  # padding envs are never real
         assert [tuple(b) for b in group.blocks[:len(policies)]] == [(q, 0) for q in range(len(policies))]
@@ -170,7 +170,7 @@ def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(wor
     # (policies, seeds) -> (devices used, blocks): seeds <= 5 fill one block per run
     for policies, seeds, used, blocks in ((["frontier"], 3, 1, 1), (["frontier", "random"], 3, 2, 2),
                                           (["frontier", "random"], 7, 3, 6)):
-        group = build_groups([(world.split(",")[0], p) for p in policies], {}, False, seeds, 10, 100)[0]
+        group = build_groups([(world[0], p) for p in policies], {}, False, seeds, 10, 100)[0]
         assert (group.devices, len(group.blocks)) == (used, blocks)
         assert group.real.sum() == seeds * len(policies)
 
@@ -191,7 +191,7 @@ def test_devices_with_a_cluster_is_refused_before_anything_is_written(world, tmp
     from rosmeery_jax.core.errors import InputError
     from rosmeery_jax.session import Session, SessionConfig
 
-    cfg = SessionConfig(worlds=tuple(world.split(",")), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
+    cfg = SessionConfig(worlds=tuple(world), out=str(tmp_path / "o"), devices=2)  # not validated: no 2 devices here
     with pytest.raises(InputError, match="--devices.*not with --cluster"):
         Session(cfg, cluster="auto").run()
     assert not (tmp_path / "o").exists()
