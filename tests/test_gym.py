@@ -18,6 +18,8 @@ BODIES = """
 """
 # 48 x 40 pixels: the smallest Stable-Baselines3's image encoder takes is 36 x 36
 SMALL = GymConfig(duration=3.0, env={"camera": {"rgb_width": 48, "rgb_height": 40}})
+# The vector env tests share one setting (two robots, the privileged view), so one compiled step.
+VECTOR = GymConfig(duration=3.0, privileged=True, env=SMALL.env)
 
 
 @pytest.fixture(scope="module")
@@ -56,12 +58,12 @@ def test_observations_are_what_the_robot_perceives_and_episodes_end_at_the_durat
 
 
 def test_the_vector_env_batches_robots_over_worlds_and_scores_a_submitted_map(world):
-    vec = VectorEnv([world], 3, GymConfig(duration=2.0, privileged=True, env=SMALL.env))
+    vec = VectorEnv([world], 2, VECTOR)
     obs, _ = vec.reset(seed=0)
-    assert obs["rgb"].shape == (3, 40, 48, 3) and obs["privileged_coverage"].shape[0] == 3
-    obs, reward, _, truncated, _ = vec.step(np.zeros((3, 3), np.float32))
-    assert reward.shape == (3,) and not truncated.any()
-    assert len({tuple(p) for p in np.round(vec.poses(), 4)}) == 3  # robots differ (own keys)
+    assert obs["rgb"].shape == (2, 40, 48, 3) and obs["privileged_coverage"].shape[0] == 2
+    obs, reward, _, truncated, _ = vec.step(np.zeros((2, 3), np.float32))
+    assert reward.shape == (2,) and not truncated.any()
+    assert len({tuple(p) for p in np.round(vec.poses(), 4)}) == 2  # robots differ (own keys)
     truth = vec.bank.worlds[0].truth
     samples = np.asarray(truth.samples.points)[np.asarray(truth.samples.object) == 0]
     perfect = MapState(samples, np.zeros(len(samples), np.int64), np.array([truth.category_index[0]]), np.ones(1))
@@ -80,7 +82,7 @@ def test_the_pytorch_agent_example_explores_through_the_vector_env(world):
     spec = importlib.util.spec_from_file_location("torch_agent", path)
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
-    vec = VectorEnv([world], 2, SMALL)
+    vec = VectorEnv([world], 2, VECTOR)  # the agent reads no privileged field
     agent = example.TorchFrontier(vec)
     obs, _ = vec.reset(seed=0)
     start, gained = obs["pose"][:, :2].copy(), 0.0
