@@ -243,6 +243,7 @@ def test_a_short_training_run_raises_the_return(trained):
 
     curve = ppo.read_curve(trained)
     assert list(curve["update"]) == list(range(1, 31))
+    assert (trained / "curve.png").read_bytes().startswith(b"\x89PNG")  # drawn at the end
     first, last = curve["return"].head(8).mean(), curve["return"].tail(8).mean()
     assert last > first + 0.2, (first, last)
 

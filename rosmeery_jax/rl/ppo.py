@@ -10,7 +10,8 @@ The network and the policy file are in :mod:`.network`.
 Files in the output folder: ``config.json`` (the run's whole configuration; ``--resume``
 needs the same), ``checkpoint.msgpack`` (everything the next update needs: parameters,
 optimiser, envs, keys, the curve so far; written atomically every ``checkpoint_every``
-updates), ``curve.csv`` and ``curve.png`` (the learning curve), ``policy.msgpack`` (the
+updates), ``curve.csv`` (the learning curve, at every checkpoint) and ``curve.png`` (drawn at most
+every ``PICTURE_EVERY_S`` seconds, and at the end), ``policy.msgpack`` (the
 parameters and the env settings the policy needs, for ``learned:PATH``). Checkpoints use
 flax's msgpack serialization of the state's leaves (the env state holds MuJoCo arrays,
 which orbax's and flax's pytree handlers do not know).
@@ -48,6 +49,7 @@ from rosmeery_jax.world.generate import expand_names
 
 ENV_BYTES = 2.5e6  # one env's state, as a session's (docs/performance.md)
 ROLLOUT_COPIES = 4  # a rollout's observations are held, shuffled and batched within one update
+PICTURE_EVERY_S = 60.0  # curve.png is redrawn at a checkpoint at most this often (and at the end)
 
 
 @dataclass(frozen=True)
@@ -329,7 +331,7 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
     p = cfg.ppo
     steps_per_update = p.num_envs * p.num_steps * cfg.rl.decide_every
     bar = tqdm(total=p.updates, initial=done, disable=not progress, unit="update")
-    t0 = time.perf_counter()
+    t0 = drawn = time.perf_counter()
     for u in range(done, p.updates):
         interrupt.check()  # Ctrl-C stops between updates; the last checkpoint resumes
         runner, stats = update(runner)
@@ -341,10 +343,12 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
         bar.set_postfix_str(f"return {stats['return']:.3f}, {steps_per_update * (u + 1 - done) / elapsed:,.0f} env-steps/s")
         if (u + 1) % p.checkpoint_every == 0 or u + 1 == p.updates:
             save_checkpoint(out / "checkpoint.msgpack", runner, u + 1, curve)
-            _write_curve(out, curve)
+            picture = time.perf_counter() - drawn >= PICTURE_EVERY_S
+            _write_curve(out, curve, picture)
+            drawn = time.perf_counter() if picture else drawn
     bar.close()
     save_policy(out / "policy.msgpack", cfg.rl, cfg.env, runner.train.params)
-    _write_curve(out, curve)
+    _write_curve(out, curve, picture=True)
 
 
 def _check_finite(out: Path, update: int, stats: dict, params) -> None:
@@ -371,7 +375,10 @@ def read_curve(out: str | Path):
     return pd.read_csv(Path(out) / "curve.csv")
 
 
-def _write_curve(out: Path, curve: list[dict]) -> None:
+def _write_curve(out: Path, curve: list[dict], picture: bool) -> None:
+    """curve.csv, and with ``picture`` curve.png (drawing it takes a quarter second: short
+    updates would spend more time drawing than training)."""
     table = pd.DataFrame(curve)
     write_atomic(out / "curve.csv", table.to_csv(index=False))
-    learning_curve(table, out / "curve.png")
+    if picture:
+        learning_curve(table, out / "curve.png")
