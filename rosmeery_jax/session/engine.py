@@ -37,6 +37,7 @@ chunk, D detections per frame.
 
 from __future__ import annotations
 
+import collections
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -61,6 +62,7 @@ from rosmeery_jax.session import digest
 from rosmeery_jax.world import load_world
 
 BLOCK = 5  # envs per compiled block (module docstring): 5 seeds, the paper's and the default, fill one
+QUEUED_CHUNKS = 2  # chunks dispatched and not yet run: one runs while the next waits its turn
 MAX_DET = 32  # detections kept per frame (the most confident)
 LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
 
@@ -458,6 +460,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
         run.host_policy.check_start(track0.pose[run.rows])
     worker = _Detection(group, plan, detectors, start, data, blocks, bar, ready)
     state, pstates, key, jobs, wait_s, digests = start.state, start.pstates, keys.run, [], 0.0, []
+    queued = collections.deque()  # the key each dispatched chunk returns: ready once that chunk has run
     try:
         with interrupt.deferred():  # Ctrl-C between chunks, never inside a JAX callback
             for c in range(plan.total // plan.per_call):
@@ -468,8 +471,11 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
                     t1 = time.perf_counter()
                     pending = tuple(jnp.asarray(d) for d in jobs[c - 2].result().dets[:3])
                     wait_s += time.perf_counter() - t1
+                if len(queued) == QUEUED_CHUNKS:  # else JAX queues the whole run at once: Ctrl-C would
+                    jax.block_until_ready(queued.popleft())  # wait for all of it, its outputs all held
                 out = start.chunk(data, blocks, state, pstates, key, pending)
                 state, pstates, key = out.state, out.pstates, out.key
+                queued.append(key)
                 jobs.append(worker.submit(c, out.logs, out.track, out.frames))
                 if plan.digest:  # waits for the chunk: a debugging aid, not for timed runs
                     digests.append(digest.of_state(state))
