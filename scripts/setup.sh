@@ -26,7 +26,9 @@ stamp=".venv/.rosmeery-installed-${extras//,/-}"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     # torch pinned here too, so no resolver path can reach a newer, CUDA-laden build.
-    .venv/bin/python -m pip install --quiet -e ".[$extras]" "torch==2.13.0"
+    # --no-compile: Python compiles the modules it imports when first imported, instead of
+    # pip compiling every file of every package up front (65 s instead of 99 s here).
+    .venv/bin/python -m pip install --quiet --no-compile -e ".[$extras]" "torch==2.13.0"
     touch "$stamp"
 fi
 
