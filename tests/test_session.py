@@ -137,7 +137,8 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
             return (s, ps, k), None
         return jax.lax.scan(decide, (s, ps, k), None, length=10)[0]
 
-    chunk = jax.jit(jax.vmap(ten_seconds))
+    # compiled once from the first arguments: a later call's (committed) arrays would compile it again
+    chunk = jax.jit(jax.vmap(ten_seconds)).lower(state, pstate, keys).compile()
     def free_cells(s):
         return int((np.asarray(jax.vmap(env.occupancy)(s)) == occupancy.FREE).sum())
 
