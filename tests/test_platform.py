@@ -295,7 +295,8 @@ def test_block_any_and_grow_match_a_plain_reference(h, w, f, seed):
 
 def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
     env = _env("velocity")
-    final, _ = _rollout("velocity", 30)(jax.random.split(jax.random.PRNGKey(0), 1), jnp.tile(jnp.array([[0.0, 1.0]]), (30, 1, 1)))
+    # two robots, as the same-key test: one compiled rollout serves both
+    final, _ = _rollout("velocity", 30)(jax.random.split(jax.random.PRNGKey(0), 2), jnp.tile(jnp.array([[0.0, 1.0]]), (30, 2, 1)))
     occ = np.asarray(env.occupancy(final))[0]
     w = env.world
     walls = rasterize(w.scene, w.scene.object_id == WALL, w.free_space.origin, occ.shape, w.free_space.resolution)
