@@ -343,7 +343,8 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
         bar.set_postfix_str(f"return {stats['return']:.3f}, {steps_per_update * (u + 1 - done) / elapsed:,.0f} env-steps/s")
         if (u + 1) % p.checkpoint_every == 0 or u + 1 == p.updates:
             save_checkpoint(out / "checkpoint.msgpack", runner, u + 1, curve)
-            picture = time.perf_counter() - drawn >= PICTURE_EVERY_S
+            # the last update's picture is drawn once, below
+            picture = u + 1 < p.updates and time.perf_counter() - drawn >= PICTURE_EVERY_S
             _write_curve(out, curve, picture)
             drawn = time.perf_counter() if picture else drawn
     bar.close()
