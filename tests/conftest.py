@@ -30,11 +30,14 @@ def suite_xla_flags() -> str:
     return re.sub(r"\s*--xla_force_host_platform_device_count=\d+", "", os.environ["XLA_FLAGS"]).strip()
 
 
-# The slowest files first (cold-cache minutes on 2 cores, most of them compiling), so the two
-# xdist workers (pyproject: a file per worker at a time) finish together rather than one
-# waiting for the other's last long file. Within a file the order is unchanged.
-SLOWEST_FIRST = ("test_rl", "test_platform", "test_engine", "test_session", "test_gym", "test_cluster", "test_plugins",
-                 "test_hardening", "test_teleop", "test_navigation", "test_procedural")
+# The slowest files first (cold-cache seconds on 2 cores, most of them compiling: test_rl
+# about 215, test_stats under 1), so the two xdist workers (pyproject: a file per worker at a
+# time, in this order) finish together rather than one waiting for the other's last long
+# file. Within a file the order is unchanged.
+SLOWEST_FIRST = ("test_rl", "test_platform", "test_cluster", "test_engine", "test_plugins", "test_gym",
+                 "test_hardening", "test_detector", "test_session", "test_teleop", "test_navigation",
+                 "test_metrics", "test_safety", "test_procedural", "test_explorers", "test_digest", "test_runtime",
+                 "test_record")
 
 
 def pytest_collection_modifyitems(items):

@@ -70,6 +70,35 @@ def test_target_enclosed_on_the_map_is_unreachable_at_once():
     assert STATUS_NAMES[int(outside.status)] == "moving"
 
 
+def _held(nav, pose, targets, new):
+    """Statuses (T,) of the navigator for a robot held at ``pose`` (it never moves, whatever
+    it is told) on an empty map; ``targets`` (T, 3) sent at the steps where ``new`` (T,) is set."""
+
+    def body(s, x):
+        s, _ = nav.step(nav.set_target(s, *x), pose, jnp.zeros(nav.geo.shape, bool))
+        return s, s.status
+
+    return np.asarray(jax.jit(lambda t, n: jax.lax.scan(body, nav.init(), (t, n))[1])(targets, new))
+
+
+def test_a_robot_that_cannot_move_is_reported_stuck_within_ten_seconds():
+    """Held in place, the navigator recovers once (the recovery could not back it off, so
+    there is no second) and then says stuck: 2 s still, a recovery of at most 2.8 s, 2 s still. A policy that sends the target again every second
+    (as the learned explorer does) gets its robot backed off all the same, a little later:
+    each new target's plan takes a few steps to reach the robot."""
+    nav = make("small_office").navigator
+    t, pose = 150, jnp.array([-0.5, 0.0, 0.0])
+    targets = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), (t, 3))
+    status = _held(nav, pose, targets, jnp.arange(t) == 0).tolist()
+    stuck = status.index(STUCK)
+    assert 4.0 <= stuck * nav.dt <= 7.6, [STATUS_NAMES[s] for s in status[:stuck + 1]]
+    assert set(status[stuck:]) == {STUCK}
+    starts = [k for k in range(1, stuck) if status[k] == RECOVERING and status[k - 1] != RECOVERING]
+    assert len(starts) == 1 < nav.cfg.recoveries and 2.0 <= starts[0] * nav.dt <= 2.5
+    again = _held(nav, pose, targets, jnp.arange(t) % 10 == 0).tolist()
+    assert RECOVERING in again and again.index(RECOVERING) * nav.dt <= 5.0, [STATUS_NAMES[s] for s in again[:40]]
+
+
 def test_random_walker_targets_are_reachable_on_its_own_map():
     env = make("small_office")
     policy = RandomPolicy(env)

@@ -198,7 +198,7 @@ def test_nearest_proxies_step_as_the_whole_model():
 
             return jax.lax.scan(body, d, actions)[1]
 
-        return np.asarray(jax.jit(run)(jax.vmap(env.reset)(keys).physics, actions))
+        return np.asarray(jax.jit(lambda k, a: run(jax.vmap(env.reset)(k).physics, a))(keys, actions))
 
     a = poses(near)
     np.testing.assert_array_equal(a, poses(whole))

@@ -126,7 +126,7 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
     env = make("small_office", start_yaw="spawn")
     policy = make_policy("frontier", env)
     keys = jax.random.split(jax.random.key(0), 1)
-    state, pstate = jax.vmap(env.reset)(keys), jax.vmap(policy.init)(keys)
+    state, pstate = jax.jit(lambda k: (jax.vmap(env.reset)(k), jax.vmap(policy.init)(k)))(keys)
 
     def ten_seconds(s, ps, k):  # 10 decisions, each followed by 10 steps of 0.1 s
         def decide(carry, _):
@@ -139,11 +139,13 @@ def test_frontier_mapped_area_grows_and_exploration_ends():
 
     # compiled once from the first arguments: a later call's (committed) arrays would compile it again
     chunk = jax.jit(jax.vmap(ten_seconds)).lower(state, pstate, keys).compile()
+    grids = jax.jit(jax.vmap(env.occupancy))
+
     def free_cells(s):
-        return int((np.asarray(jax.vmap(env.occupancy)(s)) == occupancy.FREE).sum())
+        return int((np.asarray(grids(s)) == occupancy.FREE).sum())
 
     def known_cells(s):
-        return int((np.asarray(jax.vmap(env.occupancy)(s)) != occupancy.UNKNOWN).sum())
+        return int((np.asarray(grids(s)) != occupancy.UNKNOWN).sum())
 
     free, known, done, poses = [free_cells(state)], [known_cells(state)], [], []
     for _ in range(5):

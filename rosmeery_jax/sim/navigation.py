@@ -23,7 +23,11 @@ Recovery: no progress for ``stuck_time``, or no motion (within ``still_distance`
 for the rest of the run: what a bumper reports, for obstacles the laser's plane misses, such
 as chair feet and seats), then the robot backs off (``backoff_time`` at ``backoff_speed``), turns towards the new plan (at most
 ``turn_time``) and drives on. After ``recoveries`` of them without reaching the target the
-navigator gives up: STUCK.
+navigator gives up: STUCK. A recovery that could not back the robot off (it ends within
+``freed_distance`` of where it began) is the last: a robot that cannot move at all drives
+at most about 7.5 s (2 s still, 2.8 s of recovery, 2 s still) before it says so. The
+no-motion clock runs on when the policy sends a new target mid-drive, so a policy that
+re-targets every second cannot keep a wedged robot pushing without a recovery.
 
 Status, reported in the state so policies can react: MOVING, RECOVERING, REACHED, STUCK,
 UNREACHABLE (target blocked or enclosed, or no path once the wave had time to arrive),
@@ -62,6 +66,7 @@ class NavConfig:
     still_distance: float = 0.05
     timeout: float = 60.0
     recoveries: int = 2  # back-off-and-turn attempts per target before STUCK
+    freed_distance: float = 0.1  # a recovery that moved the robot less was the last
     backoff_time: float = 0.8
     backoff_speed: float = 0.5  # at 0.25 m/s the velocity servo's force cap cannot break a wedged contact
     turn_time: float = 2.0
@@ -75,7 +80,8 @@ class NavState(NamedTuple):
     target; reach (Hc, Wc) bool the last finished reachability flood, flood (Hc, Wc) bool
     the one growing; bumps (Hc, Wc) bool cells found blocked by
     driving into them; trail (Hc, Wc) bool cells the robot's centre has been in; anchor (2,)
-    where the robot last moved to, still int32 steps since."""
+    where the robot last moved to, still int32 steps since; origin (2,) where the last
+    recovery began."""
 
     target: jax.Array
     field: jax.Array
@@ -91,6 +97,7 @@ class NavState(NamedTuple):
     trail: jax.Array
     anchor: jax.Array
     still: jax.Array
+    origin: jax.Array
 
 
 class Control(NamedTuple):
@@ -129,14 +136,15 @@ class Navigator:
         everywhere = self.coarse.inside()  # before the first flood ends, nothing is known enclosed
         return NavState(jnp.zeros(3, jnp.float32), jnp.full(self.coarse_shape, BIG, jnp.float32),
                         jnp.int32(IDLE), z, z, jnp.float32(BIG), z, z, everywhere, jnp.zeros_like(everywhere),
-                        jnp.zeros_like(everywhere), jnp.zeros_like(everywhere), jnp.zeros(2, jnp.float32), z)
+                        jnp.zeros_like(everywhere), jnp.zeros_like(everywhere), jnp.zeros(2, jnp.float32), z,
+                        jnp.zeros(2, jnp.float32))
 
     def set_target(self, nav: NavState, target: jax.Array, new: jax.Array) -> NavState:
         """Start driving to ``target`` (3,) when ``new`` (bool) is set; else keep going."""
         z = jnp.int32(0)
         fresh = nav._replace(target=target.astype(jnp.float32), field=jnp.full(self.coarse_shape, BIG, jnp.float32),
                              status=jnp.int32(MOVING), elapsed=z, since_progress=z, best=jnp.float32(BIG),
-                             recovery=z, tries=z, still=z)
+                             recovery=z, tries=z)
         return jax.tree.map(lambda a, b: jnp.where(new, a, b), fresh, nav)
 
     def open_cells(self, nav: NavState, pose: jax.Array, occupied: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -215,7 +223,9 @@ class Navigator:
         # Before the wave reaches the robot there is nothing to make progress on.
         since = jnp.where(progress | (c.here >= BIG), 0, nav.since_progress + 1)
         moved = jnp.linalg.norm(pose[:2] - nav.anchor) > cfg.still_distance
-        still = jnp.where(moved | recovering | (c.here >= BIG), 0, nav.still + 1)
+        # Counted while driving away from the goal, across a new target sent mid-drive; paused
+        # while the plan has not reached the robot (a new target's plan starts afresh).
+        still = jnp.where(moved | recovering | ~active | c.at_goal, 0, nav.still + (c.here < BIG))
         elapsed = nav.elapsed + 1
         no_path = (c.here >= BIG) & (elapsed > self.settle_steps)
         recovery = jnp.where(recovering, nav.recovery + 1, 0)
@@ -234,13 +244,17 @@ class Navigator:
         recovery = jnp.where((status == RECOVERING) & ~starts, recovery, 0)
         # A recovery (and the drive after it) measures its progress afresh.
         afresh = starts | recovered
+        # A recovery that could not back the robot off leaves no retry: pushing on gains nothing.
+        freed = jnp.linalg.norm(pose[:2] - nav.origin) > cfg.freed_distance
+        tries = jnp.where(recovered & ~freed, cfg.recoveries, nav.tries + starts)
         cmd = jnp.where(status == MOVING, c.cmd, 0.0)
         cmd = jnp.where(status == RECOVERING, self._recover(recovery, c.cmd[1]), cmd)
         return nav._replace(field=field, status=status, elapsed=elapsed, since_progress=jnp.where(afresh, 0, since),
-                            best=jnp.where(recovered, BIG, best), recovery=recovery, tries=nav.tries + starts,
+                            best=jnp.where(recovered, BIG, best), recovery=recovery, tries=tries,
                             bumps=self._bump(nav.bumps, pose, starts, boxed),
                             trail=nav.trail.at[self.coarse.cell(pose[:2])].set(True),
-                            anchor=jnp.where(moved, pose[:2], nav.anchor), still=jnp.where(afresh, 0, still)), cmd
+                            anchor=jnp.where(moved, pose[:2], nav.anchor), still=jnp.where(afresh, 0, still),
+                            origin=jnp.where(starts, pose[:2], nav.origin)), cmd
 
     def _bump(self, bumps: jax.Array, pose: jax.Array, starts: jax.Array, boxed: jax.Array) -> jax.Array:
         """The bumped cells after this step: a recovery from no progress marks the cells
