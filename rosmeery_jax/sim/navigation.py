@@ -63,7 +63,7 @@ class NavConfig:
     stuck_time: float = 3.0
     stuck_progress: float = 0.15
     still_time: float = 2.0  # driving yet within still_distance of one spot this long: wedged
-    still_distance: float = 0.05
+    still_distance: float = 0.1  # as navigation.csv's still and longest-stuck measures
     timeout: float = 60.0
     recoveries: int = 2  # back-off-and-turn attempts per target before STUCK
     freed_distance: float = 0.1  # a recovery that moved the robot less was the last
@@ -220,8 +220,9 @@ class Navigator:
         recovering = nav.status == RECOVERING
         progress = c.here * self.coarse.resolution < nav.best - cfg.stuck_progress
         best = jnp.where(progress, c.here * self.coarse.resolution, nav.best)
-        # Before the wave reaches the robot there is nothing to make progress on.
-        since = jnp.where(progress | (c.here >= BIG), 0, nav.since_progress + 1)
+        # Before the wave reaches the robot there is nothing to make progress on: the clock
+        # waits (a robot nudged into a cell the plan has not reached keeps its count).
+        since = jnp.where(progress, 0, nav.since_progress + (c.here < BIG))
         moved = jnp.linalg.norm(pose[:2] - nav.anchor) > cfg.still_distance
         # Counted while driving away from the goal, across a new target sent mid-drive; paused
         # while the plan has not reached the robot (a new target's plan starts afresh).
