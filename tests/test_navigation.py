@@ -83,9 +83,10 @@ def _held(nav, pose, targets, new):
 
 def test_a_robot_that_cannot_move_is_reported_stuck_within_ten_seconds():
     """Held in place, the navigator recovers once (the recovery could not back it off, so
-    there is no second) and then says stuck: 2 s still, a recovery of at most 2.8 s, 2 s still. A policy that sends the target again every second
-    (as the learned explorer does) gets its robot backed off all the same, a little later:
-    each new target's plan takes a few steps to reach the robot."""
+    there is no second) and then says stuck: 2 s still, a recovery of at most 2.8 s, 2 s
+    still. A policy that sends the target again every second (as the learned explorer
+    does) gets its robot backed off all the same, a little later: each new target's plan
+    takes a few steps to reach the robot."""
     nav = make("small_office").navigator
     t, pose = 150, jnp.array([-0.5, 0.0, 0.0])
     targets = jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0]), (t, 3))

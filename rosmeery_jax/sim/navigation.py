@@ -24,7 +24,7 @@ for the rest of the run: what a bumper reports, for obstacles the laser's plane 
 as chair feet and seats), then the robot backs off (``backoff_time`` at ``backoff_speed``), turns towards the new plan (at most
 ``turn_time``) and drives on. After ``recoveries`` of them without reaching the target the
 navigator gives up: STUCK. A recovery that could not back the robot off (it ends within
-``freed_distance`` of where it began) is the last: a robot that cannot move at all drives
+``still_distance`` of where it began) is the last: a robot that cannot move at all drives
 at most about 7.5 s (2 s still, 2.8 s of recovery, 2 s still) before it says so. The
 no-motion clock runs on when the policy sends a new target mid-drive, so a policy that
 re-targets every second cannot keep a wedged robot pushing without a recovery.
@@ -66,7 +66,6 @@ class NavConfig:
     still_distance: float = 0.1  # as navigation.csv's still and longest-stuck measures
     timeout: float = 60.0
     recoveries: int = 2  # back-off-and-turn attempts per target before STUCK
-    freed_distance: float = 0.1  # a recovery that moved the robot less was the last
     backoff_time: float = 0.8
     backoff_speed: float = 0.5  # at 0.25 m/s the velocity servo's force cap cannot break a wedged contact
     turn_time: float = 2.0
@@ -246,7 +245,7 @@ class Navigator:
         # A recovery (and the drive after it) measures its progress afresh.
         afresh = starts | recovered
         # A recovery that could not back the robot off leaves no retry: pushing on gains nothing.
-        freed = jnp.linalg.norm(pose[:2] - nav.origin) > cfg.freed_distance
+        freed = jnp.linalg.norm(pose[:2] - nav.origin) > cfg.still_distance
         tries = jnp.where(recovered & ~freed, cfg.recoveries, nav.tries + starts)
         cmd = jnp.where(status == MOVING, c.cmd, 0.0)
         cmd = jnp.where(status == RECOVERING, self._recover(recovery, c.cmd[1]), cmd)
