@@ -20,8 +20,10 @@ BODIES = """
 
 
 def _fd_check(f, x, eps=1e-5, rtol=1e-3, atol=1e-6):
-    """f: (3,) float64 -> scalar; its jax.grad against central differences."""
-    grad = np.asarray(jax.grad(f)(x))
+    """f: (3,) float64 -> scalar; its jax.grad against central differences (both compiled:
+    op by op, a rendered view takes seconds per evaluation)."""
+    grad = np.asarray(jax.jit(jax.grad(f))(x))
+    f = jax.jit(f)
     fd = np.array([(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(3)])
     assert np.abs(grad).max() > 1e-3  # the check is not trivially 0 = 0
     np.testing.assert_allclose(grad, fd, rtol=rtol, atol=atol)
@@ -84,7 +86,7 @@ def test_gradient_nbv_view_model_matches_finite_differences(midrun):
         _fd_check(lambda q: policy.gain(opacity, table, held.astype(jnp.float64), q), pose, eps=1e-6, rtol=2e-3,
                   atol=1e-5)
         # the rendered depth itself differentiates in the pose
-        d = jax.jacfwd(lambda q: policy.render(opacity, q)[0])(pose)
+        d = jax.jit(jax.jacfwd(lambda q: policy.render(opacity, q)[0]))(pose)
         assert float(jnp.abs(d).sum()) > 0
 
 

@@ -57,7 +57,7 @@ def test_raycast_agrees_with_mj_ray(name):
     assert matched >= 0.97 * 600
 
 
-@pytest.mark.parametrize("name", PAPER_WORLDS)
+@pytest.mark.parametrize("name", ["kitchen", "large_office"])  # kitchen and office furniture, four heights each
 def test_laser_on_the_boxes_crossing_its_plane_is_the_full_cast(name):
     """The laser casts only against the boxes crossing its plane: bitwise the same ranges and
     labels as against every box, at the default height and at heights where furniture tops
