@@ -113,11 +113,11 @@ def test_rejax_ppo_and_gymnax_wrappers_run_on_the_exploration_env(world):
     from rosmeery_jax.env.world_bank import world_bank
     from rosmeery_jax.rl.env import ExplorationEnv, RLConfig
 
-    env = ExplorationEnv(world_bank([world]), RLConfig(decide_every=5, episode_s=1.5, goal_grid=3, crop=16))
+    env = ExplorationEnv(world_bank([world]), RLConfig(decide_every=5, episode_s=1.5, candidates=4))
     params = env.default_params
-    assert params.max_steps_in_episode == 3 and env.action_space(params).n == 9
+    assert params.max_steps_in_episode == 15 and env.action_space(params).n == 5
     obs, state = LogWrapper(FlattenObservationWrapper(env)).reset(jax.random.key(0), params)
-    assert obs.shape == env.observation_space(params).shape == (16 * 16 * 4 + 4,)
+    assert obs.shape == env.observation_space(params).shape == (5 * 10 + 2,)
     algo = rejax.PPO.create(env=env, env_params=params, total_timesteps=64, num_envs=4, num_steps=8, num_epochs=1,
                             num_minibatches=2, eval_freq=32, skip_initial_evaluation=True)
     algo = algo.replace(eval_callback=lambda a, ts, rng: jnp.float32(0))  # its 128-episode evaluation is slow here

@@ -9,7 +9,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.sim.navigation import IDLE, REACHED, STUCK, TIMEOUT, UNREACHABLE
+from rosmeery_jax.sim import navigation
 
 
 class Policy(ABC):
@@ -61,5 +61,4 @@ class Policy(ABC):
 
 def needs_target(state) -> jax.Array:
     """True when the navigator is done with its target (reached, failed or none yet)."""
-    s = state.nav.status
-    return (s == IDLE) | (s == REACHED) | (s == STUCK) | (s == UNREACHABLE) | (s == TIMEOUT)
+    return navigation.needs_target(state.nav)

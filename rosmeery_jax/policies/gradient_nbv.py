@@ -42,7 +42,7 @@ import optax
 
 from rosmeery_jax.policies.base import needs_target
 from rosmeery_jax.policies.frontier import FrontierState, ViewPolicy, blocked_within
-from rosmeery_jax.rl.env import surface_maps
+from rosmeery_jax.rl.candidates import surface_maps
 from rosmeery_jax.sim import coverage, grid, occupancy
 from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
 

@@ -4,22 +4,27 @@
 trained by ``rosmeery train --config experiments/learned/ppo.toml``); ``learned:PATH`` runs a
 ``policy.msgpack`` written by ``rosmeery train``.
 
-Each decision it builds the observation of :mod:`rosmeery_jax.rl.env` from the robot's own maps,
-samples a goal cell from the network's softmax (as in training) and sends the navigator to
-that cell's pose until the next decision. It was trained deciding every 10 control steps
-(1 s), the session's default ``decide_every``. It runs in the session's env: env settings
-recorded in the policy file are not applied.
+It chooses as in training (:mod:`rosmeery_jax.rl.env`): when the navigator is done with
+its target (reached, or gave up) or the policy's ``decide_every`` control steps have passed
+since its last choice, it offers the network the candidates of
+:mod:`rosmeery_jax.rl.candidates` (the current target, and targets drawn over the cells the
+robot can reach on its own map), samples one from the softmax and sends the navigator
+there; otherwise it keeps the target. The session asks every ``decide_every`` of its own
+(default 1 s), so a done target waits at most that long, as for the baselines. It runs in
+the session's env: env settings recorded in the policy file are not applied.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy
-from rosmeery_jax.rl.env import crop_offsets, flat_obs, goal, goal_offsets, observe
+from rosmeery_jax.rl.candidates import driving, offer
+from rosmeery_jax.rl.env import flat_obs
 from rosmeery_jax.rl.network import ActorCritic, load_policy
 
 PREFIX = "learned:"
@@ -41,15 +46,29 @@ def label(spec: str) -> str:
     return "learned_" + "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
 
 
+class Choice(NamedTuple):
+    """The policy's state: target (3,) and chosen_at int32 (the control step of its last choice)."""
+
+    target: jax.Array
+    chosen_at: jax.Array
+
+
 class LearnedPolicy(Policy):
     def __init__(self, env, spec: str = "learned"):
         super().__init__(env)
         self.name = label(spec)
-        rl, _, params = load_policy(policy_file(spec))
+        self.rl, _, params = load_policy(policy_file(spec))
         self.params = jax.tree.map(jnp.asarray, params)
-        self.net = ActorCritic(rl.actions, rl.crop)
-        self.offsets, self.crop_xy = goal_offsets(rl), crop_offsets(rl)
+        self.net = ActorCritic()
 
-    def decide(self, state, pstate, key):
-        logits, _ = self.net.apply(self.params, flat_obs(observe(self.env, state, self.crop_xy)))
-        return goal(state.pose, jax.random.categorical(key, logits), self.offsets), pstate
+    def init(self, key):
+        return Choice(jnp.zeros(3, jnp.float32), jnp.int32(0))
+
+    def decide(self, state, ps: Choice, key):
+        k_offer, k_pick = jax.random.split(key)
+        on_offer = offer(self.env, state, ps.target, k_offer, self.rl.candidates, self.rl.radius)
+        logits, _ = self.net.apply(self.params, flat_obs(on_offer))
+        picked = on_offer.targets[jax.random.categorical(k_pick, logits)]
+        due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
+        target = jnp.where(due, picked, ps.target)
+        return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))

@@ -11,7 +11,6 @@ enclosed.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy, needs_target
@@ -25,12 +24,7 @@ class RandomPolicy(Policy):
         return jnp.zeros(3, jnp.float32)  # the current target
 
     def decide(self, state, target, key):
-        k_cell, k_yaw = jax.random.split(key)
-        nav = self.env.navigator
-        reach = nav.reachable(state.nav, state.pose, self.env.occupancy(state) == occupancy.OCCUPIED)  # (Hc, Wc)
-        # Uniform over the reachable cells (never empty: the robot's own cell is one).
-        cell = jax.random.categorical(k_cell, jnp.where(reach.reshape(-1), 0.0, -jnp.inf))
-        xy = nav.coarse.center(cell // reach.shape[1], cell % reach.shape[1])
-        fresh = jnp.concatenate([xy, jax.random.uniform(k_yaw, (1,), minval=-jnp.pi, maxval=jnp.pi)])
+        occupied = self.env.occupancy(state) == occupancy.OCCUPIED
+        fresh = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, key, 1)[0]
         target = jnp.where(needs_target(state), fresh, target)
         return target, target

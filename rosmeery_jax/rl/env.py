@@ -5,33 +5,30 @@ pure ``reset_env`` / ``step_env`` for one env, with gymnax's ``reset(key, params
 ``step(key, state, action, params)`` (auto-reset) on top, jit- and vmap-able end to end (no
 host round trip per step). ``params`` (:class:`Params`, also ``default_params``) holds the
 world bank as data, so one compiled step serves every world of the bank, and gymnax's
-``max_steps_in_episode``. gymnax's wrappers and third-party JAX RL libraries (rejax) run on
-it unmodified.
+``max_steps_in_episode`` (control steps). gymnax's wrappers and third-party JAX RL
+libraries (rejax) run on it unmodified.
 
 - **Episodes.** A reset draws a world from the bank (uniformly, from the key) and a start
   heading; an episode lasts ``episode_s`` simulated seconds. When it ends, ``step`` returns
   ``done`` and the next episode's first observation (auto-reset onto a new world).
-- **Actions.** One discrete action per decision: a cell of a G x G *egocentric goal grid*
-  (``goal_grid``, ``goal_spacing`` apart, centred on the robot and turned with its
-  heading). Action ``a`` is row ``a // G`` (ahead, from -(G//2) to +(G//2) spacings) and
-  column ``a % G`` (to the left, likewise). The target faces away from the robot along
-  the offset; the centre cell turns the robot round in place. The navigator then drives
-  towards the target for ``decide_every`` control steps (0.1 s each).
-- **Observation**: one float32 vector (C*C*4 + 4,), :func:`split_obs` gives its two parts
-  (:class:`Obs`): ``maps`` (C, C, 4) egocentric crops of the robot's own
-  maps, ``crop_resolution`` per cell, centred on the robot, rows ahead and columns to the
-  left: occupied, free (explored), observed object surface, and surface of objects the
-  robot holds a label for (samples per cell / 10, capped at 1); ``pose`` (4,) cos and sin
-  of the heading, whether the navigator gave up on its last target, and the robot's own
-  count of observed object samples / 1000. Nothing in it is hidden ground truth: the
-  surface channels count only samples the camera has observed. Episode time is left out,
-  so a policy trained on short episodes runs unchanged in a session of any length.
+- **Actions.** One discrete action per decision: one of the K + 1 candidate targets of
+  :mod:`.candidates` (action 0 keeps the current target; 1..K are drawn over the cells the
+  robot can reach on its own map). The navigator then drives to it until it is done with
+  it (reached, or gave up) or ``decide_every`` control steps (0.1 s each) have passed,
+  whichever comes first: a decision lasts as long as the drive, as a baseline's target
+  does, so the robot never waits for the policy. In a batch the envs whose decision ended
+  wait (their state is left as it is) until the longest one's ends.
+- **Observation**: one float32 vector ((K+1) * F + G,), :func:`split_obs` gives its parts:
+  the candidates' features (K+1, F) and the robot's (G,) (:mod:`.candidates`). Nothing in
+  it is hidden ground truth. Episode time is left out, so a policy trained on short
+  episodes runs unchanged in a session of any length.
 - **Reward** per decision: ``reward_scale`` x the increase of ``reward`` ("ori", "cori" or
   "coverage": the observed share of all object samples), minus ``fail_penalty`` when the
   navigator gives up on the target (stuck, unreachable or timed out). The reward is
   computed from ground truth (the metric); the policy never sees it.
 
-Shapes: C crop cells a side, G goal cells a side, W worlds in the bank, S samples, N objects.
+Shapes: K candidates, F features per candidate, G robot features, W worlds in the bank,
+S samples, N objects.
 """
 
 from __future__ import annotations
@@ -42,7 +39,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 from gymnax.environments import environment, spaces
 
@@ -50,45 +46,43 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Env, State
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import WorldBank
-from rosmeery_jax.sim import coverage, occupancy
-from rosmeery_jax.sim.grid import wrap_angle
-from rosmeery_jax.sim.navigation import STUCK, TIMEOUT, UNREACHABLE
+from rosmeery_jax.rl.candidates import FEATURES, GLOBALS, Offer, driving, gave_up, offer
+from rosmeery_jax.sim import coverage
 
 REWARDS = ("ori", "cori", "coverage")
+MAX_CANDIDATES = 256  # K: more would not fit a batch's observations
 
 
 @dataclass(frozen=True)
 class RLConfig:
-    decide_every: int = 10  # control steps per decision (1 s)
-    episode_s: float = 60.0  # simulated seconds per episode
-    goal_grid: int = 5  # G: actions are the G x G cells of the egocentric goal grid
-    goal_spacing: float = 1.0  # m between goal cells
-    crop: int = 32  # C: observation crops are C x C cells
-    crop_resolution: float = 0.2  # m per crop cell
+    decide_every: int = 50  # at most this many control steps per decision (5 s)
+    episode_s: float = 120.0  # simulated seconds per episode
+    candidates: int = 16  # K: new candidate targets per decision (actions: K + 1, 0 keeps the target)
+    radius: float = 1.5  # m: half the side of the window a candidate's features describe
     reward: str = "ori"
     reward_scale: float = 10.0
     fail_penalty: float = 0.05
 
     @property
     def actions(self) -> int:
-        return self.goal_grid**2
+        return self.candidates + 1
+
+    @property
+    def obs_size(self) -> int:
+        return self.actions * len(FEATURES) + len(GLOBALS)
 
     def horizon(self, dt: float) -> int:
-        """Decisions per episode."""
-        return max(1, int(round(self.episode_s / (dt * self.decide_every))))
-
-
-MAX_CROP = 256  # crop cells a side: larger is no egocentric view and would not fit a batch
-MAX_GOAL_GRID = 64
+        """Control steps per episode."""
+        return max(1, int(round(self.episode_s / dt)))
 
 
 def check_rl(rl: RLConfig, source: str, prefix: str = "rl.") -> None:
     """Every RL setting in range; one InputError naming ``source`` and the field."""
-    for name, top in (("goal_grid", MAX_GOAL_GRID), ("crop", MAX_CROP), ("decide_every", None)):
+    for name, top in (("candidates", MAX_CANDIDATES), ("decide_every", None)):
         value = getattr(rl, name)
         if isinstance(value, bool) or not isinstance(value, int) or value < 1 or (top and value > top):
             raise InputError(source, prefix + name, f"{value!r} must be a whole number in [1, {top or 'inf'}]")
-    for name in ("episode_s", "goal_spacing", "crop_resolution"):
+    for name in ("episode_s", "radius"):
         value = getattr(rl, name)
         if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise InputError(source, prefix + name, f"{value!r} must be a finite number > 0")
@@ -102,39 +96,40 @@ def check_rl(rl: RLConfig, source: str, prefix: str = "rl.") -> None:
 
 @struct.dataclass
 class Params:
-    """worlds: the bank's stacked WorldData (W, ...); max_steps_in_episode: decisions per
-    episode (gymnax's name)."""
+    """worlds: the bank's stacked WorldData (W, ...); max_steps_in_episode: control steps
+    per episode (gymnax's name)."""
 
     worlds: wd.WorldData
-    max_steps_in_episode: int = struct.field(pytree_node=False, default=60)
+    max_steps_in_episode: int = struct.field(pytree_node=False, default=1200)
 
 
 class Obs(NamedTuple):
     """The observation's two parts (module docstring)."""
 
-    maps: jax.Array  # (..., C, C, 4) float32
-    pose: jax.Array  # (..., 4) float32
+    candidates: jax.Array  # (..., K+1, F) float32
+    robot: jax.Array  # (..., G) float32
 
 
-def flat_obs(obs: Obs) -> jax.Array:
-    """(..., C*C*4 + 4) float32: the observation as the env returns it."""
-    lead = obs.pose.shape[:-1]
-    return jnp.concatenate([obs.maps.reshape(*lead, -1), obs.pose], -1)
+def flat_obs(o: Offer) -> jax.Array:
+    """(..., (K+1) * F + G) float32: an offer's observation as the env returns it."""
+    lead = o.globals.shape[:-1]
+    return jnp.concatenate([o.features.reshape(*lead, -1), o.globals], -1).astype(jnp.float32)
 
 
-def split_obs(obs: jax.Array, crop: int) -> Obs:
-    """The parts of a flat observation (..., C*C*4 + 4), C = ``crop``."""
-    lead = obs.shape[:-1]
-    return Obs(obs[..., :-4].reshape(*lead, crop, crop, 4), obs[..., -4:])
+def split_obs(obs: jax.Array) -> Obs:
+    """The parts of a flat observation (..., (K+1) * F + G)."""
+    lead, g, f = obs.shape[:-1], len(GLOBALS), len(FEATURES)
+    return Obs(obs[..., :-g].reshape(*lead, -1, f), obs[..., -g:])
 
 
 class RLState(NamedTuple):
-    """env: the robot's state; world int32 bank index; t int32 decisions so far; score: the
-    reward quantity after the last decision; ret: the episode's return so far."""
+    """env: the robot's state (``env.t`` counts the episode's control steps); world int32
+    bank index; targets (K+1, 3) the candidates on offer; score: the reward quantity after
+    the last decision; ret: the episode's return so far."""
 
     env: State
     world: jax.Array
-    t: jax.Array
+    targets: jax.Array
     score: jax.Array
     ret: jax.Array
 
@@ -150,7 +145,6 @@ class ExplorationEnv(environment.Environment):
             raise ValueError("the bank's env must use action_mode 'target' (the navigator drives)")
         self.bank, self.config = bank, config
         self.horizon = config.horizon(bank.env.dt)
-        self.offsets, self.crop_xy = goal_offsets(config), crop_offsets(config)
 
     @property
     def name(self) -> str:
@@ -168,47 +162,44 @@ class ExplorationEnv(environment.Environment):
         return spaces.Discrete(self.config.actions)
 
     def observation_space(self, params: Params | None = None) -> spaces.Box:
-        c = self.config.crop
-        return spaces.Box(-1.0, jnp.inf, (c * c * 4 + 4,), jnp.float32)
+        return spaces.Box(-1.0, jnp.inf, (self.config.obs_size,), jnp.float32)
 
     def env_in(self, params: Params, world) -> Env:
         return self.bank.env.with_data(wd.pick(params.worlds, world))
 
+    def offer(self, env: Env, s: State, key: jax.Array) -> Offer:
+        return offer(env, s, s.nav.target, key, self.config.candidates, self.config.radius)
+
     def reset_env(self, key: jax.Array, params: Params) -> tuple[jax.Array, RLState]:
-        k_world, k_env = jax.random.split(key)
+        k_world, k_env, k_offer = jax.random.split(key, 3)
         world = jax.random.randint(k_world, (), 0, params.worlds.spawn.shape[0])
         env = self.env_in(params, world)
         s = env.reset(k_env)
-        state = RLState(s, world, jnp.int32(0), score(env, s, self.config.reward), jnp.float32(0))
-        return flat_obs(observe(env, s, self.crop_xy)), state
+        o = self.offer(env, s, k_offer)
+        state = RLState(s, world, o.targets, score(env, s, self.config.reward), jnp.float32(0))
+        return flat_obs(o), state
 
     def step_env(self, key: jax.Array, state: RLState, action: jax.Array, params: Params):
         """One decision. Returns obs, state, reward, done and info (the finished episode's
-        ``return`` and ``score`` when done, else 0; ``world``); gymnax's ``step`` adds the
-        auto-reset."""
-        cfg = self.config
+        ``return`` and ``score`` when done, else 0; ``world``; ``steps``: control steps the
+        decision took); gymnax's ``step`` adds the auto-reset."""
+        cfg, end = self.config, params.max_steps_in_episode
         env = self.env_in(params, state.world)
-        target = goal(state.env.pose, action, self.offsets)
-        s = jax.lax.fori_loop(0, cfg.decide_every, lambda _, s: env.step(s, target), state.env)
+        target = state.targets[action]
+
+        def more(carry):
+            i, s = carry
+            return (i < cfg.decide_every) & (s.t < end) & ((i == 0) | driving(s))
+
+        steps, s = jax.lax.while_loop(more, lambda c: (c[0] + 1, env.step(c[1], target)), (jnp.int32(0), state.env))
         new_score = score(env, s, cfg.reward)
         reward = cfg.reward_scale * (new_score - state.score) - cfg.fail_penalty * gave_up(s)
-        t = state.t + 1
-        done = t >= params.max_steps_in_episode
-        stepped = RLState(s, state.world, t, new_score, state.ret + reward)
+        done = s.t >= end
+        o = self.offer(env, s, key)
+        stepped = RLState(s, state.world, o.targets, new_score, state.ret + reward)
         info = {"return": jnp.where(done, stepped.ret, 0.0), "score": jnp.where(done, new_score, 0.0),
-                "world": state.world}
-        return flat_obs(observe(env, s, self.crop_xy)), stepped, reward, done, info
-
-
-def goal(pose: jax.Array, action: jax.Array, offsets: jax.Array) -> jax.Array:
-    """The target pose (3,) of goal-grid cell ``action`` for a robot at ``pose`` (3,):
-    offsets (G*G, 2) (ahead, left) in metres; the target faces away from the robot."""
-    ahead, left = offsets[action, 0], offsets[action, 1]
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    xy = pose[:2] + jnp.stack([c * ahead - s * left, s * ahead + c * left])
-    still = (ahead == 0) & (left == 0)
-    yaw = jnp.where(still, pose[2] + jnp.pi, pose[2] + jnp.arctan2(left, ahead))
-    return jnp.concatenate([xy, wrap_angle(yaw)[None]])
+                "world": state.world, "steps": steps}
+        return flat_obs(o), stepped, reward, done, info
 
 
 def score(env: Env, state: State, kind: str) -> jax.Array:
@@ -224,59 +215,3 @@ def score(env: Env, state: State, kind: str) -> jax.Array:
     weighted = ps * k.conf_true if kind == "cori" else ps
     errors = jnp.where(real, jnp.abs(ps_G - weighted) / ps_G, 0.0)
     return 1.0 - jnp.minimum(1.0, jnp.sum(errors) / jnp.maximum(jnp.sum(real), 1))
-
-
-def gave_up(state: State) -> jax.Array:
-    """bool: the navigator gave up on its target (stuck, unreachable or timed out)."""
-    s = state.nav.status
-    return (s == STUCK) | (s == UNREACHABLE) | (s == TIMEOUT)
-
-
-def crop_offsets(cfg: RLConfig) -> jax.Array:
-    """(C, C, 2) (ahead, left) in metres of the crop cells' centres in the robot's frame."""
-    c = cfg.crop
-    along = (np.arange(c) - c / 2 + 0.5) * cfg.crop_resolution
-    ahead, left = np.meshgrid(along, along, indexing="ij")
-    return jnp.asarray(np.stack([ahead, left], -1), jnp.float32)
-
-
-def goal_offsets(cfg: RLConfig) -> jax.Array:
-    """(G*G, 2) (ahead, left) in metres of the goal cells (module docstring)."""
-    g = cfg.goal_grid
-    rows, cols = np.divmod(np.arange(g * g), g)
-    return jnp.asarray(np.stack([rows - g // 2, cols - g // 2], -1) * cfg.goal_spacing, jnp.float32)
-
-
-def observe(env: Env, state: State, crop_xy: jax.Array) -> Obs:
-    """The observation (module docstring) from the robot's own maps; crop_xy (C, C, 2)
-    from :func:`crop_offsets`."""
-    pose = state.pose
-    c, s = jnp.cos(pose[2]), jnp.sin(pose[2])
-    xy = pose[:2] + jnp.stack([c * crop_xy[..., 0] - s * crop_xy[..., 1],
-                               s * crop_xy[..., 0] + c * crop_xy[..., 1]], -1)  # (C, C, 2) world
-    i, j = env.grid.cell(xy)
-    inside = occupancy.in_extent(env.grid, xy)
-    occ = env.occupancy(state)[i, j]
-    k = env.labelled_knowledge(state)
-    surface, labelled = surface_maps(env, k)
-    layers = [occ == occupancy.OCCUPIED, occ == occupancy.FREE, surface[i, j], labelled[i, j]]
-    maps = jnp.stack([jnp.where(inside, a.astype(jnp.float32), 0.0) for a in layers], -1)
-    observed = jnp.sum(k.seen.astype(jnp.float32)) / 1000.0
-    feats = jnp.stack([c, s, gave_up(state).astype(jnp.float32), observed])
-    return Obs(maps, feats)
-
-
-def surface_maps(env: Env, k) -> tuple[jax.Array, jax.Array]:
-    """(H, W) each on the robot's grid, from its labelled knowledge ``k``: observed object
-    samples per cell, and those of objects it holds a label for, divided by 10 and capped
-    at 1. Only observed samples count (a sample's position is what the depth camera
-    measured)."""
-    table = env.sk.table
-    seen = k.seen.astype(jnp.float32)
-    held = seen * (k.label >= 0)[table.object]
-    i, j = env.grid.cell(jnp.stack([table.points[0], table.points[1]], -1))
-    h, w = env.grid.shape
-    flat = i * w + j
-    count = jax.ops.segment_sum(jnp.stack([seen, held], -1), flat, h * w)  # (H*W, 2)
-    count = jnp.minimum(count / 10.0, 1.0).reshape(h, w, 2)
-    return count[..., 0], count[..., 1]

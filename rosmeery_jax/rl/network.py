@@ -1,9 +1,12 @@
 """The learned explorer's network and its policy file.
 
-The network: the flat observation split into its map crops and pose features
-(:func:`~rosmeery_jax.rl.env.split_obs`), three stride-2 3x3 convolutions (16, 32, 32
-channels) over the map crops (C, C, 4), flattened, joined with the pose features, one 128-unit dense layer, then the
-policy logits (G*G goal cells) and the value. Actions are sampled from the softmax.
+The network scores each candidate of the observation (:func:`~rosmeery_jax.rl.env.split_obs`)
+alone: its features, joined with the robot's, pass through two 64-unit dense layers shared
+by every candidate to one logit; a candidate not on offer gets a logit of -1e9. The value
+reads the mean of the offered candidates' hidden features and the robot's features (one
+64-unit layer). So the network does not depend on the number of candidates, and a
+network that has learned nothing picks uniformly among them: the random walker. Actions are
+sampled from the softmax.
 
 A policy file (``policy.msgpack``) holds the parameters and the settings the policy needs
 (its :class:`RLConfig` and env overrides), in flax's msgpack serialization; the trainer
@@ -25,29 +28,31 @@ from flax import serialization
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.rl.candidates import FEATURES
 from rosmeery_jax.rl.env import RLConfig, check_rl, split_obs
 
-POLICY_FORMAT = "rosmeery-learned-1"
+POLICY_FORMAT = "rosmeery-learned-2"  # 1: the goal-grid network, no longer read
 
 
 class ActorCritic(nn.Module):
-    """Flat observations (..., C*C*4 + 4) -> (logits (..., A), value (...,))."""
-
-    actions: int
-    crop: int
+    """Flat observations (..., (K+1) * F + G) -> (logits (..., K+1), value (...,))."""
 
     @nn.compact
     def __call__(self, flat: jax.Array):
-        obs = split_obs(flat, self.crop)
-        x = obs.maps
-        for features in (16, 32, 32):
-            x = nn.relu(nn.Conv(features, (3, 3), strides=2)(x))
-        x = jnp.concatenate([x.reshape(*x.shape[:-3], -1), obs.pose], -1)
-        x = nn.relu(nn.Dense(128)(x))
-        logits = nn.Dense(self.actions, kernel_init=nn.initializers.orthogonal(0.01))(x)
-        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(x)[..., 0]
+        obs = split_obs(flat)
+        k = obs.candidates.shape[-2]
+        robot = jnp.broadcast_to(obs.robot[..., None, :], (*obs.robot.shape[:-1], k, obs.robot.shape[-1]))
+        x = jnp.concatenate([obs.candidates, robot], -1)  # (..., K+1, F + G)
+        for _ in range(2):
+            x = nn.relu(nn.Dense(64)(x))
+        offered = obs.candidates[..., FEATURES.index("valid")] > 0.5  # (..., K+1)
+        logits = nn.Dense(1, kernel_init=nn.initializers.orthogonal(0.01))(x)[..., 0]
+        logits = jnp.where(offered, logits, -1e9)
+        w = offered.astype(x.dtype)[..., None]
+        pooled = (x * w).sum(-2) / jnp.maximum(w.sum(-2), 1.0)
+        v = nn.relu(nn.Dense(64)(jnp.concatenate([pooled, obs.robot], -1)))
+        value = nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(v)[..., 0]
         return logits, value
-
 
 
 def save_policy(path: str | Path, rl: RLConfig, env: dict, params) -> None:
@@ -83,16 +88,15 @@ def load_policy(path: str | Path) -> tuple[RLConfig, dict, Any]:
 
 def _check_params(path: Path, rl: RLConfig, params) -> None:
     """The parameters have the network's structure and shapes for ``rl`` and are finite."""
-    blank = jax.ShapeDtypeStruct((rl.crop * rl.crop * 4 + 4,), jnp.float32)
-    want = jax.eval_shape(ActorCritic(rl.actions, rl.crop).init, jax.random.key(0), blank)
+    blank = jax.ShapeDtypeStruct((rl.obs_size,), jnp.float32)
+    want = jax.eval_shape(ActorCritic().init, jax.random.key(0), blank)
     got = jax.tree.map(lambda a: jax.ShapeDtypeStruct(np.shape(a), np.asarray(a).dtype), params)
     if jax.tree.structure(got) != jax.tree.structure(want):
         raise InputError(str(path), "params", "are not those of the learned explorer's network")
     for (where, w), g in zip(jax.tree_util.tree_flatten_with_path(want)[0], jax.tree.leaves(got)):
         name = jax.tree_util.keystr(where)
         if g.shape != w.shape:
-            raise InputError(str(path), f"params{name}", f"shape {g.shape}, but its settings (crop {rl.crop}, goal "
-                             f"grid {rl.goal_grid}) need {w.shape}")
+            raise InputError(str(path), f"params{name}", f"shape {g.shape}, but the network needs {w.shape}")
         if not np.issubdtype(g.dtype, np.floating):
             raise InputError(str(path), f"params{name}", f"dtype {g.dtype} is not a float")
     bad = next((jax.tree_util.keystr(k) for k, a in jax.tree_util.tree_flatten_with_path(params)[0]

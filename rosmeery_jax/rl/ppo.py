@@ -50,6 +50,7 @@ from rosmeery_jax.world.generate import expand_names
 ENV_BYTES = 2.5e6  # one env's state, as a session's (docs/performance.md)
 ROLLOUT_COPIES = 4  # a rollout's observations are held, shuffled and batched within one update
 PICTURE_EVERY_S = 60.0  # curve.png is redrawn at a checkpoint at most this often (and at the end)
+NO_EPISODE_NAN = ("return", "final_score")  # NaN in an update where no episode ended: not divergence
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,7 @@ def _check_size(cfg: TrainConfig, source: str) -> None:
     """Refuse a training batch that cannot fit in this machine's memory: the envs' states and
     one update's rollout of observations."""
     p, rl = cfg.ppo, cfg.rl
-    obs = rl.crop * rl.crop * 4 * 4 + 64  # bytes of one observation and its transition
+    obs = rl.obs_size * 4 + 64  # bytes of one observation and its transition
     need = float(p.num_envs) * (ENV_BYTES + p.num_steps * obs * ROLLOUT_COPIES)
     have = memory_bytes()
     if need > 0.8 * have:
@@ -142,7 +143,7 @@ def _check_size(cfg: TrainConfig, source: str) -> None:
 
 
 class Transition(NamedTuple):
-    obs: jax.Array  # (..., C*C*4 + 4)
+    obs: jax.Array  # (..., (K+1) * F + G)
     action: jax.Array
     log_prob: jax.Array
     value: jax.Array
@@ -156,7 +157,7 @@ class Runner(NamedTuple):
 
     train: TrainState
     env_state: Any
-    obs: jax.Array  # (..., C*C*4 + 4)
+    obs: jax.Array  # (..., (K+1) * F + G)
     key: jax.Array
 
 
@@ -171,7 +172,7 @@ def init_runner(cfg: TrainConfig, env: ExplorationEnv) -> Runner:
     key, k_net, k_env = jax.random.split(key, 3)
     reset = xla.jit(jax.vmap(env.reset, in_axes=(0, None)))
     obs, state = reset(jax.random.split(k_env, p.num_envs), env.default_params)
-    net = ActorCritic(env.num_actions, cfg.rl.crop)
+    net = ActorCritic()
     params = net.init(k_net, jax.tree.map(lambda a: a[0], obs))
     steps_per_update = p.update_epochs * p.minibatches
     lr = (optax.linear_schedule(p.lr, 0.0, p.updates * steps_per_update) if p.anneal_lr else p.lr)
@@ -247,7 +248,7 @@ def make_update(cfg: TrainConfig, env: ExplorationEnv):
         (train, *_), losses = jax.lax.scan(epoch, (runner.train, traj, adv, target, sub), None,
                                            length=p.update_epochs)
         finished = traj.done.sum()
-        stats = {"episodes": finished,
+        stats = {"episodes": finished, "env_steps": traj.info["steps"].sum(),
                  "return": jnp.where(finished > 0, traj.info["return"].sum() / jnp.maximum(finished, 1), jnp.nan),
                  "final_score": jnp.where(finished > 0, traj.info["score"].sum() / jnp.maximum(finished, 1), jnp.nan),
                  "reward": traj.reward.mean(), "loss": losses[0].mean(), "value_loss": losses[1].mean(),
@@ -329,18 +330,19 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
         runner, done, curve = load_checkpoint(out / "checkpoint.msgpack", runner)
     update = make_update(cfg, env)
     p = cfg.ppo
-    steps_per_update = p.num_envs * p.num_steps * cfg.rl.decide_every
     bar = tqdm(total=p.updates, initial=done, disable=not progress, unit="update")
     t0 = drawn = time.perf_counter()
+    steps = start = curve[-1]["env_steps"] if curve else 0
     for u in range(done, p.updates):
         interrupt.check()  # Ctrl-C stops between updates; the last checkpoint resumes
         runner, stats = update(runner)
         stats = {k: float(v) for k, v in stats.items()}
         _check_finite(out, u + 1, stats, runner.train.params)  # before anything of this update is saved
         elapsed = time.perf_counter() - t0
-        curve.append({"update": u + 1, "env_steps": (u + 1) * steps_per_update, **stats, "wall_s": elapsed})
+        steps += int(stats.pop("env_steps"))  # control steps the decisions took, summed over envs
+        curve.append({"update": u + 1, "env_steps": steps, **stats, "wall_s": elapsed})
         bar.update(1)
-        bar.set_postfix_str(f"return {stats['return']:.3f}, {steps_per_update * (u + 1 - done) / elapsed:,.0f} env-steps/s")
+        bar.set_postfix_str(f"return {stats['return']:.3f}, {(steps - start) / elapsed:,.0f} env-steps/s")
         if (u + 1) % p.checkpoint_every == 0 or u + 1 == p.updates:
             save_checkpoint(out / "checkpoint.msgpack", runner, u + 1, curve)
             # the last update's picture is drawn once, below
@@ -355,7 +357,7 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
 def _check_finite(out: Path, update: int, stats: dict, params) -> None:
     """Stop a diverged run with one line, before its NaN state is saved: the last checkpoint
     and curve stay those of the last good update."""
-    bad = next((k for k, v in stats.items() if not math.isfinite(v)), None)
+    bad = next((k for k, v in stats.items() if k not in NO_EPISODE_NAN and not math.isfinite(v)), None)
     if bad is None and not all(bool(jnp.isfinite(a).all()) for a in jax.tree.leaves(params)):
         bad = "the parameters"
     if bad is not None:

@@ -51,6 +51,16 @@ STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout", 
 BIG = 1e6
 
 
+def gave_up(nav) -> jax.Array:
+    """bool: the navigator of ``nav`` (a NavState) gave up on its target (stuck, unreachable or timed out)."""
+    return (nav.status == STUCK) | (nav.status == UNREACHABLE) | (nav.status == TIMEOUT)
+
+
+def needs_target(nav) -> jax.Array:
+    """bool: the navigator is done with its target (reached, gave up, or none yet)."""
+    return gave_up(nav) | (nav.status == REACHED) | (nav.status == IDLE)
+
+
 @dataclass(frozen=True)
 class NavConfig:
     plan_resolution: float = 0.1
@@ -160,6 +170,15 @@ class Navigator:
         """(Hc, Wc) bool: the open cells connected to the robot at ``pose`` on this map."""
         open_, _ = self.open_cells(nav, pose, occupied)
         return grid.connected(self._here(pose), open_)
+
+    def draw_reachable(self, nav: NavState, pose: jax.Array, occupied: jax.Array, key: jax.Array, k: int) -> jax.Array:
+        """(k, 3) target poses: cells drawn uniformly, with replacement, over those reachable
+        on this map (never none: the robot's own cell is one), each with a uniform yaw."""
+        k_cell, k_yaw = jax.random.split(key)
+        reach = self.reachable(nav, pose, occupied)  # (Hc, Wc)
+        cells = jax.random.categorical(k_cell, jnp.where(reach.reshape(-1), 0.0, -jnp.inf), shape=(k,))
+        xy = self.coarse.center(cells // reach.shape[1], cells % reach.shape[1])
+        return jnp.concatenate([xy, jax.random.uniform(k_yaw, (k, 1), minval=-jnp.pi, maxval=jnp.pi)], -1)
 
     def _here(self, pose: jax.Array) -> jax.Array:
         ri, rj = self.coarse.cell(pose[:2])
