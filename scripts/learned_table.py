@@ -29,21 +29,38 @@ def per_run(df: pd.DataFrame, metric: str = "ori") -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def label(world: str) -> str:
+    """The docs' name of a world: "Small Office", "generated office 1000"."""
+    if world.startswith("procedural_"):
+        return "generated " + " ".join(world.split("_")[1:])
+    return world.replace("_", " ").title()
+
+
 def table(runs: pd.DataFrame, policies: list[str]) -> None:
     """ORI AUC mean [95 % interval] over seeds (final ORI in brackets); bold the world's best
-    and every policy a paired test by seed cannot tell from it at 95 %."""
+    and every policy a paired test by seed cannot tell from it at 95 %. Paper worlds first,
+    then the generated ones, each set followed by its mean row (best mean in bold)."""
     print("| world | " + " | ".join(policies) + " |\n|---|" + "---|" * len(policies))
-    for w, g in runs.groupby("world", sort=False):
-        auc = g.pivot_table(index="seed", columns="policy", values="auc")
-        final = g.groupby("policy").final.mean()
-        best = auc.mean().idxmax()
-        cells = []
-        for p in policies:
-            ci = stats.interval(auc[p])
-            text = f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})"
-            tied = p == best or not stats.paired(auc[p], auc[best]).significant
-            cells.append(f"**{text}**" if tied else text)
-        print(f"| {w} | " + " | ".join(cells) + " |")
+    present = list(dict.fromkeys(runs.world))
+    for name, worlds in (("paper worlds", [w for w in PAPER if w in present]),
+                         ("generated", sorted((w for w in present if w not in PAPER),
+                                              key=lambda w: (w.split("_")[1], w)))):
+        for w in worlds:
+            g = runs[runs.world == w]
+            auc = g.pivot_table(index="seed", columns="policy", values="auc")
+            final = g.groupby("policy").final.mean()
+            best = auc.mean().idxmax()
+            cells = []
+            for p in policies:
+                ci = stats.interval(auc[p])
+                text = f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})"
+                tied = p == best or not stats.paired(auc[p], auc[best]).significant
+                cells.append(f"**{text}**" if tied else text)
+            print(f"| {label(w)} | " + " | ".join(cells) + " |")
+        if worlds:
+            means = runs[runs.world.isin(worlds)].groupby("policy").auc.mean()
+            cells = [f"**{means[p]:.3f}**" if p == means.idxmax() else f"{means[p]:.3f}" for p in policies]
+            print(f"| *mean, {name}* | " + " | ".join(cells) + " |")
 
 
 def paired(runs: pd.DataFrame, a: str, b: str) -> None:
