@@ -49,13 +49,12 @@ def table(runs: pd.DataFrame, policies: list[str]) -> None:
             g = runs[runs.world == w]
             auc = g.pivot_table(index="seed", columns="policy", values="auc")
             final = g.groupby("policy").final.mean()
-            best = auc.mean().idxmax()
+            tied = stats.tied_with_best(auc)
             cells = []
             for p in policies:
                 ci = stats.interval(auc[p])
                 text = f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})"
-                tied = p == best or not stats.paired(auc[p], auc[best]).significant
-                cells.append(f"**{text}**" if tied else text)
+                cells.append(f"**{text}**" if tied[p] else text)
             print(f"| {label(w)} | " + " | ".join(cells) + " |")
         if worlds:
             means = runs[runs.world.isin(worlds)].groupby("policy").auc.mean()

@@ -32,13 +32,12 @@ def table(final: pd.DataFrame) -> None:
     for w, title in TITLES.items():
         for m in ("ori", "cori", "opi"):
             seeds = _per_seed(final, w, m)
-            best = seeds.mean().idxmax()
+            tied = stats.tied_with_best(seeds)
             cells = []
             for p in POLICIES:
                 ci = stats.interval(seeds[p])
                 text = f"{ci.mean:.2f} [{ci.low:.2f}, {ci.high:.2f}]"
-                tied = p == best or not stats.paired(seeds[p], seeds[best]).significant
-                cells.append(f"**{text}**" if tied else text)
+                cells.append(f"**{text}**" if tied[p] else text)
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
 
 

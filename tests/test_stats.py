@@ -38,3 +38,13 @@ def test_the_interval_holds_the_mean_and_is_reproducible():
 def test_a_paired_difference_is_signed_b_minus_a():
     r = stats.paired([0.5, 0.6, 0.55, 0.7, 0.52, 0.5], [0.6, 0.71, 0.65, 0.8, 0.62, 0.58])
     assert r.diff.mean == pytest.approx(0.09833, abs=1e-4) and r.diff.low > 0 and r.significant and r.seeds == 6
+
+
+def test_tied_with_best_bolds_the_best_and_what_a_paired_test_cannot_tell_from_it():
+    import pandas as pd
+
+    base = np.array([0.50, 0.60, 0.55, 0.70, 0.52, 0.58])
+    table = pd.DataFrame({"a": base + 0.10,  # the best
+                          "b": base + 0.10 + [0.01, -0.01, 0.02, -0.02, 0.01, -0.01],  # mixed signs: a tie
+                          "c": base})  # behind the best in every seed (p = 2 / 2^6)
+    assert stats.tied_with_best(table) == {"a": True, "b": True, "c": False}

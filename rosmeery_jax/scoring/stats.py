@@ -76,6 +76,14 @@ def paired(a, b, level: float = LEVEL) -> Paired:
     return Paired(interval(d, level), float(test.pvalue), len(d))
 
 
+def tied_with_best(per_seed) -> dict:
+    """{column: bool} for a table of values (S seeds x policies, a pandas DataFrame): the
+    policy with the highest mean, and every policy a paired test by seed does not show to
+    be behind it (the ones results tables print in bold)."""
+    best = per_seed.mean().idxmax()
+    return {p: p == best or not paired(per_seed[p], per_seed[best]).significant for p in per_seed.columns}
+
+
 def seeds_needed(level: float = LEVEL) -> int:
     """The fewest seeds with which an exact sign-flip test can reach ``level``."""
     s = 1
