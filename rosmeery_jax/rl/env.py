@@ -55,7 +55,7 @@ MAX_CANDIDATES = 256  # K: more would not fit a batch's observations
 
 @dataclass(frozen=True)
 class RLConfig:
-    decide_every: int = 50  # at most this many control steps per decision (5 s)
+    decide_every: int = 30  # at most this many control steps per decision (3 s)
     episode_s: float = 120.0  # simulated seconds per episode
     candidates: int = 16  # K: new candidate targets per decision (actions: K + 1, 0 keeps the target)
     radius: float = 1.5  # m: half the side of the window a candidate's features describe
