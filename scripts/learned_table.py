@@ -49,12 +49,8 @@ def table(runs: pd.DataFrame, policies: list[str]) -> None:
             g = runs[runs.world == w]
             auc = g.pivot_table(index="seed", columns="policy", values="auc")
             final = g.groupby("policy").final.mean()
-            tied = stats.tied_with_best(auc)
-            cells = []
-            for p in policies:
-                ci = stats.interval(auc[p])
-                text = f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})"
-                cells.append(f"**{text}**" if tied[p] else text)
+            cells = stats.bold_cells(auc, policies,
+                                     lambda p, ci: f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})")
             print(f"| {label(w)} | " + " | ".join(cells) + " |")
         if worlds:
             means = runs[runs.world.isin(worlds)].groupby("policy").auc.mean()

@@ -32,12 +32,7 @@ def table(final: pd.DataFrame) -> None:
     for w, title in TITLES.items():
         for m in ("ori", "cori", "opi"):
             seeds = _per_seed(final, w, m)
-            tied = stats.tied_with_best(seeds)
-            cells = []
-            for p in POLICIES:
-                ci = stats.interval(seeds[p])
-                text = f"{ci.mean:.2f} [{ci.low:.2f}, {ci.high:.2f}]"
-                cells.append(f"**{text}**" if tied[p] else text)
+            cells = stats.bold_cells(seeds, POLICIES, lambda p, ci: f"{ci.mean:.2f} [{ci.low:.2f}, {ci.high:.2f}]")
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
 
 

@@ -48,3 +48,4 @@ def test_tied_with_best_bolds_the_best_and_what_a_paired_test_cannot_tell_from_i
                           "b": base + 0.10 + [0.01, -0.01, 0.02, -0.02, 0.01, -0.01],  # mixed signs: a tie
                           "c": base})  # behind the best in every seed (p = 2 / 2^6)
     assert stats.tied_with_best(table) == {"a": True, "b": True, "c": False}
+    assert stats.bold_cells(table, ["c", "a"], lambda p, ci: f"{p} {ci.mean:.3f}") == ["c 0.575", "**a 0.675**"]

@@ -84,6 +84,14 @@ def tied_with_best(per_seed) -> dict:
     return {p: p == best or not paired(per_seed[p], per_seed[best]).significant for p in per_seed.columns}
 
 
+def bold_cells(per_seed, policies, text) -> list[str]:
+    """A results table's cells for ``policies`` (columns of ``per_seed``, S seeds x
+    policies): ``text(policy, interval)``, in bold where :func:`tied_with_best`."""
+    tied = tied_with_best(per_seed)
+    cells = [text(p, interval(per_seed[p])) for p in policies]
+    return [f"**{c}**" if tied[p] else c for p, c in zip(policies, cells)]
+
+
 def seeds_needed(level: float = LEVEL) -> int:
     """The fewest seeds with which an exact sign-flip test can reach ``level``."""
     s = 1
