@@ -57,13 +57,13 @@ def driving(state) -> jax.Array:
 def offer(env, state, current: jax.Array, key: jax.Array, k: int, radius: float) -> Offer:
     """The K + 1 candidates (module docstring) for one env; ``current`` (3,) the target
     the robot drives to (slot 0)."""
-    occupied = env.occupancy(state) == occupancy.OCCUPIED
-    drawn = env.navigator.draw_reachable(state.nav, state.pose, occupied, key, k)  # (K, 3)
+    occ = env.occupancy(state)  # (H, W), classified once for the draw and the features
+    drawn = env.navigator.draw_reachable(state.nav, state.pose, occ == occupancy.OCCUPIED, key, k)  # (K, 3)
     targets = jnp.concatenate([current[None].astype(jnp.float32), drawn])  # (K+1, 3)
     valid = jnp.ones(k + 1, bool).at[0].set(driving(state))
     k_obs = env.labelled_knowledge(state)
-    feats = jnp.concatenate([_placement(state.pose, targets, valid), _surroundings(env, state, k_obs, targets, radius)],
-                            -1)
+    near = _surroundings(env, state, occ, k_obs, targets, radius)
+    feats = jnp.concatenate([_placement(state.pose, targets, valid), near], -1)
     observed = jnp.sum(k_obs.seen.astype(jnp.float32)) / 1000.0
     return Offer(targets, feats, jnp.stack([gave_up(state).astype(jnp.float32), observed]))
 
@@ -77,12 +77,11 @@ def _placement(pose: jax.Array, targets: jax.Array, valid: jax.Array) -> jax.Arr
                       jnp.sin(bearing)], -1)
 
 
-def _surroundings(env, state, k_obs, targets: jax.Array, radius: float) -> jax.Array:
+def _surroundings(env, state, occ: jax.Array, k_obs, targets: jax.Array, radius: float) -> jax.Array:
     """(K+1, 5): unknown, occupied, surface, labelled (fine grid) and visited (the
     navigator's coarse trail), each the mean over the window around the candidate (all
     but unknown x 10, capped at 1)."""
     grid = env.grid
-    occ = env.occupancy(state)
     surface, labelled = surface_maps(env, k_obs)
     fine = jnp.stack([(occ == occupancy.UNKNOWN) & grid.inside(), occ == occupancy.OCCUPIED, surface, labelled],
                      -1).astype(jnp.float32)  # (H, W, 4)
