@@ -34,6 +34,11 @@ TOGETHER = """
 BY_WALL = """
 <body name="chair"><geom type="box" pos="0 -1.5 0.3" size="0.2 0.2 0.3"/></body>
 """
+# Flush: a chair against the left wall, seen from 1 m to its right: its front face runs into
+# the wall with no depth discontinuity, so the chair and the walls are one depth segment.
+FLUSH = """
+<body name="chair"><geom type="box" pos="-1.8 -1.0 0.3" size="0.2 0.2 0.3"/></body>
+"""
 POSE = np.array([0.0, 1.6, -np.pi / 2], np.float32)  # looking down -y at both objects
 ONE = PerceivedConfig(min_views=1)  # instances in the map from their first detection
 
@@ -42,7 +47,7 @@ ONE = PerceivedConfig(min_views=1)  # instances in the map from their first dete
 def scenes(tmp_path_factory):
     """{name: (env, render(pose) -> depth, labels)}, one compile each."""
     out = {}
-    for name, bodies in (("apart", APART), ("together", TOGETHER), ("by_wall", BY_WALL)):
+    for name, bodies in (("apart", APART), ("together", TOGETHER), ("by_wall", BY_WALL), ("flush", FLUSH)):
         path = tmp_path_factory.mktemp(name) / "room.xml"
         cats = {"chair": "chair", "desk": "desk"} if "desk" in bodies else {"chair": "chair"}
         path.write_text(room_xml(bodies, cats, spawn=(0.0, 1.0, 0.0)))
@@ -277,3 +282,50 @@ def test_two_instances_of_one_object_merge_when_a_view_spans_both(scenes):
     assert whole.log.ps[1] > split.log.ps[1] and whole.unmatched == 0 < split.unmatched
     for a, b in zip(whole.log, fresh.log):  # incremental after a merge = from scratch
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+NONE = (np.zeros((0, 4), np.float32), np.zeros(0, np.int64), np.zeros(0, np.float32))  # a frame with no detection
+
+
+def _part(box: np.ndarray, share: float) -> np.ndarray:
+    """The left ``share`` of a box (a box that cuts its object short)."""
+    return np.array([[box[0], box[1], box[0] + share * (box[2] - box[0]), box[3]]], np.float32)
+
+
+def test_an_instance_grows_into_its_object_from_frames_without_its_box(scenes, tmp_path):
+    """Rule 7: the chair, boxed only in part, then seen with no box from nearer: the frame
+    segment it mostly holds grows it, and every point stays on the chair."""
+    env, depth, label, boxes, depth2, _ = _two_views(scenes)
+    maps = {}
+    for grow in (0.5, 0.0):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, grow=grow))
+        m.fold(POSE, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
+        before = _log(env, m).ps[0]
+        m.fold(NEAR, depth2, *NONE)
+        maps[grow] = m, before, score(env.world, _as_map(tmp_path / str(grow), env, m))
+    (m, before, grown), (_, before0, plain) = maps[0.5], maps[0.0]
+    assert plain.log.ps[0] == before0 > 0  # without growth the unboxed frame adds nothing
+    assert before > before0  # the boxed frame's own segment already runs past the short box
+    assert grown.log.ps[0] > before  # and the unboxed frame adds more of the chair
+    assert m.instances == 1 and list(grown.matched) == [0, -1] and grown.off_object == 0.0
+
+
+@pytest.mark.parametrize("scene", ["by_wall", "together", "flush"])
+def test_growth_stops_at_the_wall_behind_and_the_object_beside(scenes, tmp_path, scene):
+    """Rule 7 takes only segments the instance mostly holds, one cell beyond it per frame:
+    unboxed frames never bring in the wall 0.3 m behind the chair (by_wall), the touching
+    desk no box ever named (together), or the walls the chair stands flush against, one
+    depth segment with it (flush; the ring test is off, else the box keeps nothing)."""
+    start = POSE + np.array([-1.0 if scene == "flush" else 0.0, 0.0, 0.0], np.float32)
+    env, depth, label = _frame(scenes, scene, start)
+    _, boxes = _tight(label)
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, max_ring=1.0))
+    m.fold(start, depth, boxes[:1], np.array([0]), np.array([0.9], np.float32))
+    boxed = score(env.world, _as_map(tmp_path / "boxed", env, m))
+    for dx in (-0.2, -0.1, 0.1, 0.2):  # the robot sidesteps: each frame a new one, none with a box
+        pose = start + np.array([dx, -0.1, 0.0], np.float32)
+        m.fold(pose, _frame(scenes, scene, pose)[1], *NONE)
+    sc = score(env.world, _as_map(tmp_path, env, m))
+    assert sc.log.ps[0] >= boxed.log.ps[0] > 0
+    assert sc.off_object <= boxed.off_object + 0.02 and sc.off_object < 0.1  # no wall joins
+    assert list(sc.matched) == [0] + [-1] * (len(sc.matched) - 1)

@@ -23,7 +23,9 @@ Per frame (pose, depth, detections), each rule measured in docs/byo.md:
    behind, a nearer occluder's edge) is dropped.
 3. **Voxels**: the segment's points are binned into ``voxel`` cubes; a voxel belongs to the
    first instance that claimed it and keeps its first point (a point on the surface, so it
-   ties to a sample like any mapper's point).
+   ties to a sample like any mapper's point). Voxels are half the surface samples' spacing:
+   one point per 5 cm cube can describe at most one 5 cm patch of surface, and most cubes a
+   surface passes through hold more.
 4. **Association**: coarse cells (``cell``: two views of one surface rarely hit the same
    5 cm voxels) record the first instance seen in them or in a neighbouring cell (so a
    view of another face of the object still meets it). The instance holding the most of
@@ -36,6 +38,12 @@ Per frame (pose, depth, detections), each rule measured in docs/byo.md:
 6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
    spurious box in one frame never does; a frame sent again by a robot at rest counts
    again, as it would for any mapper fed that stream).
+7. **Growth from the whole frame**: every frame's depth, not only its boxes, is cut into
+   segments as in rule 2 (above the floor, at depth discontinuities). A segment whose cells
+   are at least ``grow`` held by one confirmed instance is that instance seen again, boxed or
+   not (the detector missed it, or its box cut it short): its points in the instance's cells
+   or next to them join it. The rest of the segment (a wall it touches, a neighbour) stays
+   out, so an instance grows by at most one cell per frame.
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -58,7 +66,7 @@ from rosmeery_jax.sim.sensors import camera_rays
 
 @dataclass(frozen=True)
 class PerceivedConfig:
-    voxel: float = 0.05  # m: the surface samples' spacing, so a voxel holds about one sample
+    voxel: float = 0.025  # m: half the surface samples' spacing (rule 3)
     floor_z: float = 0.03  # m: points lower than this are floor
     edge_abs: float = 0.03  # m: neighbouring pixels further apart in depth than edge_abs +
     edge_rel: float = 0.03  # edge_rel * depth lie on different surfaces (rule 2)
@@ -69,6 +77,7 @@ class PerceivedConfig:
     overlap: float = 0.2  # share of a detection's cells an instance must hold to take it
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
     min_views: int = 2  # detections that confirm an instance (rule 6)
+    grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
 
 
 class PerceivedMapper(Mapper):
@@ -88,7 +97,7 @@ class PerceivedMapper(Mapper):
         self.rays = tuple(np.ascontiguousarray(rays[..., i]) for i in range(3))  # (H, W) each: x, y, z
         self.owner: dict[int, int] = {}  # voxel key -> instance that claimed it
         self.cells: dict[int, int] = {}  # coarse cell key -> the first instance seen in it or beside it
-        self.claimed: set[int] = set()  # coarse cells some instance was seen in
+        self.claimed: dict[int, int] = {}  # coarse cell key -> the first instance seen in it
         self.pending: list[list[np.ndarray]] = []  # per instance: point batches not in the map yet
         self.views: list[int] = []  # per instance: detections that support it
         self.parent: list[int] = []  # per instance: the instance it was merged into (itself if none)
@@ -97,6 +106,7 @@ class PerceivedMapper(Mapper):
         self.points: list[np.ndarray] = []  # the map's point batches (k, 3), in the order they entered it
         self.point_instance: list[np.ndarray] = []
         self._last: tuple | None = None  # (pose, depth, boxes, [voxels per box]) of the latest frame
+        self._repeat = False  # whether the latest frame repeats the one before
 
     @property
     def instances(self) -> int:
@@ -109,11 +119,8 @@ class PerceivedMapper(Mapper):
     def semantic_map(self) -> MapState:
         """The map of every frame folded so far: confirmed instances only, merged ids resolved.
         Points only ever join the end, so the scorer ties each point once."""
-        if self.points:
-            root = np.array(self.parent, np.int64)
-            while not np.array_equal(root, root[root]):  # follow merges to their last instance
-                root = root[root]
-            points, instance = np.concatenate(self.points), root[np.concatenate(self.point_instance)]
+        if self.points:  # merged ids resolved to their last instance
+            points, instance = np.concatenate(self.points), self._roots()[np.concatenate(self.point_instance)]
         else:
             points, instance = np.zeros((0, 3)), np.zeros(0, np.int64)
         return MapState(points, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
@@ -128,27 +135,69 @@ class PerceivedMapper(Mapper):
             if len(keys) < max(self.cfg.min_voxels, 1):
                 continue
             inst = self._associate(cells, int(k))
-            owners = np.fromiter(map(self.owner.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
-            new = owners < 0
-            self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
-            fresh = [c for c in cells.tolist() if c not in self.claimed]
-            self.claimed.update(fresh)
-            for cell in (np.asarray(fresh, np.int64)[:, None] + _NEIGHBOURS).ravel().tolist():
-                self.cells.setdefault(cell, inst)
-            if new.any():
-                self.pending[inst].append(pts[new])
+            self._claim(inst, keys, cells, pts)
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
             self.views[inst] += 1
             self._publish(inst)
+        if self.cfg.grow > 0 and not self._repeat:  # a repeated frame holds nothing new to grow into
+            self._grow(pose, depth)
+
+    def _claim(self, inst: int, keys: np.ndarray, cells: np.ndarray, pts: np.ndarray) -> None:
+        """Instance ``inst`` takes the unclaimed of voxels ``keys`` (V,) with their points (V, 3),
+        and records its coarse ``cells`` (rules 3-4)."""
+        owners = np.fromiter(map(self.owner.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
+        new = owners < 0
+        self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
+        if new.any():
+            self.pending[inst].append(pts[new])
+        fresh = [c for c in cells.tolist() if c not in self.claimed]
+        self.claimed.update(dict.fromkeys(fresh, inst))
+        for cell in (np.asarray(fresh, np.int64)[:, None] + _NEIGHBOURS).ravel().tolist():
+            self.cells.setdefault(cell, inst)
+
+    def _grow(self, pose: np.ndarray, depth: np.ndarray) -> None:
+        """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
+        points in that instance's cells or next to them."""
+        valid = depth > 0
+        x, y, z = self._world(pose, depth, valid, np.s_[:, :])
+        above = z >= self.cfg.floor_z
+        valid[valid] = above
+        if not valid.any() or not self.claimed:
+            return
+        x, y, z = x[above], y[above], z[above]
+        count, part = _segments(depth, valid, self.cfg)
+        cell = _keys((x, y, z), self.cfg.cell)
+        cells, cell_ix = np.unique(cell, return_inverse=True)
+        pairs, pair_ix = np.unique(part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
+        seg, pcell = pairs // len(cells), cells[pairs % len(cells)]
+        root = self._roots()
+        confirmed = np.r_[np.array(self.views) >= self.cfg.min_views, False]  # index -1: no instance
+        held = root[np.fromiter(map(self.claimed.get, pcell.tolist(), repeat(-1)), np.int64, len(pcell))]
+        held = np.where(confirmed[held], held, -1)
+        near = root[np.fromiter(map(self.cells.get, pcell.tolist(), repeat(-1)), np.int64, len(pcell))]
+        for s_, inst in _segment_owners(seg, held, count, self.cfg.grow):
+            take = ((seg == s_) & (near == inst))[pair_ix]
+            keys, first = np.unique(_keys((x[take], y[take], z[take]), self.cfg.voxel), return_index=True)
+            pts = np.stack([x[take][first], y[take][first], z[take][first]], -1)
+            self._claim(inst, keys, np.unique(cell[take]), pts)
+            self._publish(inst)
+
+    def _roots(self) -> np.ndarray:
+        """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to -1."""
+        root = np.array(self.parent, np.int64)
+        while not np.array_equal(root, root[root]):
+            root = root[root]
+        return np.r_[root, -1]
 
     def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list:
         """Each box's (voxel keys, cell keys, points) in this frame (rules 1-3), kept while the
         frame repeats: a robot at rest sends the same pose, depth and boxes after every
         decision."""
         last = self._last
-        if last is None or not (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)
-                                and np.array_equal(last[2], boxes)):
+        self._repeat = last is not None and (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)
+                                             and np.array_equal(last[2], boxes))
+        if not self._repeat:
             owner = _box_owner(boxes, depth.shape)
             self._last = last = (np.array(pose), np.array(depth), np.array(boxes),
                                  [self._voxels(pose, depth, box, owner == i) for i, box in enumerate(boxes)])
@@ -163,22 +212,27 @@ class PerceivedMapper(Mapper):
         r = self.cfg.ring
         area = np.s_[max(y1 - r, 0):y2 + r, max(x1 - r, 0):x2 + r]  # the box and a ring around it
         d = depth[area]
-        rx, ry, rz = (rays[area] for rays in self.rays)
-        z = self.config.mount_height + rz * d
+        z = self.config.mount_height + self.rays[2][area] * d
         inner = np.zeros(d.shape, bool)
         inner[y1 - area[0].start:y2 - area[0].start, x1 - area[1].start:x2 - area[1].start] = True
         valid = (d > 0) & (z >= self.cfg.floor_z)  # the floor is dropped here
         valid &= _segment(d, valid & (mine[area] | ~inner), inner, self.cfg)
         if not valid.any():
             return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-        d, rx, ry, z = d[valid], rx[valid], ry[valid], z[valid]
+        x, y, z = self._world(pose, depth, valid, area)
+        keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
+        cells = keys if self.cfg.cell == self.cfg.voxel else np.unique(_keys((x, y, z), self.cfg.cell))
+        return keys, cells, np.stack([x[first], y[first], z[first]], -1)
+
+    def _world(self, pose: np.ndarray, depth: np.ndarray, valid: np.ndarray, area) -> tuple:
+        """World x, y, z (k,) each of the ``valid`` pixels (mask over ``depth[area]``)."""
+        d = depth[area][valid]
+        rx, ry, rz = (rays[area][valid] for rays in self.rays)
         px, py = rx * d, ry * d  # camera frame, x forward
         c, s = np.cos(pose[2]), np.sin(pose[2])
         x = pose[0] + self.config.mount_x * c + c * px - s * py
         y = pose[1] + self.config.mount_x * s + s * px + c * py
-        keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
-        cells = keys if self.cfg.cell == self.cfg.voxel else np.unique(_keys((x, y, z), self.cfg.cell))
-        return keys, cells, np.stack([x[first], y[first], z[first]], -1)
+        return x, y, self.config.mount_height + rz * d
 
     def _associate(self, cells: np.ndarray, label: int) -> int:
         """The instance a detection joins, from the instances seen in its cells (rule 4):
@@ -257,15 +311,13 @@ def _box_owner(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return owner
 
 
-def _segment(d: np.ndarray, valid: np.ndarray, inner: np.ndarray, cfg: PerceivedConfig) -> np.ndarray:
-    """(h, w) mask of the object's segment among the ``valid`` depth pixels of a box
-    (``inner``) and the ring around it (rule 2); empty when no segment qualifies."""
-    out = np.zeros_like(valid)
-    n = int((valid & inner).sum())
-    if n == 0:
-        return out
+def _segments(d: np.ndarray, valid: np.ndarray, cfg: PerceivedConfig) -> tuple[int, np.ndarray]:
+    """The ``valid`` depth pixels of ``d`` (h, w) cut at depth discontinuities (4-neighbours
+    further apart than ``edge_abs + edge_rel * depth``): the segment count and each valid
+    pixel's segment (k,), in row-major order."""
+    total = int(valid.sum())
     index = np.full(d.shape, -1, np.int64)
-    index[valid] = np.arange(int(valid.sum()))
+    index[valid] = np.arange(total)
     rows, cols = [], []
     for a, b in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):  # right and down neighbours
         da, db = d[a], d[b]
@@ -273,9 +325,18 @@ def _segment(d: np.ndarray, valid: np.ndarray, inner: np.ndarray, cfg: Perceived
         rows.append(index[a][joined])
         cols.append(index[b][joined])
     rows, cols = np.concatenate(rows), np.concatenate(cols)
-    total = int(valid.sum())
-    count, part = connected_components(coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(total, total)),
-                                       directed=False)
+    return connected_components(coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(total, total)),
+                                directed=False)
+
+
+def _segment(d: np.ndarray, valid: np.ndarray, inner: np.ndarray, cfg: PerceivedConfig) -> np.ndarray:
+    """(h, w) mask of the object's segment among the ``valid`` depth pixels of a box
+    (``inner``) and the ring around it (rule 2); empty when no segment qualifies."""
+    out = np.zeros_like(valid)
+    n = int((valid & inner).sum())
+    if n == 0:
+        return out
+    count, part = _segments(d, valid, cfg)
     at_box = inner[valid]
     size = np.bincount(part[at_box], minlength=count)  # a segment's pixels inside the box
     ring = np.bincount(part[~at_box], minlength=count) / max(int((~inner).sum()), 1)  # its share of the ring
@@ -285,3 +346,21 @@ def _segment(d: np.ndarray, valid: np.ndarray, inner: np.ndarray, cfg: Perceived
     if fit.any():
         out[valid] = (part == int(np.argmin(np.where(fit, near, np.inf)))) & at_box
     return out
+
+
+def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> list[tuple[int, int]]:
+    """(segment, instance) pairs of rule 7: from each of a frame's distinct (segment, cell)
+    pairs, seg (Q,) its segment and held (Q,) the instance holding the cell (-1 none), the
+    segments of which one instance holds at least ``share`` of the cells."""
+    cells = np.bincount(seg, minlength=count)
+    on = held >= 0
+    if not on.any():
+        return []
+    width = int(held.max()) + 1
+    pair, n = np.unique(seg[on] * width + held[on], return_counts=True)
+    s, inst = pair // width, pair % width
+    order = np.lexsort((-n, s))  # per segment, the instance holding most first
+    s, inst, n = s[order], inst[order], n[order]
+    first = np.r_[True, s[1:] != s[:-1]]
+    keep = first & (n >= share * cells[s])
+    return list(zip(s[keep].tolist(), inst[keep].tolist()))
