@@ -8,7 +8,7 @@ is scored by the same evaluator as a user's map (:mod:`rosmeery_jax.scoring.eval
 that spill onto the wall or a neighbour, objects merged or split, and labels on the wrong
 instance all lower the scores.
 
-Per frame (pose, depth, detections), each rule measured in docs/byo.md:
+Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
 
 1. **Pixels to boxes**: a pixel inside several boxes goes to the box it lies most inside
    (smallest distance to the box centre in half-widths), so two touching objects' boxes,

@@ -59,7 +59,8 @@ class SessionConfig:
     sample_s: float = 1.0  # seconds between rows of metrics.csv
     mappers: tuple[str, ...] = ("oracle",)  # who builds the scored map: "oracle" (the built-in
     # knowledge: detections tied to objects by the ground-truth segmentation) and/or
-    # "perceived" (depth inside detector boxes, no ground truth: rosmeery_jax.scoring.perceived)
+    # "perceived" (detector frames' depth cut to the detected objects, no ground truth:
+    # rosmeery_jax.scoring.perceived)
     out: str = "results/session"
     digest: bool = False  # write a digest of each robot's state per chunk (runs/*.digest.csv), to
     # find where two runs part (rosmeery diff); it waits for every chunk, so it is slower
