@@ -162,8 +162,8 @@ def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monk
     frames = [(POSE, depth, boxes), (POSE, depth, boxes), (POSE, moved, boxes), (POSE, moved, boxes),
               (NEAR, depth2, boxes2), (POSE, depth, boxes)]
     calls = []
-    voxels = PerceivedMapper._voxels
-    monkeypatch.setattr(PerceivedMapper, "_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
+    voxels = PerceivedMapper._box_voxels
+    monkeypatch.setattr(PerceivedMapper, "_box_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
 
     def build(memo: bool) -> PerceivedMapper:
         m = PerceivedMapper(Camera.of(env.config.camera))
@@ -238,7 +238,7 @@ def test_a_boxs_wall_pixels_are_not_kept(scenes, tmp_path):
     inside[y1:y2, x1:x2] = True
     assert (inside & (label < 0) & (depth > 0)).sum() > (inside & (label == 0)).sum()  # more wall than chair
     kept = {}
-    for name, cfg in (("segments", ONE), ("no cut", PerceivedConfig(min_views=1, edge_abs=10.0, max_ring=1.0))):
+    for name, cfg in (("segments", ONE), ("no cut", PerceivedConfig(min_views=1, edge_abs=10.0, inside=0.0))):
         m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
         m.fold(POSE, depth, loose, np.array([0]), np.array([0.9], np.float32))
         kept[name] = score(env.world, _as_map(tmp_path / name, env, m))
@@ -268,7 +268,7 @@ def test_two_instances_of_one_object_merge_when_a_view_spans_both(scenes):
     third = (desk[2] - desk[0]) / 3
     parts = np.array([[desk[0], desk[1], desk[0] + third, desk[3]], [desk[2] - third, desk[1], desk[2], desk[3]]],
                      np.float32)
-    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, max_ring=1.0))  # a part
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, inside=0.0))  # a part
     # box's segment runs on past it, into the rest of the desk
     scorer = OnlineScorer(env.world, 0.05)
     for part in parts:
@@ -315,11 +315,11 @@ def test_growth_stops_at_the_wall_behind_and_the_object_beside(scenes, tmp_path,
     """Rule 7 takes only segments the instance mostly holds, one cell beyond it per frame:
     unboxed frames never bring in the wall 0.3 m behind the chair (by_wall), the touching
     desk no box ever named (together), or the walls the chair stands flush against, one
-    depth segment with it (flush; the ring test is off, else the box keeps nothing)."""
+    depth segment with it (flush; the box's own test is off, else the box keeps nothing)."""
     start = POSE + np.array([-1.0 if scene == "flush" else 0.0, 0.0, 0.0], np.float32)
     env, depth, label = _frame(scenes, scene, start)
     _, boxes = _tight(label)
-    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, max_ring=1.0))
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, inside=0.0))
     m.fold(start, depth, boxes[:1], np.array([0]), np.array([0.9], np.float32))
     boxed = score(env.world, _as_map(tmp_path / "boxed", env, m))
     for dx in (-0.2, -0.1, 0.1, 0.2):  # the robot sidesteps: each frame a new one, none with a box

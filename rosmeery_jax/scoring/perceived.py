@@ -13,14 +13,13 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
 1. **Pixels to boxes**: a pixel inside several boxes goes to the box it lies most inside
    (smallest distance to the box centre in half-widths), so two touching objects' boxes,
    which overlap, do not take each other's pixels.
-2. **The object's segment**: the pixels with a depth return above the floor (``floor_z``),
-   in the box and in a ``ring`` of pixels around it, are cut into segments at depth
-   discontinuities (4-neighbours further apart than ``edge_abs + edge_rel * depth``). An
-   object ends at its box, so a segment that fills more than ``max_ring`` of the ring is
-   background running on past the box (a wall, a large piece of furniture behind). The
-   nearest of the other segments that holds at least ``min_share`` of the box's pixels is
-   the object; if none does, the detection adds no points. The rest (the wall or furniture
-   behind, a nearer occluder's edge) is dropped.
+2. **The object's segment**: the frame's pixels with a depth return above the floor
+   (``floor_z``) are cut into segments at depth discontinuities (4-neighbours further apart
+   than ``edge_abs + edge_rel * depth``). An object ends at its box, so a segment with less
+   than ``inside`` of its pixels in the box is background running on past it (a wall, a
+   large piece of furniture behind, a neighbour in front). The nearest of the other
+   segments that holds at least ``min_share`` of the box's pixels is the object; if none
+   does, the detection adds no points. The rest is dropped.
 3. **Voxels**: the segment's points are binned into ``voxel`` cubes; a voxel belongs to the
    first instance that claimed it and keeps its first point (a point on the surface, so it
    ties to a sample like any mapper's point). Voxels are half the surface samples' spacing:
@@ -38,8 +37,7 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
 6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
    spurious box in one frame never does; a frame sent again by a robot at rest counts
    again, as it would for any mapper fed that stream).
-7. **Growth from the whole frame**: every frame's depth, not only its boxes, is cut into
-   segments as in rule 2 (above the floor, at depth discontinuities). A segment whose cells
+7. **Growth from the whole frame**: of the frame's segments (rule 2), a segment whose cells
    are at least ``grow`` held by one confirmed instance is that instance seen again, boxed or
    not (the detector missed it, or its box cut it short): its points in the instance's cells
    or next to them join it. The rest of the segment (a wall it touches, a neighbour) stays
@@ -54,6 +52,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import repeat
+from typing import NamedTuple
 
 import numpy as np
 
@@ -71,13 +70,26 @@ class PerceivedConfig:
     edge_abs: float = 0.03  # m: neighbouring pixels further apart in depth than edge_abs +
     edge_rel: float = 0.03  # edge_rel * depth lie on different surfaces (rule 2)
     min_share: float = 0.2  # the nearest segment with this share of a box's pixels is the object,
-    max_ring: float = 0.3  # unless it fills more than this share of the ring around the box
-    ring: int = 2  # pixels: the ring's width
+    inside: float = 0.5  # of the segments with at least this share of their pixels in the box
     cell: float = 0.05  # m: the association's coarse cells (rule 4)
     overlap: float = 0.2  # share of a detection's cells an instance must hold to take it
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
     min_views: int = 2  # detections that confirm an instance (rule 6)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
+
+
+class _Cloud(NamedTuple):
+    """A frame's depth pixels above the floor: valid (H, W) which pixels; per point (k,), in
+    row-major order: depth, world x, y, z, and its depth segment part; size (S,) each
+    segment's points."""
+
+    valid: np.ndarray
+    depth: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    part: np.ndarray
+    size: np.ndarray
 
 
 class PerceivedMapper(Mapper):
@@ -105,7 +117,7 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points: list[np.ndarray] = []  # the map's point batches (k, 3), in the order they entered it
         self.point_instance: list[np.ndarray] = []
-        self._last: tuple | None = None  # (pose, depth, boxes, [voxels per box]) of the latest frame
+        self._last: tuple | None = None  # (pose, depth, boxes, cloud, [voxels per box]) of the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
 
     @property
@@ -141,7 +153,7 @@ class PerceivedMapper(Mapper):
             self.views[inst] += 1
             self._publish(inst)
         if self.cfg.grow > 0 and not self._repeat:  # a repeated frame holds nothing new to grow into
-            self._grow(pose, depth)
+            self._grow(self._last[3])
 
     def _claim(self, inst: int, keys: np.ndarray, cells: np.ndarray, pts: np.ndarray) -> None:
         """Instance ``inst`` takes the unclaimed of voxels ``keys`` (V,) with their points (V, 3),
@@ -156,31 +168,24 @@ class PerceivedMapper(Mapper):
         for cell in (np.asarray(fresh, np.int64)[:, None] + _NEIGHBOURS).ravel().tolist():
             self.cells.setdefault(cell, inst)
 
-    def _grow(self, pose: np.ndarray, depth: np.ndarray) -> None:
+    def _grow(self, cloud: _Cloud) -> None:
         """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
         points in that instance's cells or next to them."""
-        valid = depth > 0
-        x, y, z = self._world(pose, depth, valid, np.s_[:, :])
-        above = z >= self.cfg.floor_z
-        valid[valid] = above
-        if not valid.any() or not self.claimed:
+        if not len(cloud.part) or not self.claimed:
             return
-        x, y, z = x[above], y[above], z[above]
-        count, part = _segments(depth, valid, self.cfg)
-        cell = _keys((x, y, z), self.cfg.cell)
+        cell = _keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
         cells, cell_ix = np.unique(cell, return_inverse=True)
-        pairs, pair_ix = np.unique(part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
+        pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
         seg, pcell = pairs // len(cells), cells[pairs % len(cells)]
         root = self._roots()
         confirmed = np.r_[np.array(self.views) >= self.cfg.min_views, False]  # index -1: no instance
         held = root[np.fromiter(map(self.claimed.get, pcell.tolist(), repeat(-1)), np.int64, len(pcell))]
         held = np.where(confirmed[held], held, -1)
         near = root[np.fromiter(map(self.cells.get, pcell.tolist(), repeat(-1)), np.int64, len(pcell))]
-        for s_, inst in _segment_owners(seg, held, count, self.cfg.grow):
+        for s_, inst in _segment_owners(seg, held, len(cloud.size), self.cfg.grow):
             take = ((seg == s_) & (near == inst))[pair_ix]
-            keys, first = np.unique(_keys((x[take], y[take], z[take]), self.cfg.voxel), return_index=True)
-            pts = np.stack([x[take][first], y[take][first], z[take][first]], -1)
-            self._claim(inst, keys, np.unique(cell[take]), pts)
+            keys, cells_taken, pts = self._voxels(cloud, take)
+            self._claim(inst, keys, cells_taken, pts)
             self._publish(inst)
 
     def _roots(self) -> np.ndarray:
@@ -191,48 +196,49 @@ class PerceivedMapper(Mapper):
         return np.r_[root, -1]
 
     def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list:
-        """Each box's (voxel keys, cell keys, points) in this frame (rules 1-3), kept while the
-        frame repeats: a robot at rest sends the same pose, depth and boxes after every
-        decision."""
+        """Each box's (voxel keys, cell keys, points) in this frame (rules 1-3), kept with the
+        frame's cloud while the frame repeats: a robot at rest sends the same pose, depth and
+        boxes after every decision."""
         last = self._last
         self._repeat = last is not None and (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)
                                              and np.array_equal(last[2], boxes))
         if not self._repeat:
-            owner = _box_owner(boxes, depth.shape)
-            self._last = last = (np.array(pose), np.array(depth), np.array(boxes),
-                                 [self._voxels(pose, depth, box, owner == i) for i, box in enumerate(boxes)])
-        return last[3]
+            cloud = self._cloud(pose, depth)
+            owner = _box_owner(boxes, depth.shape)[cloud.valid]  # (k,) the box each point lies most inside
+            self._last = last = (np.array(pose), np.array(depth), np.array(boxes), cloud,
+                                 [self._box_voxels(cloud, owner == i) for i in range(len(boxes))])
+        return last[4]
 
-    def _voxels(self, pose: np.ndarray, depth: np.ndarray, box: np.ndarray, mine: np.ndarray) -> tuple:
-        """The detection's distinct voxel keys (V,) ascending, its coarse cell keys, and the
-        first of its points in each voxel, (V, 3) in the world frame (rules 2-3)."""
-        h, w = depth.shape
-        x1, y1 = int(np.clip(np.floor(box[0]), 0, w)), int(np.clip(np.floor(box[1]), 0, h))
-        x2, y2 = int(np.clip(np.ceil(box[2]), 0, w)), int(np.clip(np.ceil(box[3]), 0, h))
-        r = self.cfg.ring
-        area = np.s_[max(y1 - r, 0):y2 + r, max(x1 - r, 0):x2 + r]  # the box and a ring around it
-        d = depth[area]
-        z = self.config.mount_height + self.rays[2][area] * d
-        inner = np.zeros(d.shape, bool)
-        inner[y1 - area[0].start:y2 - area[0].start, x1 - area[1].start:x2 - area[1].start] = True
-        valid = (d > 0) & (z >= self.cfg.floor_z)  # the floor is dropped here
-        valid &= _segment(d, valid & (mine[area] | ~inner), inner, self.cfg)
-        if not valid.any():
-            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-        x, y, z = self._world(pose, depth, valid, area)
+    def _cloud(self, pose: np.ndarray, depth: np.ndarray) -> _Cloud:
+        """The frame's depth pixels above the floor, in the world frame, cut into segments."""
+        z = self.config.mount_height + self.rays[2] * depth
+        valid = (depth > 0) & (z >= self.cfg.floor_z)  # the floor is dropped here
+        d = depth[valid]
+        rx, ry = self.rays[0][valid] * d, self.rays[1][valid] * d  # camera frame, x forward
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        x = pose[0] + self.config.mount_x * c + c * rx - s * ry
+        y = pose[1] + self.config.mount_x * s + s * rx + c * ry
+        count, part = _segments(depth, valid, self.cfg)
+        return _Cloud(valid, d, x, y, z[valid], part, np.bincount(part, minlength=count))
+
+    def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> tuple:
+        """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
+        of their pixels in the box, the nearest holding ``min_share`` of the box's points."""
+        n = int(mine.sum())
+        size = np.bincount(cloud.part[mine], minlength=len(cloud.size))  # each segment's pixels in the box
+        near = np.full(len(cloud.size), np.inf)
+        np.minimum.at(near, cloud.part[mine], cloud.depth[mine])  # a segment's nearest point: how near it stands
+        fit = (size > 0) & (size >= self.cfg.min_share * n) & (size >= self.cfg.inside * cloud.size)
+        take = mine & (cloud.part == int(np.argmin(np.where(fit, near, np.inf)))) if fit.any() else mine & False
+        return self._voxels(cloud, take)
+
+    def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
+        """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
+        cell keys, and the first of the points in each voxel, (V, 3) (rule 3)."""
+        x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
         keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
         cells = keys if self.cfg.cell == self.cfg.voxel else np.unique(_keys((x, y, z), self.cfg.cell))
         return keys, cells, np.stack([x[first], y[first], z[first]], -1)
-
-    def _world(self, pose: np.ndarray, depth: np.ndarray, valid: np.ndarray, area) -> tuple:
-        """World x, y, z (k,) each of the ``valid`` pixels (mask over ``depth[area]``)."""
-        d = depth[area][valid]
-        rx, ry, rz = (rays[area][valid] for rays in self.rays)
-        px, py = rx * d, ry * d  # camera frame, x forward
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        x = pose[0] + self.config.mount_x * c + c * px - s * py
-        y = pose[1] + self.config.mount_x * s + s * px + c * py
-        return x, y, self.config.mount_height + rz * d
 
     def _associate(self, cells: np.ndarray, label: int) -> int:
         """The instance a detection joins, from the instances seen in its cells (rule 4):
@@ -327,25 +333,6 @@ def _segments(d: np.ndarray, valid: np.ndarray, cfg: PerceivedConfig) -> tuple[i
     rows, cols = np.concatenate(rows), np.concatenate(cols)
     return connected_components(coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(total, total)),
                                 directed=False)
-
-
-def _segment(d: np.ndarray, valid: np.ndarray, inner: np.ndarray, cfg: PerceivedConfig) -> np.ndarray:
-    """(h, w) mask of the object's segment among the ``valid`` depth pixels of a box
-    (``inner``) and the ring around it (rule 2); empty when no segment qualifies."""
-    out = np.zeros_like(valid)
-    n = int((valid & inner).sum())
-    if n == 0:
-        return out
-    count, part = _segments(d, valid, cfg)
-    at_box = inner[valid]
-    size = np.bincount(part[at_box], minlength=count)  # a segment's pixels inside the box
-    ring = np.bincount(part[~at_box], minlength=count) / max(int((~inner).sum()), 1)  # its share of the ring
-    near = np.full(count, np.inf)
-    np.minimum.at(near, part[at_box], d[valid][at_box])  # a segment's nearest point: how near it stands
-    fit = (size >= cfg.min_share * n) & (ring <= cfg.max_ring)
-    if fit.any():
-        out[valid] = (part == int(np.argmin(np.where(fit, near, np.inf)))) & at_box
-    return out
 
 
 def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> list[tuple[int, int]]:
