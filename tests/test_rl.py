@@ -15,7 +15,7 @@ import pytest
 from conftest import room_xml
 from rosmeery_jax.rl import network, ppo
 from rosmeery_jax.rl.candidates import FEATURES, offer, window_means
-from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, score, split_obs
+from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, flat_obs, score, split_obs
 
 BODIES_A = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -351,6 +351,30 @@ def test_a_bad_policy_file_is_one_line(worlds, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(bad) in err[0] and "policy file" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_in_sessions_the_policy_sends_the_navigator_to_its_best_scored_candidate(rl):
+    """No sampling in sessions: of the offer of CANDIDATES draws, the target sent is the one
+    the network scores highest, whatever the key (a sampled choice would differ for some)."""
+    from rosmeery_jax.policies.learned import CANDIDATES, Choice, LearnedPolicy
+
+    env, params, _, _ = rl
+    state = _episode(rl, 5, [1])[-1][1]
+    e = env.env_in(params, int(state.world[0]))
+    s = jax.tree.map(lambda a: a[0], state.env)
+    policy = LearnedPolicy(e)
+    due = Choice(jnp.zeros(3, jnp.float32), jnp.int32(-10**6))  # a choice long due
+
+    @jax.jit
+    def choose(key):
+        o = offer(e, s, due.target, key, CANDIDATES, policy.rl.radius)
+        logits, _ = policy.net.apply(policy.params, flat_obs(o))
+        return policy.decide(s, due, key)[0], o.targets, logits
+
+    for k in range(6):
+        target, targets, logits = choose(jax.random.key(k))
+        assert targets.shape == (CANDIDATES + 1, 3)
+        np.testing.assert_array_equal(np.asarray(target), np.asarray(targets[jnp.argmax(logits)]))
 
 
 def test_the_shipped_policy_loads():

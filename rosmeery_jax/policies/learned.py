@@ -8,9 +8,13 @@ It chooses as in training (:mod:`rosmeery_jax.rl.env`): when the navigator is do
 its target (reached, or gave up) or the policy's ``decide_every`` control steps have passed
 since its last choice, it offers the network the candidates of
 :mod:`rosmeery_jax.rl.candidates` (the current target, and targets drawn over the cells the
-robot can reach on its own map), samples one from the softmax and sends the navigator
-there; otherwise it keeps the target. The session asks every ``decide_every`` of its own
-(default 1 s), so a done target waits at most that long, as for the baselines. It runs in
+robot can reach on its own map) and sends the navigator to the one it scores highest;
+otherwise it keeps the target. Two things differ from training, where exploring matters:
+it takes the most likely candidate instead of sampling one, from ``CANDIDATES`` draws
+instead of the training offer's (the network scores each candidate alone, so any number
+fits). Both were chosen on the paper worlds (docs/learned.md). The session asks every
+``decide_every`` of its own (default 1 s), so a done target waits at most that long, as
+for the baselines. It runs in
 the session's env: env settings recorded in the policy file are not applied.
 """
 
@@ -28,6 +32,7 @@ from rosmeery_jax.rl.env import flat_obs
 from rosmeery_jax.rl.network import ActorCritic, load_policy
 
 PREFIX = "learned:"
+CANDIDATES = 32  # targets drawn at each session decision (training offers the policy file's rl.candidates)
 SHIPPED = Path(__file__).resolve().parent / "learned_policy.msgpack"
 
 
@@ -65,10 +70,9 @@ class LearnedPolicy(Policy):
         return Choice(jnp.zeros(3, jnp.float32), jnp.int32(0))
 
     def decide(self, state, ps: Choice, key):
-        k_offer, k_pick = jax.random.split(key)
-        on_offer = offer(self.env, state, ps.target, k_offer, self.rl.candidates, self.rl.radius)
+        on_offer = offer(self.env, state, ps.target, key, CANDIDATES, self.rl.radius)
         logits, _ = self.net.apply(self.params, flat_obs(on_offer))
-        picked = on_offer.targets[jax.random.categorical(k_pick, logits)]
+        picked = on_offer.targets[jnp.argmax(logits)]  # the most likely: no exploring in sessions
         due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
         target = jnp.where(due, picked, ps.target)
         return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
