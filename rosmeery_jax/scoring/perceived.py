@@ -92,6 +92,17 @@ class _Cloud(NamedTuple):
     size: np.ndarray
 
 
+class _Seen(NamedTuple):
+    """The latest frame (pose, depth, boxes), its cloud and each box's (voxel keys, cell keys,
+    points), kept while the frame repeats."""
+
+    pose: np.ndarray
+    depth: np.ndarray
+    boxes: np.ndarray
+    cloud: _Cloud
+    voxels: list
+
+
 class PerceivedMapper(Mapper):
     """One env's perceived map, fed frame by frame (host side, numpy), through the mapper
     protocol (:mod:`rosmeery_jax.scoring.mapper`)."""
@@ -117,7 +128,7 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points: list[np.ndarray] = []  # the map's point batches (k, 3), in the order they entered it
         self.point_instance: list[np.ndarray] = []
-        self._last: tuple | None = None  # (pose, depth, boxes, cloud, [voxels per box]) of the latest frame
+        self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
 
     @property
@@ -153,7 +164,7 @@ class PerceivedMapper(Mapper):
             self.views[inst] += 1
             self._publish(inst)
         if self.cfg.grow > 0 and not self._repeat:  # a repeated frame holds nothing new to grow into
-            self._grow(self._last[3])
+            self._grow(self._last.cloud)
 
     def _claim(self, inst: int, keys: np.ndarray, cells: np.ndarray, pts: np.ndarray) -> None:
         """Instance ``inst`` takes the unclaimed of voxels ``keys`` (V,) with their points (V, 3),
@@ -200,14 +211,14 @@ class PerceivedMapper(Mapper):
         frame's cloud while the frame repeats: a robot at rest sends the same pose, depth and
         boxes after every decision."""
         last = self._last
-        self._repeat = last is not None and (np.array_equal(last[0], pose) and np.array_equal(last[1], depth)
-                                             and np.array_equal(last[2], boxes))
+        self._repeat = last is not None and (np.array_equal(last.pose, pose) and np.array_equal(last.depth, depth)
+                                             and np.array_equal(last.boxes, boxes))
         if not self._repeat:
             cloud = self._cloud(pose, depth)
             owner = _box_owner(boxes, depth.shape)[cloud.valid]  # (k,) the box each point lies most inside
-            self._last = last = (np.array(pose), np.array(depth), np.array(boxes), cloud,
-                                 [self._box_voxels(cloud, owner == i) for i in range(len(boxes))])
-        return last[4]
+            self._last = last = _Seen(np.array(pose), np.array(depth), np.array(boxes), cloud,
+                                      [self._box_voxels(cloud, owner == i) for i in range(len(boxes))])
+        return last.voxels
 
     def _cloud(self, pose: np.ndarray, depth: np.ndarray) -> _Cloud:
         """The frame's depth pixels above the floor, in the world frame, cut into segments."""
@@ -244,7 +255,7 @@ class PerceivedMapper(Mapper):
         """The instance a detection joins, from the instances seen in its cells (rule 4):
         of those holding ``overlap`` of them, the one holding most among those of the
         detection's label, else among all; the others of that label merge into it."""
-        held = np.fromiter((self._root(self.cells.get(c, -1)) for c in cells.tolist()), np.int64, len(cells))
+        held = self._roots()[np.fromiter(map(self.cells.get, cells.tolist(), repeat(-1)), np.int64, len(cells))]
         ids, counts = np.unique(held[held >= 0], return_counts=True)
         keep = counts >= self.cfg.overlap * len(cells)
         ids, counts = ids[keep], counts[keep]
@@ -281,11 +292,6 @@ class PerceivedMapper(Mapper):
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst, np.int64))
             self.pending[inst] = []
-
-    def _root(self, i: int) -> int:
-        while i >= 0 and self.parent[i] != i:
-            i = self.parent[i]
-        return i
 
 
 # key offsets of a cube and its 26 neighbours (the bit layout of _keys)
