@@ -169,7 +169,7 @@ class PerceivedMapper(Mapper):
     def _claim(self, inst: int, keys: np.ndarray, cells: np.ndarray, pts: np.ndarray) -> None:
         """Instance ``inst`` takes the unclaimed of voxels ``keys`` (V,) with their points (V, 3),
         and records its coarse ``cells`` (rules 3-4)."""
-        owners = np.fromiter(map(self.owner.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
+        owners = _lookup(self.owner, keys)
         new = owners < 0
         self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
         if new.any():
@@ -187,12 +187,12 @@ class PerceivedMapper(Mapper):
         cell = _keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
         cells, cell_ix = np.unique(cell, return_inverse=True)
         pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
-        seg, pcell = pairs // len(cells), cells[pairs % len(cells)]
+        seg, pcell = pairs // len(cells), pairs % len(cells)  # pcell: index into cells
         root = self._roots()
         confirmed = np.r_[np.array(self.views) >= self.cfg.min_views, False]  # index -1: no instance
-        held = root[np.fromiter(map(self.claimed.get, pcell.tolist(), repeat(-1)), np.int64, len(pcell))]
+        held = root[_lookup(self.claimed, cells)][pcell]  # looked up once per cell, not per pair
         held = np.where(confirmed[held], held, -1)
-        near = root[np.fromiter(map(self.cells.get, pcell.tolist(), repeat(-1)), np.int64, len(pcell))]
+        near = root[_lookup(self.cells, cells)][pcell]
         for s_, inst in _segment_owners(seg, held, len(cloud.size), self.cfg.grow):
             take = ((seg == s_) & (near == inst))[pair_ix]
             keys, cells_taken, pts = self._voxels(cloud, take)
@@ -236,12 +236,14 @@ class PerceivedMapper(Mapper):
         """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
         of their pixels in the box, the nearest holding ``min_share`` of the box's points."""
         n = int(mine.sum())
-        size = np.bincount(cloud.part[mine], minlength=len(cloud.size))  # each segment's pixels in the box
-        near = np.full(len(cloud.size), np.inf)
-        np.minimum.at(near, cloud.part[mine], cloud.depth[mine])  # a segment's nearest point: how near it stands
-        fit = (size > 0) & (size >= self.cfg.min_share * n) & (size >= self.cfg.inside * cloud.size)
-        take = mine & (cloud.part == int(np.argmin(np.where(fit, near, np.inf)))) if fit.any() else mine & False
-        return self._voxels(cloud, take)
+        part = cloud.part[mine]
+        size = np.bincount(part, minlength=len(cloud.size))  # each segment's pixels in the box
+        fit = np.flatnonzero((size > 0) & (size >= self.cfg.min_share * n) & (size >= self.cfg.inside * cloud.size))
+        if not len(fit):
+            return self._voxels(cloud, mine & False)
+        depth = cloud.depth[mine]
+        near = [depth[part == s].min() for s in fit.tolist()]  # a segment's nearest point: how near it stands
+        return self._voxels(cloud, mine & (cloud.part == fit[int(np.argmin(near))]))
 
     def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
@@ -255,7 +257,7 @@ class PerceivedMapper(Mapper):
         """The instance a detection joins, from the instances seen in its cells (rule 4):
         of those holding ``overlap`` of them, the one holding most among those of the
         detection's label, else among all; the others of that label merge into it."""
-        held = self._roots()[np.fromiter(map(self.cells.get, cells.tolist(), repeat(-1)), np.int64, len(cells))]
+        held = self._roots()[_lookup(self.cells, cells)]
         ids, counts = np.unique(held[held >= 0], return_counts=True)
         keep = counts >= self.cfg.overlap * len(cells)
         ids, counts = ids[keep], counts[keep]
@@ -297,6 +299,11 @@ class PerceivedMapper(Mapper):
 # key offsets of a cube and its 26 neighbours (the bit layout of _keys)
 _NEIGHBOURS = np.array([(dx << 42) + (dy << 21) + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)],
                        np.int64)
+
+
+def _lookup(table: dict[int, int], keys: np.ndarray) -> np.ndarray:
+    """(K,) the values ``table`` holds for ``keys`` (K,), -1 where it holds none."""
+    return np.fromiter(map(table.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
 
 
 def _keys(xyz: tuple, size: float) -> np.ndarray:
