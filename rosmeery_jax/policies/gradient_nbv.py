@@ -28,7 +28,9 @@ weight (each from its own direction of a ring), facing them; ``iterations`` step
 opacity under the robot, by gradients through the coverage and the rendered depth. The
 best refined view, by gain per metre of travel (as ``semantic_nbv`` scores), on a cell the
 map shows free and clear, becomes the navigator's target until it is reached or given up;
-with no view worth ``min_gain`` samples it explores like ``frontier``.
+with no view worth ``min_gain`` samples it explores like ``frontier``. ``min_gain`` is
+0.01: with 1 sample, its first setting, views of a little unseen surface were refused and the
+robot stood still once the frontier was exhausted (docs/learned.md).
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ class GradientNBVPolicy(ViewPolicy):
 
     def __init__(self, env, resolution: float = 0.2, object_radius: float = 0.6, point_height: float = 0.4,
                  candidates: int = 8, ring_radius: float = 1.5, iterations: int = 12, learning_rate: float = 0.08,
-                 distance_cost: float = 0.02, blocked_cost: float = 5.0, min_gain: float = 1.0,
+                 distance_cost: float = 0.02, blocked_cost: float = 5.0, min_gain: float = 0.01,
                  clearance: float = 0.3, march: float = 0.15, belief_opacity: float = 0.5):
         super().__init__(env)
         self.f = max(1, int(round(resolution / env.grid.resolution)))
