@@ -90,6 +90,24 @@ def test_gradient_nbv_view_model_matches_finite_differences(midrun):
         assert float(jnp.abs(d).sum()) > 0
 
 
+def test_gradient_nbv_hands_over_to_frontier_only_when_no_view_promises_min_gain(midrun):
+    """Mid-run, with held labels, some view promises a little: the default ``min_gain``
+    drives to it; a ``min_gain`` no view can promise leaves the choice to frontier."""
+    from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
+
+    env, state = midrun
+    key = jax.random.key(5)
+    viewing, refusing = GradientNBVPolicy(env), GradientNBVPolicy(env, min_gain=1e9)
+    target, ps = jax.jit(viewing.decide)(state, viewing.init(key), key)
+    assert not bool(ps.exploring)
+    target_r, ps_r = jax.jit(refusing.decide)(state, refusing.init(key), key)
+    assert bool(ps_r.exploring)
+    start = refusing.init(key)
+    f_target, _ = refusing.frontier.decide(state, start.frontier._replace(target=start.target), key)  # its fallback
+    np.testing.assert_allclose(np.asarray(target_r), np.asarray(f_target), atol=1e-6)
+    assert not np.allclose(np.asarray(target), np.asarray(target_r))
+
+
 def _taint(env, state):
     """The env's world with every piece of ground truth the robot has not perceived replaced
     by noise: unobserved samples, unlabelled objects' categories, object sample counts, the
