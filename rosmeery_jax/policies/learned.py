@@ -14,8 +14,8 @@ it takes the most likely candidate instead of sampling one, from ``CANDIDATES`` 
 instead of the training offer's (the network scores each candidate alone, so any number
 fits). Both were chosen on the paper worlds (docs/learned.md). The session asks every
 ``decide_every`` of its own (default 1 s), so a done target waits at most that long, as
-for the baselines. It runs in
-the session's env: env settings recorded in the policy file are not applied.
+for the baselines. It runs in the session's env: env settings recorded in the policy file
+are not applied.
 """
 
 from __future__ import annotations

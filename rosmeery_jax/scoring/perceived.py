@@ -187,14 +187,14 @@ class PerceivedMapper(Mapper):
         cell = _keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
         cells, cell_ix = np.unique(cell, return_inverse=True)
         pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
-        seg, pcell = pairs // len(cells), pairs % len(cells)  # pcell: index into cells
+        seg, cell_of = pairs // len(cells), pairs % len(cells)  # each pair's segment and index into cells
         root = self._roots()
         confirmed = np.r_[np.array(self.views) >= self.cfg.min_views, False]  # index -1: no instance
-        held = root[_lookup(self.claimed, cells)][pcell]  # looked up once per cell, not per pair
+        held = root[_lookup(self.claimed, cells)][cell_of]  # looked up once per cell, not per pair
         held = np.where(confirmed[held], held, -1)
-        near = root[_lookup(self.cells, cells)][pcell]
+        beside = root[_lookup(self.cells, cells)][cell_of]  # the instance seen in the cell or next to it
         for s_, inst in _segment_owners(seg, held, len(cloud.size), self.cfg.grow):
-            take = ((seg == s_) & (near == inst))[pair_ix]
+            take = ((seg == s_) & (beside == inst))[pair_ix]
             keys, cells_taken, pts = self._voxels(cloud, take)
             self._claim(inst, keys, cells_taken, pts)
             self._publish(inst)
