@@ -42,6 +42,7 @@ _API = {
     "Mapper": ("rosmeery_jax.scoring.mapper", "Mapper"),
     "MapState": ("rosmeery_jax.scoring.mapper", "MapState"),
     "Frame": ("rosmeery_jax.scoring.mapper", "Frame"),
+    "DepthFrame": ("rosmeery_jax.scoring.mapper", "DepthFrame"),
     "Camera": ("rosmeery_jax.scoring.mapper", "Camera"),
     "Policy": ("rosmeery_jax.policies", "Policy"),
     "POLICIES": ("rosmeery_jax.policies", "POLICIES"),

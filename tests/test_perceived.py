@@ -15,7 +15,7 @@ from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score, tie
-from rosmeery_jax.scoring.mapper import Camera, OnlineScorer
+from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
 from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper
 from rosmeery_jax.sim.sensors import rgbd
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
@@ -34,6 +34,11 @@ TOGETHER = """
 BY_WALL = """
 <body name="chair"><geom type="box" pos="0 -1.5 0.3" size="0.2 0.2 0.3"/></body>
 """
+# The same, the chair's faces off the mappers' 5 cm cell boundaries (a face on a boundary
+# puts its points in either layer of cells, a frame's worth of rounding apart).
+OFF_GRID = """
+<body name="chair"><geom type="box" pos="0.013 -1.487 0.3" size="0.2 0.2 0.3"/></body>
+"""
 # Flush: a chair against the left wall, seen from 1 m to its right: its front face runs into
 # the wall with no depth discontinuity, so the chair and the walls are one depth segment.
 FLUSH = """
@@ -47,7 +52,8 @@ ONE = PerceivedConfig(min_views=1)  # instances in the map from their first dete
 def scenes(tmp_path_factory):
     """{name: (env, render(pose) -> depth, labels)}, one compile each."""
     out = {}
-    for name, bodies in (("apart", APART), ("together", TOGETHER), ("by_wall", BY_WALL), ("flush", FLUSH)):
+    for name, bodies in (("apart", APART), ("together", TOGETHER), ("by_wall", BY_WALL), ("off_grid", OFF_GRID),
+                         ("flush", FLUSH)):
         path = tmp_path_factory.mktemp(name) / "room.xml"
         cats = {"chair": "chair", "desk": "desk"} if "desk" in bodies else {"chair": "chair"}
         path.write_text(room_xml(bodies, cats, spawn=(0.0, 1.0, 0.0)))
@@ -329,3 +335,63 @@ def test_growth_stops_at_the_wall_behind_and_the_object_beside(scenes, tmp_path,
     assert sc.log.ps[0] >= boxed.log.ps[0] > 0
     assert sc.off_object <= boxed.off_object + 0.02 and sc.off_object < 0.1  # no wall joins
     assert list(sc.matched) == [0] + [-1] * (len(sc.matched) - 1)
+
+
+_LOOK = {}  # env -> its depth camera, compiled once
+
+
+def _sweep(env, pose, step):
+    """The depth camera of one step at ``pose`` as the session sends it (no return: 0)."""
+    look = _LOOK.setdefault(env, jax.jit(env.look))
+    depth = np.asarray(look(jnp.asarray(pose))[0])
+    return DepthFrame(step, step / 10, np.where(depth < env.config.camera.max_range, depth, 0.0), pose, None)
+
+
+@pytest.mark.parametrize("scene", ["off_grid", "together", "flush"])
+def test_depth_between_detector_frames_grows_the_object_and_nothing_else(scenes, tmp_path, scene, monkeypatch):
+    """Rule 8: the chair, boxed only in part, then the 64 x 48 depth camera of the steps
+    after, sidestepping: it grows on the chair and on nothing behind, beside or flush with
+    it (flush: one depth segment with the walls, the box's own test off as in rule 7's
+    test); with ``depth_every`` 0 the steps add nothing; a frame sent twice is folded once."""
+    start = POSE + np.array([-1.0 if scene == "flush" else 0.0, 0.0, 0.0], np.float32)
+    env, depth, label = _frame(scenes, scene, start)
+    _, boxes = _tight(label)
+    poses = [start + np.array([dx, -0.1, 0.0], np.float32) for dx in (-0.2, -0.1, 0.1, 0.2)]
+    out = {}
+    for every in (1, 0):
+        cfg = PerceivedConfig(min_views=1, depth_every=every, inside=0.0 if scene == "flush" else 0.5)
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
+        m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
+        boxed = score(env.world, _as_map(tmp_path / f"boxed{every}", env, m))
+        for step, pose in enumerate(poses, 1):
+            m.add_depth(_sweep(env, pose, step))
+        out[every] = m, boxed, score(env.world, _as_map(tmp_path / str(every), env, m))
+    (m, boxed, swept), (_, boxed0, plain) = out[1], out[0]
+    assert plain.log.ps[0] == boxed0.log.ps[0] == boxed.log.ps[0] > 0  # rule 8 off: the steps add nothing
+    if scene != "flush":  # on: they add a tenth of what the box held at least
+        assert swept.log.ps[0] > 1.1 * boxed.log.ps[0]
+    assert swept.off_object <= boxed.off_object + 0.02 and swept.off_object < 0.1  # and no wall
+    assert list(swept.matched) == [0] + [-1] * (len(swept.matched) - 1)  # nor the desk beside
+    clouds = []
+    monkeypatch.setattr(m, "_cloud", lambda *a: clouds.append(a) or PerceivedMapper._cloud(m, *a))
+    m.add_depth(_sweep(env, poses[-1], len(poses) + 1))  # the robot at rest: the same frame again
+    assert not clouds
+    m.add_depth(_sweep(env, poses[0], len(poses) + 2))  # moved: folded
+    assert len(clouds) == 1
+
+
+def test_depth_grow_keeps_the_wall_a_chair_stands_flush_with_out_over_many_steps(scenes, tmp_path):
+    """Rule 8's share: the chair flush with the walls is one depth segment with them; over
+    20 steps of depth, rule 8 at its default share takes none of the walls, while a share
+    of 0.01 creeps along them a cell a frame (why rule 8 is stricter than rule 7)."""
+    start = POSE + np.array([-1.0, 0.0, 0.0], np.float32)
+    env, depth, label = _frame(scenes, "flush", start)
+    _, boxes = _tight(label)
+    off = {}
+    for share in (PerceivedConfig.depth_grow, 0.01):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, inside=0.0, depth_grow=share))
+        m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
+        for k in range(20):
+            m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
+        off[share] = score(env.world, _as_map(tmp_path / str(share), env, m)).off_object
+    assert off[PerceivedConfig.depth_grow] == 0.0 and off[0.01] > 0.05

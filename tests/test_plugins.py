@@ -5,11 +5,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax.numpy as jnp
+import numpy as np
 import pandas as pd
 import pytest
 
 from conftest import one_line_error
 from rosmeery_jax.apps.cli import main
+from rosmeery_jax.env import make
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSION = ["run", "--worlds", "small_office", "--seeds", "2", "--duration", "6", "--detector", "oracle", "--quiet"]
@@ -102,6 +105,63 @@ def test_plugins_run_like_builtins_in_one_session(tmp_path):
     for _, seed in path.groupby("seed"):  # the example drives towards the far free cells it chose
         start, end = seed.iloc[0], seed.iloc[-1]
         assert ((end.x - start.x) ** 2 + (end.y - start.y) ** 2) ** 0.5 > 0.2  # (turning first)
+
+
+SWEEPER = '''
+import numpy as np
+
+from rosmeery_jax.scoring.mapper import Mapper, MapState
+
+OUT = {out!r}
+
+
+class Sweeper(Mapper):
+    """Records what it is sent: detector frames and the depth of the steps between them."""
+
+    name = "sweeper"
+
+    def __init__(self, camera, categories):
+        super().__init__(camera, categories)
+        self.sent, self.depths, self.poses = [], [], []
+
+    def add(self, frame):
+        self.sent.append((0, frame.index, frame.time_s))
+
+    def add_depth(self, frame):
+        assert np.allclose(frame.camera_pose, self.camera.pose(frame.pose))
+        self.sent.append((1, frame.step, frame.time_s))
+        self.depths.append(frame.depth)
+        self.poses.append(frame.pose)
+
+    def semantic_map(self):
+        if self.depths:  # the latest record of each robot's mapper: one file per robot
+            np.savez(f"{{OUT}}/{{id(self)}}.npz", sent=np.array(self.sent), depth=np.stack(self.depths),
+                     pose=np.stack(self.poses))
+        return MapState(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32))
+'''
+
+
+def test_a_mapper_that_reads_depth_gets_every_step_between_detector_frames(tmp_path):
+    """The session sends add_depth the depth camera of every step between detector frames,
+    in time order with them; each depth frame is the camera's at its pose (no return: 0)."""
+    records = tmp_path / "records"
+    records.mkdir()
+    plugin = tmp_path / "sweeper.py"
+    plugin.write_text(SWEEPER.format(out=str(records)))
+    assert main([*SESSION, "--policies", "random", "--mapper", f"oracle,{plugin}:Sweeper",
+                 "--out", str(tmp_path / "o")]) == 0
+    runs = [np.load(f) for f in sorted(records.glob("*.npz"))]
+    assert len(runs) == 2  # one per seed (the check before the session sends no depth)
+    env = make("small_office")
+    expect = [(1, 10 * k + j, (10 * k + j) / 10) for k in range(6) for j in range(1, 10)]
+    expect = sorted(expect + [(0, k, k + 1.0) for k in range(5)], key=lambda e: (e[2], -e[0]))  # the last map
+    # (at 6 s) holds the frames taken before 6 s and the depth of every step before the last
+    for run in runs:
+        np.testing.assert_allclose(run["sent"], expect, atol=1e-9)
+        assert run["depth"].shape == (54, 48, 64) and np.ptp(run["pose"][:, :2], axis=0).max() > 0.1  # it drove
+        for k in (0, 20, 53):
+            depth = np.asarray(env.look(jnp.asarray(run["pose"][k], jnp.float32))[0])
+            np.testing.assert_allclose(run["depth"][k], np.where(depth < 8.0, depth, 0.0), atol=1e-4)
 
 
 BROKEN = {

@@ -2,10 +2,12 @@
 
 A mapper is a class, named like a policy plugin (``--mapper FILE.py:Name`` or
 ``package.module:Name``), built once per robot with the camera and the taxonomy's category
-names. The session hands it every detector frame (:class:`Frame`) in time order and, at
-each sampled time, asks for its semantic map (:class:`MapState`), which is scored by the
-evaluator of ``rosmeery evaluate`` (:mod:`rosmeery_jax.scoring.evaluate`). The built-in
-``perceived`` mapper (:mod:`rosmeery_jax.scoring.perceived`) is one implementation.
+names. The session hands it every detector frame (:class:`Frame`) in time order, and, if
+it overrides :meth:`Mapper.add_depth`, the depth camera of every control step between them
+(:class:`DepthFrame`); at each sampled time it asks for its semantic map
+(:class:`MapState`), which is scored by the evaluator of ``rosmeery evaluate``
+(:mod:`rosmeery_jax.scoring.evaluate`). The built-in ``perceived`` mapper
+(:mod:`rosmeery_jax.scoring.perceived`) is one implementation.
 
 Conventions: the world frame is the benchmark's (x, y on the floor, z up, metres); the
 camera's pose and intrinsics follow OpenCV (x right, y down, z forward; pixel (u, v) is
@@ -35,7 +37,8 @@ BUILT_IN = ("oracle", "perceived")  # "oracle": the built-in knowledge (no mappe
 
 class Camera(NamedTuple):
     """The detector camera: width x height pixels, intrinsics (3, 3) K, and the benchmark's
-    own camera settings (mount, field of view) for mappers that want them."""
+    own camera settings (mount, field of view; ``config.width`` x ``config.height`` the depth
+    camera of every step) for mappers that want them."""
 
     width: int
     height: int
@@ -44,9 +47,12 @@ class Camera(NamedTuple):
 
     @staticmethod
     def of(cfg: CameraConfig) -> "Camera":
-        f = cfg.focal(cfg.rgb_width)
-        k = np.array([[f, 0.0, (cfg.rgb_width - 1) / 2], [0.0, f, (cfg.rgb_height - 1) / 2], [0.0, 0.0, 1.0]])
-        return Camera(cfg.rgb_width, cfg.rgb_height, k, cfg)
+        return Camera(cfg.rgb_width, cfg.rgb_height, intrinsics(cfg, cfg.rgb_width, cfg.rgb_height), cfg)
+
+    @property
+    def depth_intrinsics(self) -> np.ndarray:
+        """(3, 3) K of the depth camera of every step (:class:`DepthFrame`)."""
+        return intrinsics(self.config, self.config.width, self.config.height)
 
     def pose(self, robot: np.ndarray) -> np.ndarray:
         """(4, 4) world-from-camera transform (OpenCV axes) for a robot pose (3,) x, y, yaw."""
@@ -79,6 +85,20 @@ class Frame(NamedTuple):
     confidences: np.ndarray
 
 
+class DepthFrame(NamedTuple):
+    """The depth camera after one control step between detector frames: step (1, 2, ... in
+    the run; 10 steps a second), time_s; depth (h, w) float32 metres (0: no return) at the
+    depth camera's resolution (``camera.config.width`` x ``height``, intrinsics
+    ``camera.depth_intrinsics``); pose (3,) the robot's x, y, yaw; camera_pose (4, 4)
+    world-from-camera. No image and no detections: geometry only."""
+
+    step: int
+    time_s: float
+    depth: np.ndarray
+    pose: np.ndarray
+    camera_pose: np.ndarray
+
+
 class MapState(NamedTuple):
     """A semantic map: points (V, 3) world frame; instance (V,) int, the id of each point's
     instance (ids index ``label``); label (I,) int category index (-1 none) and confidence
@@ -107,6 +127,21 @@ class Mapper(ABC):
     @abstractmethod
     def semantic_map(self) -> MapState:
         """The map now."""
+
+    def add_depth(self, frame: DepthFrame) -> None:
+        """Fold the depth camera of one step between detector frames (optional: a mapper
+        that does not override it is not sent them)."""
+
+    @classmethod
+    def reads_depth(cls) -> bool:
+        """Whether the session sends this mapper the depth of every step."""
+        return cls.add_depth is not Mapper.add_depth
+
+
+def intrinsics(cfg: CameraConfig, width: int, height: int) -> np.ndarray:
+    """(3, 3) K of the benchmark camera at width x height pixels (OpenCV convention)."""
+    f = cfg.focal(width)
+    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
 
 
 def mapper_class(spec: str, source: str = "config") -> type[Mapper]:

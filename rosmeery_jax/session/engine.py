@@ -55,7 +55,7 @@ from rosmeery_jax.env import Env, EnvConfig, Track, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
 from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.mapper import Camera, Frame, MapState, OnlineScorer, check_map, mapper_class
+from rosmeery_jax.scoring.mapper import Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, mapper_class
 from rosmeery_jax.scoring.perceived import PerceivedMapper
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.session import digest
@@ -283,11 +283,14 @@ class Plan(NamedTuple):
 
 class Frames(NamedTuple):
     """The frame after each decision, per env: rgb (F, Hr, Wr, 3) uint8, labels (F, Hr, Wr)
-    int16, depth (F, Hr, Wr) float32 (None unless the perceived mapper needs it)."""
+    int16, depth (F, Hr, Wr) float32; and sweep (F, decide_every, h, w) float32, the depth
+    camera after every step of the decision (depth and sweep None unless a mapper reads
+    them)."""
 
     rgb: jax.Array
     labels: jax.Array
     depth: jax.Array | None
+    sweep: jax.Array | None = None
 
 
 class Chunk(NamedTuple):
@@ -338,7 +341,7 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
 
     def step(s, a, action):
         s = env.step(s, a if per_step else action)
-        return s, Track.of(s)
+        return s, (Track.of(s), s.depth if plan.perceive else None)
 
     def decide(carry, _):
         s, pss, k = carry
@@ -355,12 +358,13 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
 
         actions = jax.tree.map(lambda a: a.reshape(plan.spans, plan.log_every, *a.shape[1:]), action) \
             if per_step else None
-        s, logged = jax.lax.scan(span, s, actions, length=plan.spans)
+        s, (logs, (track, sweep)) = jax.lax.scan(span, s, actions, length=plan.spans)
         frame = None
         if capture:
             img, dep, lab = env.camera_rgbd(s)
-            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None)
-        return (s, pss, k), (logged, frame)
+            frame = Frames(img, lab.astype(jnp.int16), *((dep, sweep.reshape(plan.decide_every, *sweep.shape[2:]))
+                                                        if plan.perceive else (None, None)))
+        return (s, pss, k), ((logs, track), frame)
 
     return decide
 
@@ -603,22 +607,33 @@ class _Detection:
 
     def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
         """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
-        detections to its mappers, scoring their maps at the planned counts; a frame is taken
-        at its decision's last step."""
-        rgb, depth = np.asarray(frames.rgb), np.asarray(frames.depth)
+        detections to its mappers, scoring their maps at the planned counts. A frame is taken
+        at its decision's last step and counts from the step after it: the map with k frames
+        (the map from step 10 k + 1 on, for 10 steps a decision) is scored after the depth
+        of the steps before frame k (for mappers that read it), before frame k."""
+        rgb, depth, sweep = np.asarray(frames.rgb), np.asarray(frames.depth), np.asarray(frames.sweep)
         _, label, conf, box = dets
-        every, dt = self.plan.decide_every, self.group.env.dt
+        every, dt, far = self.plan.decide_every, self.group.env.dt, self.group.config.camera.max_range
         for r, mappers in enumerate(self.mappers):
             if mappers is None:
                 continue
+            sweepers = [m.mapper for m in mappers.values() if m.mapper.reads_depth()]
             for f in range(depth.shape[1]):
+                for j in range(every - 1) if sweepers else ():
+                    step = (first_frame + f) * every + j  # steps count from 0: step s ends at (s + 1) dt
+                    pose = poses[r, f * every + j]
+                    frame = DepthFrame(step + 1, (step + 1) * dt, np.where(sweep[r, f, j] < far, sweep[r, f, j], 0),
+                                       pose, self.camera.pose(pose))
+                    for mapper in sweepers:
+                        mapper.add_depth(frame)
                 pose = poses[r, (f + 1) * every - 1]
                 index = first_frame + f
                 frame = Frame(index, (index + 1) * every * dt, rgb[r, f], depth[r, f], pose, self.camera.pose(pose),
                               box[r, f], label[r, f], conf[r, f])
                 for online in mappers.values():
+                    if index:  # the empty map (0 frames) was scored when the mapper was built
+                        self._score(online, index)
                     online.mapper.add(frame)
-                    self._score(online, index + 1)
 
     def _relabel(self, c: int, logs: ObjectLog, dets: tuple) -> ObjectLog:
         """Fold chunk c's detections into the metrics' labels; the log's label fields from them."""
