@@ -43,9 +43,11 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    or next to them join it. The rest of the segment (a wall it touches, a neighbour) stays
    out, so an instance grows by at most one cell per frame.
 8. **Depth between detector frames**: rule 7 also runs on the depth camera of every step
-   between detector frames (10 a second, 64 x 48; :meth:`Mapper.add_depth`), with a
-   stricter share ``depth_grow``: ten frames a second let a segment that runs on into a
-   wall creep along it ten times as fast, until the wall holds ``1 - depth_grow`` of it.
+   between detector frames (10 a second, 64 x 48; :meth:`Mapper.add_depth`), on all of
+   them at once, when the map is next read or the next detector frame comes: judged
+   against the map as it stood before them, so an instance still grows by at most one
+   cell per decision (one frame at a time, a segment that runs on into a wall would creep
+   along it ten times as fast).
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -80,12 +82,11 @@ class PerceivedConfig:
     min_views: int = 2  # detections that confirm an instance (rule 6)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
     depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
-    depth_grow: float = 0.65  # rule 8's share (10 frames a second: a stricter share creeps less along walls)
 
 
 class _Cloud(NamedTuple):
-    """A frame's depth pixels above the floor: valid (H, W) which pixels; per point (k,), in
-    row-major order: depth, world x, y, z, and its depth segment part; size (S,) each
+    """F frames' depth pixels above the floor: valid (F, H, W) which pixels; per point (k,),
+    in row-major order: depth, world x, y, z, and its depth segment part; size (S,) each
     segment's points."""
 
     valid: np.ndarray
@@ -121,9 +122,8 @@ class PerceivedMapper(Mapper):
         w, h = camera.rgb_width, camera.rgb_height
         self.rays = _depth_rays(camera, w, h)  # the detector frame's
         self.sweep_rays = _depth_rays(camera, camera.width, camera.height)  # the depth camera's of every step
-        self.sweep_cfg = replace(cfg, edge_rel=cfg.edge_rel * camera.focal(w) / camera.focal(camera.width),
-                                 grow=cfg.depth_grow)  # (its neighbouring pixels lie further apart in
-        # angle: the same surface tilt gives a larger depth step)
+        self.sweep_cfg = replace(cfg, edge_rel=cfg.edge_rel * camera.focal(w) / camera.focal(camera.width))
+        # (its neighbouring pixels lie further apart in angle: the same surface tilt gives a larger depth step)
         self.owner: dict[int, int] = {}  # voxel key -> instance that claimed it
         self.cells: dict[int, int] = {}  # coarse cell key -> the first instance seen in it or beside it
         self.claimed: dict[int, int] = {}  # coarse cell key -> the first instance seen in it
@@ -136,7 +136,8 @@ class PerceivedMapper(Mapper):
         self.point_instance: list[np.ndarray] = []
         self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
-        self._last_sweep: tuple | None = None  # the latest depth frame folded: (pose, depth)
+        self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
+        self._last_swept: tuple | None = None  # the latest depth frame kept
 
     @property
     def instances(self) -> int:
@@ -147,20 +148,30 @@ class PerceivedMapper(Mapper):
         self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)
 
     def add_depth(self, frame: DepthFrame) -> None:
-        """Rule 8: rule 7 on the depth camera of a step between detector frames (every
-        ``depth_every``-th step; a robot at rest sends the same frame: folded once)."""
+        """Rule 8: keep the depth camera of a step between detector frames (every
+        ``depth_every``-th step; a robot at rest sends the same frame: kept once), to be
+        folded with the others when the map is next read or the next detector frame comes."""
         n = self.cfg.depth_every
         if self.cfg.grow <= 0 or n <= 0 or frame.step % n:
             return
-        last = self._last_sweep
+        last = self._last_swept
         if last is not None and np.array_equal(last[0], frame.pose) and np.array_equal(last[1], frame.depth):
             return
-        self._last_sweep = (np.array(frame.pose), np.array(frame.depth))
-        self._grow(self._cloud(frame.pose, frame.depth, self.sweep_rays, self.sweep_cfg), self.sweep_cfg.grow)
+        self._last_swept = (np.array(frame.pose), np.array(frame.depth))
+        self._swept.append(self._last_swept)
+
+    def _fold_swept(self) -> None:
+        """Rule 8: the depth frames kept since the latest detector frame, judged together
+        against the map as it stood after it (rule 7 on all their segments at once)."""
+        if self._swept:
+            poses, depths = (np.stack(a) for a in zip(*self._swept))
+            self._swept = []
+            self._grow(self._cloud(poses, depths, self.sweep_rays, self.sweep_cfg))
 
     def semantic_map(self) -> MapState:
         """The map of every frame folded so far: confirmed instances only, merged ids resolved.
         Points only ever join the end, so the scorer ties each point once."""
+        self._fold_swept()
         if self.points:  # merged ids resolved to their last instance
             points, instance = np.concatenate(self.points), self._roots()[np.concatenate(self.point_instance)]
         else:
@@ -171,6 +182,7 @@ class PerceivedMapper(Mapper):
              conf: np.ndarray) -> None:
         """Fold one frame: pose (3,) x, y, yaw; depth (H, W) (0 = no return); boxes (D, 4)
         pixel corners x1, y1, x2, y2; label (D,) category index (-1 = padding); conf (D,)."""
+        self._fold_swept()
         keep = np.asarray(label) >= 0
         boxes, label, conf = np.asarray(boxes)[keep], np.asarray(label)[keep], np.asarray(conf)[keep]
         for (keys, cells, pts), k, c in zip(self._frame_voxels(pose, depth, boxes), label, conf):
@@ -183,7 +195,7 @@ class PerceivedMapper(Mapper):
             self.views[inst] += 1
             self._publish(inst)
         if self.cfg.grow > 0 and not self._repeat:  # a repeated frame holds nothing new to grow into
-            self._grow(self._last.cloud, self.cfg.grow)
+            self._grow(self._last.cloud)
 
     def _claim(self, inst: int, keys: np.ndarray, cells: np.ndarray, pts: np.ndarray) -> None:
         """Instance ``inst`` takes the unclaimed of voxels ``keys`` (V,) with their points (V, 3),
@@ -198,9 +210,9 @@ class PerceivedMapper(Mapper):
         for cell in (np.asarray(fresh, np.int64)[:, None] + _NEIGHBOURS).ravel().tolist():
             self.cells.setdefault(cell, inst)
 
-    def _grow(self, cloud: _Cloud, share: float) -> None:
-        """Rule 7: each frame segment of which one confirmed instance holds ``share`` of the
-        cells grows it by its points in that instance's cells or next to them."""
+    def _grow(self, cloud: _Cloud) -> None:
+        """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
+        points in that instance's cells or next to them."""
         if not len(cloud.part) or not self.claimed:
             return
         cell = _keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
@@ -212,8 +224,11 @@ class PerceivedMapper(Mapper):
         held = root[_lookup(self.claimed, cells)][cell_of]  # looked up once per cell, not per pair
         held = np.where(confirmed[held], held, -1)
         beside = root[_lookup(self.cells, cells)][cell_of]  # the instance seen in the cell or next to it
-        for s_, inst in _segment_owners(seg, held, len(cloud.size), share):
-            take = ((seg == s_) & (beside == inst))[pair_ix]
+        grown: dict[int, list[int]] = {}  # instance -> the segments it grows by, in order
+        for s_, inst in _segment_owners(seg, held, len(cloud.size), self.cfg.grow):
+            grown.setdefault(inst, []).append(s_)
+        for inst, segs in grown.items():  # one claim per instance, for all its segments
+            take = (np.isin(seg, segs) & (beside == inst))[pair_ix]
             keys, cells_taken, pts = self._voxels(cloud, take)
             self._claim(inst, keys, cells_taken, pts)
             self._publish(inst)
@@ -233,22 +248,23 @@ class PerceivedMapper(Mapper):
         self._repeat = last is not None and (np.array_equal(last.pose, pose) and np.array_equal(last.depth, depth)
                                              and np.array_equal(last.boxes, boxes))
         if not self._repeat:
-            cloud = self._cloud(pose, depth, self.rays, self.cfg)
-            owner = _box_owner(boxes, depth.shape)[cloud.valid]  # (k,) the box each point lies most inside
+            cloud = self._cloud(np.asarray(pose)[None], np.asarray(depth)[None], self.rays, self.cfg)
+            owner = _box_owner(boxes, depth.shape)[cloud.valid[0]]  # (k,) the box each point lies most inside
             self._last = last = _Seen(np.array(pose), np.array(depth), np.array(boxes), cloud,
                                       [self._box_voxels(cloud, owner == i) for i in range(len(boxes))])
         return last.voxels
 
     def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> _Cloud:
-        """The frame's depth pixels above the floor, in the world frame, cut into segments;
-        ``rays`` the frame's (:func:`_depth_rays`)."""
+        """F frames' depth pixels above the floor, in the world frame, cut into segments
+        (each frame's own): pose (F, 3), depth (F, H, W); ``rays`` the frames' (:func:`_depth_rays`)."""
         z = self.config.mount_height + rays[2] * depth
         valid = (depth > 0) & (z >= cfg.floor_z)  # the floor is dropped here
         d = depth[valid]
-        rx, ry = rays[0][valid] * d, rays[1][valid] * d  # camera frame, x forward
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        x = pose[0] + self.config.mount_x * c + c * rx - s * ry
-        y = pose[1] + self.config.mount_x * s + s * rx + c * ry
+        at = np.broadcast_to(np.arange(len(pose))[:, None, None], depth.shape)[valid]  # each point's frame
+        rx, ry = np.broadcast_to(rays[0], depth.shape)[valid] * d, np.broadcast_to(rays[1], depth.shape)[valid] * d
+        c, s = np.cos(pose[:, 2])[at], np.sin(pose[:, 2])[at]  # camera frame above, x forward
+        x = pose[at, 0] + self.config.mount_x * c + c * rx - s * ry
+        y = pose[at, 1] + self.config.mount_x * s + s * rx + c * ry
         count, part = _segments(depth, valid, cfg)
         return _Cloud(valid, d, x, y, z[valid], part, np.bincount(part, minlength=count))
 
@@ -360,22 +376,28 @@ def _box_owner(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 def _segments(d: np.ndarray, valid: np.ndarray, cfg: PerceivedConfig) -> tuple[int, np.ndarray]:
-    """The ``valid`` depth pixels of ``d`` (h, w) cut at depth discontinuities (4-neighbours
-    further apart than ``edge_abs + edge_rel * depth``): the segment count and each valid
-    pixel's segment (k,), in row-major order, numbered in the order of their first pixel.
+    """The ``valid`` depth pixels of frames ``d`` (F, h, w) cut at depth discontinuities
+    (4-neighbours further apart than ``edge_abs + edge_rel * depth``): the segment count and
+    each valid pixel's segment (k,), in row-major order, numbered in the order of their
+    first pixel; no segment spans two frames.
 
-    The pixels and the links between them are one image of (2h - 1, 2w - 1) cells (pixels
-    at even places, a link between two pixels on the cell between them), so the segments
-    are the image's 4-connected components (``scipy.ndimage.label``: 3x faster on the depth
-    camera's frames than a graph of the links)."""
-    h, w = d.shape
-    grid = np.zeros((2 * h - 1, 2 * w - 1), bool)
-    grid[::2, ::2] = valid
-    for a, b, link in ((np.s_[:, :-1], np.s_[:, 1:], np.s_[::2, 1::2]), (np.s_[:-1, :], np.s_[1:, :], np.s_[1::2, ::2])):
+    The pixels and the links between them are one image of (2h - 1, 2w - 1) cells a frame
+    (pixels at even places, a link between two pixels on the cell between them), so the
+    segments are the image's 4-connected components (``scipy.ndimage.label``: 3x faster on
+    the depth camera's frames than a graph of the links)."""
+    f, h, w = d.shape
+    grid = np.zeros((f, 2 * h - 1, 2 * w - 1), bool)
+    grid[:, ::2, ::2] = valid
+    for a, b, link in ((np.s_[..., :-1], np.s_[..., 1:], np.s_[:, ::2, 1::2]),
+                       (np.s_[:, :-1, :], np.s_[:, 1:, :], np.s_[:, 1::2, ::2])):
         da, db = d[a], d[b]  # right and down neighbours
         grid[link] = valid[a] & valid[b] & (np.abs(da - db) <= cfg.edge_abs + cfg.edge_rel * np.minimum(da, db))
-    label, count = ndimage.label(grid)
-    return count, label[::2, ::2][valid] - 1
+    label, count = ndimage.label(grid, _WITHIN_FRAME)
+    return count, label[:, ::2, ::2][valid] - 1
+
+
+_WITHIN_FRAME = np.zeros((3, 3, 3), bool)  # 4-neighbours within a frame, none across
+_WITHIN_FRAME[1] = ndimage.generate_binary_structure(2, 1)
 
 
 def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> list[tuple[int, int]]:
