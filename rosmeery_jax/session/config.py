@@ -34,6 +34,7 @@ LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
 DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
 CAMERA_BYTES_PER_PIXEL = 64  # depth, labels and the ray kernel's per-pixel work, with headroom
+SWEEP_BYTES_PER_PIXEL = 12  # a step's depth held for a mapper: float32, on device, on the host, as sent
 FRAME_BYTES_PER_PIXEL = 16  # a detector frame held for the worker: RGB, labels, depth, with copies
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
@@ -237,7 +238,9 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
     cam = cfg.env_config.camera  # every step's depth and labels, and a chunk's detector frames
     frames = per_call(cfg, decisions(cfg)) if cfg.detector != "off" else 0
-    need_device = batch * (DEVICE_BYTES_PER_ENV + CAMERA_BYTES_PER_PIXEL * cam.width * cam.height
+    swept = frames * cfg.decide_every if any(m != "oracle" for m in cfg.mappers) else 0  # steps' depth, for mappers
+    need_device = batch * (DEVICE_BYTES_PER_ENV + cam.width * cam.height * (CAMERA_BYTES_PER_PIXEL
+                                                                             + SWEEP_BYTES_PER_PIXEL * swept)
                            + FRAME_BYTES_PER_PIXEL * frames * cam.rgb_width * cam.rgb_height)
     have = memory_bytes()
     for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
