@@ -262,7 +262,7 @@ class PerceivedMapper(Mapper):
         d = depth[valid]
         at = np.broadcast_to(np.arange(len(pose))[:, None, None], depth.shape)[valid]  # each point's frame
         rx, ry = np.broadcast_to(rays[0], depth.shape)[valid] * d, np.broadcast_to(rays[1], depth.shape)[valid] * d
-        c, s = np.cos(pose[:, 2])[at], np.sin(pose[:, 2])[at]  # camera frame above, x forward
+        c, s = np.cos(pose[:, 2])[at], np.sin(pose[:, 2])[at]  # rx, ry in the camera frame (x forward), turned by yaw
         x = pose[at, 0] + self.config.mount_x * c + c * rx - s * ry
         y = pose[at, 1] + self.config.mount_x * s + s * rx + c * ry
         count, part = _segments(depth, valid, cfg)
@@ -383,8 +383,8 @@ def _segments(d: np.ndarray, valid: np.ndarray, cfg: PerceivedConfig) -> tuple[i
 
     The pixels and the links between them are one image of (2h - 1, 2w - 1) cells a frame
     (pixels at even places, a link between two pixels on the cell between them), so the
-    segments are the image's 4-connected components (``scipy.ndimage.label``: 3x faster on
-    the depth camera's frames than a graph of the links)."""
+    segments are the image's 4-connected components (``scipy.ndimage.label``: 2.7x faster
+    on the depth camera's frames than scipy's connected components of a graph of the links)."""
     f, h, w = d.shape
     grid = np.zeros((f, 2 * h - 1, 2 * w - 1), bool)
     grid[:, ::2, ::2] = valid

@@ -284,8 +284,7 @@ class Plan(NamedTuple):
 class Frames(NamedTuple):
     """The frame after each decision, per env: rgb (F, Hr, Wr, 3) uint8, labels (F, Hr, Wr)
     int16, depth (F, Hr, Wr) float32; and sweep (F, decide_every, h, w) float32, the depth
-    camera after every step of the decision (depth and sweep None unless a mapper reads
-    them)."""
+    camera after every step of the decision (depth and sweep None unless a mapper runs)."""
 
     rgb: jax.Array
     labels: jax.Array
@@ -608,32 +607,38 @@ class _Detection:
     def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
         """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
         detections to its mappers, scoring their maps at the planned counts. A frame is taken
-        at its decision's last step and counts from the step after it: the map with k frames
-        (the map from step 10 k + 1 on, for 10 steps a decision) is scored after the depth
-        of the steps before frame k (for mappers that read it), before frame k."""
+        at its decision's last step and counts from the step after it, as labels do
+        (``frames_before``): the map with k frames is scored just before frame k is added,
+        after the depth of the steps before it (for mappers that read it)."""
         rgb, depth, sweep = np.asarray(frames.rgb), np.asarray(frames.depth), np.asarray(frames.sweep)
         _, label, conf, box = dets
-        every, dt, far = self.plan.decide_every, self.group.env.dt, self.group.config.camera.max_range
+        every, dt = self.plan.decide_every, self.group.env.dt
         for r, mappers in enumerate(self.mappers):
             if mappers is None:
                 continue
             sweepers = [m.mapper for m in mappers.values() if m.mapper.reads_depth()]
             for f in range(depth.shape[1]):
-                for j in range(every - 1) if sweepers else ():
-                    step = (first_frame + f) * every + j  # steps count from 0: step s ends at (s + 1) dt
-                    pose = poses[r, f * every + j]
-                    frame = DepthFrame(step + 1, (step + 1) * dt, np.where(sweep[r, f, j] < far, sweep[r, f, j], 0),
-                                       pose, self.camera.pose(pose))
-                    for mapper in sweepers:
-                        mapper.add_depth(frame)
-                pose = poses[r, (f + 1) * every - 1]
                 index = first_frame + f
+                if sweepers:
+                    self._feed_depth(sweepers, index * every, poses[r, f * every:(f + 1) * every], sweep[r, f])
+                pose = poses[r, (f + 1) * every - 1]
                 frame = Frame(index, (index + 1) * every * dt, rgb[r, f], depth[r, f], pose, self.camera.pose(pose),
                               box[r, f], label[r, f], conf[r, f])
                 for online in mappers.values():
                     if index:  # the empty map (0 frames) was scored when the mapper was built
                         self._score(online, index)
                     online.mapper.add(frame)
+
+    def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, sweep: np.ndarray) -> None:
+        """Send ``mappers`` the depth of one decision's steps after step ``before``: poses
+        (decide_every, 3), sweep (decide_every, h, w); the last step is the detector frame's."""
+        dt, far = self.group.env.dt, self.group.config.camera.max_range
+        for j in range(len(sweep) - 1):
+            step = before + j + 1  # step s ends at s dt
+            frame = DepthFrame(step, step * dt, np.where(sweep[j] < far, sweep[j], 0), poses[j],
+                               self.camera.pose(poses[j]))
+            for mapper in mappers:
+                mapper.add_depth(frame)
 
     def _relabel(self, c: int, logs: ObjectLog, dets: tuple) -> ObjectLog:
         """Fold chunk c's detections into the metrics' labels; the log's label fields from them."""
