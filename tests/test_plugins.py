@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -38,6 +39,7 @@ class MyPerceived(PerceivedMapper):
 
 FRONTIER_AGENT = '''from types import SimpleNamespace
 
+import jax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -80,20 +82,26 @@ def _same(df, column, a, b):
 def test_plugins_run_like_builtins_in_one_session(tmp_path):
     """One session: frontier, a plugin equal to it (bitwise the same curves: the same
     decisions in the one batch), the example explorer (it drives), a plugin metric, and
-    mappers: perceived, a plugin equal to it (bitwise the same curves) and the numpy example."""
+    mappers: perceived, a plugin equal to it (bitwise the same curves), the numpy example and
+    one that reads the depth of every step (what it is sent: :func:`_check_sweeps`)."""
     plugin = tmp_path / "mine.py"
     plugin.write_text(SAME_AS_FRONTIER + SAME_AS_PERCEIVED)
+    records = tmp_path / "records"
+    records.mkdir()
+    sweeper = tmp_path / "sweeper.py"
+    sweeper.write_text(SWEEPER.format(out=str(records)))
     example = f"{ROOT / 'examples' / 'farthest_free_policy.py'}:FarthestFree"
     metric = f"{ROOT / 'examples' / 'metric_plugin.py'}:labelled_share"
     mapper = f"{ROOT / 'examples' / 'numpy_mapper.py'}:VoxelMapper"
     out = tmp_path / "o"
     assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier,{example}", "--metrics",
-                 f"ori,opi,{metric}", "--mapper", f"oracle,perceived,{plugin}:MyPerceived,{mapper}",
+                 f"ori,opi,{metric}", "--mapper", f"oracle,perceived,{plugin}:MyPerceived,{mapper},{sweeper}:Sweeper",
                  "--out", str(out)]) == 0
     df = pd.read_csv(out / "metrics.csv")
     assert set(df.policy) == {"frontier", "my_frontier", "farthest_free"}
     assert set(df.metric) == {"ori", "opi", "labelled_share"}
-    assert set(df.mapper) == {"oracle", "perceived", "my_perceived", "voxel_numpy"}
+    assert set(df.mapper) == {"oracle", "perceived", "my_perceived", "voxel_numpy", "sweeper"}
+    _check_sweeps(records, 6)
     _same(df, "policy", "frontier", "my_frontier")
     _same(df, "mapper", "perceived", "my_perceived")
     own = df[(df.mapper == "voxel_numpy") & (df.metric == "ori")]
@@ -141,27 +149,23 @@ class Sweeper(Mapper):
 '''
 
 
-def test_a_mapper_that_reads_depth_gets_every_step_between_detector_frames(tmp_path):
-    """The session sends add_depth the depth camera of every step between detector frames,
-    in time order with them; each depth frame is the camera's at its pose (no return: 0)."""
-    records = tmp_path / "records"
-    records.mkdir()
-    plugin = tmp_path / "sweeper.py"
-    plugin.write_text(SWEEPER.format(out=str(records)))
-    assert main([*SESSION, "--policies", "random", "--mapper", f"oracle,{plugin}:Sweeper",
-                 "--out", str(tmp_path / "o")]) == 0
-    runs = [np.load(f) for f in sorted(records.glob("*.npz"))]
-    assert len(runs) == 2  # one per seed (the check before the session sends no depth)
+def _check_sweeps(records, runs: int) -> None:
+    """Each robot's Sweeper got the depth of every step between detector frames, in time
+    order with them, each the depth camera's image at its pose (no return: 0)."""
+    sent = [np.load(f) for f in sorted(records.glob("*.npz"))]
+    assert len(sent) == runs  # one per robot (the check before the session sends no depth)
     env = make("small_office")
     expect = [(1, 10 * k + j, (10 * k + j) / 10) for k in range(6) for j in range(1, 10)]
     expect = sorted(expect + [(0, k, k + 1.0) for k in range(5)], key=lambda e: (e[2], -e[0]))  # the last map
     # (at 6 s) holds the frames taken before 6 s and the depth of every step before the last
-    for run in runs:
+    look = jax.jit(env.look)
+    for run in sent:
         np.testing.assert_allclose(run["sent"], expect, atol=1e-9)
-        assert run["depth"].shape == (54, 48, 64) and np.ptp(run["pose"][:, :2], axis=0).max() > 0.1  # it drove
+        assert run["depth"].shape == (54, 48, 64)
         for k in (0, 20, 53):
-            depth = np.asarray(env.look(jnp.asarray(run["pose"][k], jnp.float32))[0])
+            depth = np.asarray(look(jnp.asarray(run["pose"][k], jnp.float32))[0])
             np.testing.assert_allclose(run["depth"][k], np.where(depth < 8.0, depth, 0.0), atol=1e-4)
+    assert max(np.ptp(run["pose"][:, :2], axis=0).max() for run in sent) > 0.1  # the robots drove
 
 
 BROKEN = {

@@ -205,10 +205,10 @@ class PerceivedMapper(Mapper):
         self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
         if new.any():
             self.pending[inst].append(pts[new])
-        fresh = [c for c in cells.tolist() if c not in self.claimed]
-        self.claimed.update(dict.fromkeys(fresh, inst))
-        for cell in (np.asarray(fresh, np.int64)[:, None] + _NEIGHBOURS).ravel().tolist():
-            self.cells.setdefault(cell, inst)
+        fresh = cells[_lookup(self.claimed, cells) < 0]
+        self.claimed.update(dict.fromkeys(fresh.tolist(), inst))
+        near = np.unique((fresh[:, None] + _NEIGHBOURS).ravel())  # the fresh cells and their neighbours
+        self.cells.update(dict.fromkeys(near[_lookup(self.cells, near) < 0].tolist(), inst))  # the first seen stays
 
     def _grow(self, cloud: _Cloud) -> None:
         """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
