@@ -227,10 +227,12 @@ def test_the_held_out_detector_was_trained_on_generated_worlds_only():
 
 
 @pytest.mark.parametrize("detector", ["yolo", "oracle"])
-def test_session_with_a_detector_scores_confidences_and_labels(tmp_path, detector):
+def test_session_with_a_detector_scores_confidences_and_labels(tmp_path, detector, capsys):
     out = tmp_path / detector
     assert main(["run", "--worlds", "small_office", "--policies", "random", "--seeds", "2", "--duration", "20",
                  "--detector", detector, "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "detector: 40 frames" in printed and "mappers (fed and scored)" not in printed  # no mapper ran
     df = pd.read_csv(out / "metrics.csv")
     wide = df.pivot_table(index=["seed", "time_s"], columns="metric", values="value")
     assert (wide.cori <= wide.ori + 1e-9).all()

@@ -79,7 +79,7 @@ def _same(df, column, a, b):
     pd.testing.assert_frame_equal(x, y, check_exact=True)
 
 
-def test_plugins_run_like_builtins_in_one_session(tmp_path):
+def test_plugins_run_like_builtins_in_one_session(tmp_path, capsys):
     """One session: frontier, a plugin equal to it (bitwise the same curves: the same
     decisions in the one batch), the example explorer (it drives), a plugin metric, and
     mappers: perceived, a plugin equal to it (bitwise the same curves), the numpy example and
@@ -97,6 +97,7 @@ def test_plugins_run_like_builtins_in_one_session(tmp_path):
     assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier,{example}", "--metrics",
                  f"ori,opi,{metric}", "--mapper", f"oracle,perceived,{plugin}:MyPerceived,{mapper},{sweeper}:Sweeper",
                  "--out", str(out)]) == 0
+    assert "mappers (fed and scored)" in capsys.readouterr().out
     df = pd.read_csv(out / "metrics.csv")
     assert set(df.policy) == {"frontier", "my_frontier", "farthest_free"}
     assert set(df.metric) == {"ori", "opi", "labelled_share"}
