@@ -276,15 +276,26 @@ class Plan(NamedTuple):
         return bool(self.mappers)
 
     @property
+    def sweep(self) -> bool:
+        """Whether frames carry the depth of every step (a mapper overrides ``add_depth``)."""
+        return any(_mapper_cls(spec).reads_depth() for spec in self.mappers)
+
+    @property
     def spans(self) -> int:
         """Logged spans per decision."""
         return self.decide_every // self.log_every
 
 
+def _mapper_cls(spec: str) -> type:
+    """A mapper entry's class: the built-in perceived mapper or a plugin."""
+    return PerceivedMapper if spec == "perceived" else mapper_class(spec)
+
+
 class Frames(NamedTuple):
     """The frame after each decision, per env: rgb (F, Hr, Wr, 3) uint8, labels (F, Hr, Wr)
-    int16, depth (F, Hr, Wr) float32; and sweep (F, decide_every, h, w) float32, the depth
-    camera after every step of the decision (depth and sweep None unless a mapper runs)."""
+    int16, depth (F, Hr, Wr) float32 (None unless a mapper runs); and sweep (F,
+    decide_every, h, w) float32, the depth camera after every step of the decision (None
+    unless a mapper reads it)."""
 
     rgb: jax.Array
     labels: jax.Array
@@ -331,6 +342,7 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
     its own decision runs), then ``decide_every`` env steps, logged every ``log_every``;
     with ``capture``, the frame after them."""
     per_step = policies[0].per_step
+    sweep = plan.sweep
 
     def branch(i):
         def decide(s, pss, k):
@@ -340,7 +352,7 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
 
     def step(s, a, action):
         s = env.step(s, a if per_step else action)
-        return s, (Track.of(s), s.depth if plan.perceive else None)
+        return s, (Track.of(s), s.depth if sweep else None)
 
     def decide(carry, _):
         s, pss, k = carry
@@ -357,12 +369,12 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
 
         actions = jax.tree.map(lambda a: a.reshape(plan.spans, plan.log_every, *a.shape[1:]), action) \
             if per_step else None
-        s, (logs, (track, sweep)) = jax.lax.scan(span, s, actions, length=plan.spans)
+        s, (logs, (track, depths)) = jax.lax.scan(span, s, actions, length=plan.spans)
         frame = None
         if capture:
             img, dep, lab = env.camera_rgbd(s)
-            frame = Frames(img, lab.astype(jnp.int16), *((dep, sweep.reshape(plan.decide_every, *sweep.shape[2:]))
-                                                        if plan.perceive else (None, None)))
+            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
+                           depths.reshape(plan.decide_every, *depths.shape[2:]) if sweep else None)
         return (s, pss, k), ((logs, track), frame)
 
     return decide
@@ -560,7 +572,7 @@ class _Detection:
         """One env's mappers by entry, the empty map scored (frame count 0)."""
         out = {}
         for spec in self.plan.mappers:
-            cls = PerceivedMapper if spec == "perceived" else mapper_class(spec)
+            cls = _mapper_cls(spec)
             out[spec] = Mapped(spec, cls(self.camera, env.world.taxonomy.names),
                                 OnlineScorer(env.world, TOLERANCE))
             self._score(out[spec], 0)
@@ -610,7 +622,8 @@ class _Detection:
         at its decision's last step and counts from the step after it, as labels do
         (``frames_before``): the map with k frames is scored just before frame k is added,
         after the depth of the steps before it (for mappers that read it)."""
-        rgb, depth, sweep = np.asarray(frames.rgb), np.asarray(frames.depth), np.asarray(frames.sweep)
+        rgb, depth = np.asarray(frames.rgb), np.asarray(frames.depth)
+        sweep = np.asarray(frames.sweep) if frames.sweep is not None else None
         _, label, conf, box = dets
         every, dt = self.plan.decide_every, self.group.env.dt
         for r, mappers in enumerate(self.mappers):
