@@ -55,16 +55,19 @@ class Camera(NamedTuple):
         return intrinsics(self.config, self.config.width, self.config.height)
 
     def pose(self, robot: np.ndarray) -> np.ndarray:
-        """(4, 4) world-from-camera transform (OpenCV axes) for a robot pose (3,) x, y, yaw."""
+        """(..., 4, 4) world-from-camera transforms (OpenCV axes) for robot poses (..., 3) x, y, yaw."""
         cfg = self.config
-        x, y, yaw = (float(v) for v in robot)
+        robot = np.asarray(robot, np.float64)
+        x, y, yaw = robot[..., 0], robot[..., 1], robot[..., 2]
         c, s, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(cfg.pitch), np.sin(cfg.pitch)
-        yaw_r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        yaw_r = np.zeros((*yaw.shape, 3, 3))
+        yaw_r[..., 0, 0], yaw_r[..., 0, 1], yaw_r[..., 1, 0], yaw_r[..., 1, 1], yaw_r[..., 2, 2] = c, -s, s, c, 1.0
         tilt = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])  # pitched down for positive pitch
         from_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # OpenCV axes in x fwd, y left, z up
-        out = np.eye(4)
-        out[:3, :3] = yaw_r @ tilt @ from_cv
-        out[:3, 3] = [x + cfg.mount_x * c, y + cfg.mount_x * s, cfg.mount_height]
+        out = np.zeros((*yaw.shape, 4, 4))
+        out[..., :3, :3] = yaw_r @ tilt @ from_cv
+        out[..., 0, 3], out[..., 1, 3], out[..., 2, 3] = x + cfg.mount_x * c, y + cfg.mount_x * s, cfg.mount_height
+        out[..., 3, 3] = 1.0
         return out
 
 

@@ -124,16 +124,16 @@ class PerceivedMapper(Mapper):
         self.sweep_rays = _depth_rays(camera, camera.width, camera.height)  # the depth camera's of every step
         self.sweep_cfg = replace(cfg, edge_rel=cfg.edge_rel * camera.focal(w) / camera.focal(camera.width))
         # (its neighbouring pixels lie further apart in angle: the same surface tilt gives a larger depth step)
-        self.owner: dict[int, int] = {}  # voxel key -> instance that claimed it
-        self.cells: dict[int, int] = {}  # coarse cell key -> the first instance seen in it or beside it
-        self.claimed: dict[int, int] = {}  # coarse cell key -> the first instance seen in it
+        self.owner = _Table()  # voxel key -> instance that claimed it
+        self.cells = _Table()  # coarse cell key -> the first instance seen in it or beside it
+        self.claimed = _Table()  # coarse cell key -> the first instance seen in it
         self.pending: list[list[np.ndarray]] = []  # per instance: point batches not in the map yet
         self.views: list[int] = []  # per instance: detections that support it
         self.parent: list[int] = []  # per instance: the instance it was merged into (itself if none)
         self.label: list[int] = []  # per instance: the held label (-1 none) and its confidence (rule 5)
         self.conf: list[float] = []
-        self.points: list[np.ndarray] = []  # the map's point batches (k, 3), in the order they entered it
-        self.point_instance: list[np.ndarray] = []
+        self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
+        self.point_instance = _Rows((), np.int64)
         self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
         self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
@@ -172,11 +172,8 @@ class PerceivedMapper(Mapper):
         """The map of every frame folded so far: confirmed instances only, merged ids resolved.
         Points only ever join the end, so the scorer ties each point once."""
         self._fold_swept()
-        if self.points:  # merged ids resolved to their last instance
-            points, instance = np.concatenate(self.points), self._roots()[np.concatenate(self.point_instance)]
-        else:
-            points, instance = np.zeros((0, 3)), np.zeros(0, np.int64)
-        return MapState(points, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
+        instance = self._roots()[self.point_instance.rows]  # merged ids resolved to their last instance
+        return MapState(self.points.rows, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
 
     def fold(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray, label: np.ndarray,
              conf: np.ndarray) -> None:
@@ -189,7 +186,7 @@ class PerceivedMapper(Mapper):
             if len(keys) < max(self.cfg.min_voxels, 1):
                 continue
             inst = self._associate(cells, int(k))
-            self._claim(inst, keys, cells, pts)
+            self._claim(np.array([inst]), keys, pts, cells)
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
             self.views[inst] += 1
@@ -197,23 +194,33 @@ class PerceivedMapper(Mapper):
         if self.cfg.grow > 0 and not self._repeat:  # a repeated frame holds nothing new to grow into
             self._grow(self._last.cloud)
 
-    def _claim(self, inst: int, keys: np.ndarray, cells: np.ndarray, pts: np.ndarray) -> None:
-        """Instance ``inst`` takes the unclaimed of voxels ``keys`` (V,) with their points (V, 3),
-        and records its coarse ``cells`` (rules 3-4)."""
-        owners = _lookup(self.owner, keys)
-        new = owners < 0
-        self.owner.update(dict.fromkeys(keys[new].tolist(), inst))
-        if new.any():
-            self.pending[inst].append(pts[new])
-        fresh = cells[_lookup(self.claimed, cells) < 0]
-        self.claimed.update(dict.fromkeys(fresh.tolist(), inst))
-        near = np.unique((fresh[:, None] + _NEIGHBOURS).ravel())  # the fresh cells and their neighbours
-        self.cells.update(dict.fromkeys(near[_lookup(self.cells, near) < 0].tolist(), inst))  # the first seen stays
+    def _claim(self, insts: np.ndarray, keys: np.ndarray, pts: np.ndarray, cells: np.ndarray,
+               rank: np.ndarray | int = 0, cell_rank: np.ndarray | int = 0) -> None:
+        """Instances ``insts`` (R,), one after the other, take the unclaimed voxels of their
+        points (keys (V,), points (V, 3), each of instance ``insts[rank]``) and record their
+        coarse ``cells`` (C,) (of ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the
+        first instance that reaches it, and its first point in that instance's points stays."""
+        rank, cell_rank = np.broadcast_to(rank, keys.shape), np.broadcast_to(cell_rank, cells.shape)
+        new = _first_claims(keys, rank)
+        new = new[self.owner.get(keys[new]) < 0]
+        self.owner.add(keys[new], insts[rank[new]])
+        split = np.searchsorted(rank[new], np.arange(1, len(insts)))  # ordered by instance: one batch each
+        for inst, taken in zip(insts.tolist(), np.split(pts[new], split)):
+            if len(taken):
+                self.pending[inst].append(taken)
+            self._publish(inst)
+        fresh = _first_claims(cells, cell_rank)
+        fresh = fresh[self.claimed.get(cells[fresh]) < 0]
+        self.claimed.add(cells[fresh], insts[cell_rank[fresh]])
+        near = (cells[fresh][:, None] + _NEIGHBOURS).ravel()  # the fresh cells and their neighbours
+        first = _first_claims(near, np.repeat(cell_rank[fresh], len(_NEIGHBOURS)))
+        first = first[self.cells.get(near[first]) < 0]  # the first seen stays
+        self.cells.add(near[first], insts[np.repeat(cell_rank[fresh], len(_NEIGHBOURS))[first]])
 
     def _grow(self, cloud: _Cloud) -> None:
         """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
         points in that instance's cells or next to them."""
-        if not len(cloud.part) or not self.claimed:
+        if not len(cloud.part) or not len(self.claimed):
             return
         cell = _keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
         cells, cell_ix = np.unique(cell, return_inverse=True)
@@ -221,17 +228,22 @@ class PerceivedMapper(Mapper):
         seg, cell_of = pairs // len(cells), pairs % len(cells)  # each pair's segment and index into cells
         root = self._roots()
         confirmed = np.r_[np.array(self.views) >= self.cfg.min_views, False]  # index -1: no instance
-        held = root[_lookup(self.claimed, cells)][cell_of]  # looked up once per cell, not per pair
+        held = root[self.claimed.get(cells)][cell_of]  # looked up once per cell, not per pair
         held = np.where(confirmed[held], held, -1)
-        beside = root[_lookup(self.cells, cells)][cell_of]  # the instance seen in the cell or next to it
-        grown: dict[int, list[int]] = {}  # instance -> the segments it grows by, in order
-        for s_, inst in _segment_owners(seg, held, len(cloud.size), self.cfg.grow):
-            grown.setdefault(inst, []).append(s_)
-        for inst, segs in grown.items():  # one claim per instance, for all its segments
-            take = (np.isin(seg, segs) & (beside == inst))[pair_ix]
-            keys, cells_taken, pts = self._voxels(cloud, take)
-            self._claim(inst, keys, cells_taken, pts)
-            self._publish(inst)
+        beside = root[self.cells.get(cells)][cell_of]  # the instance seen in the cell or next to it
+        segs, insts = _segment_owners(seg, held, len(cloud.size), self.cfg.grow)
+        if not len(segs):
+            return
+        ids, first, which = np.unique(insts, return_index=True, return_inverse=True)
+        order = np.argsort(first)  # the instances in the order of their first segment, one claim each
+        seg_rank = np.full(len(cloud.size), -1)
+        seg_rank[segs] = np.argsort(order)[which]
+        rank = seg_rank[seg]  # per pair: the rank of the instance its segment grows, if it is beside it
+        rank = np.where((rank >= 0) & (beside == ids[order][np.maximum(rank, 0)]), rank, -1)[pair_ix]
+        take = rank >= 0
+        x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
+        self._claim(ids[order], _keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take],
+                    rank[take], rank[take])
 
     def _roots(self) -> np.ndarray:
         """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to -1."""
@@ -293,7 +305,7 @@ class PerceivedMapper(Mapper):
         """The instance a detection joins, from the instances seen in its cells (rule 4):
         of those holding ``overlap`` of them, the one holding most among those of the
         detection's label, else among all; the others of that label merge into it."""
-        held = self._roots()[_lookup(self.cells, cells)]
+        held = self._roots()[self.cells.get(cells)]
         ids, counts = np.unique(held[held >= 0], return_counts=True)
         keep = counts >= self.cfg.overlap * len(cells)
         ids, counts = ids[keep], counts[keep]
@@ -328,8 +340,30 @@ class PerceivedMapper(Mapper):
         if self.views[inst] >= self.cfg.min_views and self.pending[inst]:
             pts = np.concatenate(self.pending[inst])
             self.points.append(pts)
-            self.point_instance.append(np.full(len(pts), inst, np.int64))
+            self.point_instance.append(np.full(len(pts), inst))
             self.pending[inst] = []
+
+
+class _Rows:
+    """An array that only grows at its end, (n, *shape): appended in amortised constant time
+    per row (the capacity doubles); ``rows`` is a view of the first n rows, which later
+    appends never change."""
+
+    def __init__(self, shape: tuple, dtype):
+        self._buf, self._n = np.zeros((16, *shape), dtype), 0
+
+    def append(self, rows: np.ndarray) -> None:
+        n = self._n + len(rows)
+        if n > len(self._buf):
+            buf = np.zeros((max(n, 2 * len(self._buf)), *self._buf.shape[1:]), self._buf.dtype)
+            buf[:self._n] = self._buf[:self._n]
+            self._buf = buf
+        self._buf[self._n:n] = rows
+        self._n = n
+
+    @property
+    def rows(self) -> np.ndarray:
+        return self._buf[:self._n]
 
 
 # key offsets of a cube and its 26 neighbours (the bit layout of _keys)
@@ -346,9 +380,49 @@ def _depth_rays(camera, w: int, h: int) -> tuple:
     return tuple(np.ascontiguousarray(rays[..., i]) for i in range(3))
 
 
-def _lookup(table: dict[int, int], keys: np.ndarray) -> np.ndarray:
-    """(K,) the values ``table`` holds for ``keys`` (K,), -1 where it holds none."""
-    return np.fromiter(map(table.get, keys.tolist(), repeat(-1)), np.int64, len(keys))
+class _Table:
+    """Cube keys to instances, looked up many keys at once. Most keys are held in a sorted
+    array (a vectorised binary search), the latest in a dictionary, merged into the array
+    once they are many. Most keys a frame looks up are in no table (walls and furniture no
+    detection named): a bitmap of the keys' hashes (1 MiB) answers those at once."""
+
+    _BITS = 20
+
+    def __init__(self):
+        self._keys, self._insts = np.zeros(0, np.int64), np.zeros(0, np.int64)  # sorted by key
+        self._latest: dict[int, int] = {}
+        self._seen = np.zeros(1 << self._BITS, bool)
+
+    def __len__(self) -> int:
+        return len(self._keys) + len(self._latest)
+
+    def _hash(self, keys: np.ndarray) -> np.ndarray:
+        return (keys.view(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - self._BITS)  # Fibonacci hashing
+
+    def get(self, keys: np.ndarray) -> np.ndarray:
+        """(K,) the instances the table holds for int64 ``keys`` (K,), -1 where it holds none."""
+        out = np.full(len(keys), -1, np.int64)
+        maybe = np.flatnonzero(self._seen[self._hash(keys)])
+        if len(self._keys) and len(maybe):
+            at = np.minimum(np.searchsorted(self._keys, keys[maybe]), len(self._keys) - 1)
+            found = self._keys[at] == keys[maybe]
+            out[maybe[found]] = self._insts[at[found]]
+            maybe = maybe[~found]
+        if self._latest and len(maybe):
+            out[maybe] = np.fromiter(map(self._latest.get, keys[maybe].tolist(), repeat(-1)), np.int64, len(maybe))
+        return out
+
+    def add(self, keys: np.ndarray, insts: np.ndarray) -> None:
+        """Record instances ``insts`` (K,) for int64 ``keys`` (K,), none of them in the table yet."""
+        self._latest.update(zip(keys.tolist(), insts.tolist()))
+        self._seen[self._hash(keys)] = True
+        if len(self._latest) > max(1024, len(self._keys) // 16):
+            keys = np.fromiter(self._latest, np.int64, len(self._latest))
+            insts = np.fromiter(self._latest.values(), np.int64, len(self._latest))
+            order = np.argsort(keys)
+            at = np.searchsorted(self._keys, keys[order])
+            self._keys, self._insts = np.insert(self._keys, at, keys[order]), np.insert(self._insts, at, insts[order])
+            self._latest = {}
 
 
 def _keys(xyz: tuple, size: float) -> np.ndarray:
@@ -373,6 +447,16 @@ def _box_owner(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         take = (inside <= 1) & (inside < best[rows, cols])
         owner[rows, cols][take], best[rows, cols][take] = i, inside[take]
     return owner
+
+
+def _first_claims(keys: np.ndarray, rank: np.ndarray) -> np.ndarray:
+    """Of entries with keys (K,) and ranks (K,), the first of the lowest rank for each key:
+    their indices, ordered by rank, then key."""
+    if not len(keys) or (rank == rank[0]).all():  # one rank: one sort
+        return np.unique(keys, return_index=True)[1]
+    o = np.lexsort((rank, keys))  # by key, then rank, then index (stable)
+    first = o[np.r_[True, keys[o][1:] != keys[o][:-1]]]
+    return first[np.lexsort((keys[first], rank[first]))]
 
 
 def _segments(d: np.ndarray, valid: np.ndarray, cfg: PerceivedConfig) -> tuple[int, np.ndarray]:
@@ -400,14 +484,14 @@ _WITHIN_FRAME = np.zeros((3, 3, 3), bool)  # 4-neighbours within a frame, none a
 _WITHIN_FRAME[1] = ndimage.generate_binary_structure(2, 1)
 
 
-def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> list[tuple[int, int]]:
-    """(segment, instance) pairs of rule 7: from each of a frame's distinct (segment, cell)
-    pairs, seg (Q,) its segment and held (Q,) the instance holding the cell (-1 none), the
-    segments of which one instance holds at least ``share`` of the cells."""
+def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rule 7's segments, ascending, and the instance each grows: from each of a frame's
+    distinct (segment, cell) pairs, seg (Q,) its segment and held (Q,) the instance holding
+    the cell (-1 none), the segments of which one instance holds at least ``share`` of the cells."""
     cells = np.bincount(seg, minlength=count)
     on = held >= 0
     if not on.any():
-        return []
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     width = int(held.max()) + 1
     pair, n = np.unique(seg[on] * width + held[on], return_counts=True)
     s, inst = pair // width, pair % width
@@ -415,4 +499,4 @@ def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float)
     s, inst, n = s[order], inst[order], n[order]
     first = np.r_[True, s[1:] != s[:-1]]
     keep = first & (n >= share * cells[s])
-    return list(zip(s[keep].tolist(), inst[keep].tolist()))
+    return s[keep], inst[keep]

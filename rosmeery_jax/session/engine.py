@@ -623,33 +623,38 @@ class _Detection:
         (``frames_before``): the map with k frames is scored just before frame k is added,
         after the depth of the steps before it (for mappers that read it)."""
         rgb, depth = np.asarray(frames.rgb), np.asarray(frames.depth)
-        sweep = np.asarray(frames.sweep) if frames.sweep is not None else None
+        sweep = None
+        if frames.sweep is not None:  # no return: 0, as in the detector frame's depth
+            sweep = np.asarray(frames.sweep)
+            sweep = np.where(sweep < self.group.config.camera.max_range, sweep, 0)
         _, label, conf, box = dets
         every, dt = self.plan.decide_every, self.group.env.dt
         for r, mappers in enumerate(self.mappers):
             if mappers is None:
                 continue
             sweepers = [m.mapper for m in mappers.values() if m.mapper.reads_depth()]
+            cameras = self.camera.pose(poses[r])  # (steps, 4, 4)
             for f in range(depth.shape[1]):
                 index = first_frame + f
+                steps = np.s_[f * every:(f + 1) * every]
                 if sweepers:
-                    self._feed_depth(sweepers, index * every, poses[r, f * every:(f + 1) * every], sweep[r, f])
-                pose = poses[r, (f + 1) * every - 1]
-                frame = Frame(index, (index + 1) * every * dt, rgb[r, f], depth[r, f], pose, self.camera.pose(pose),
+                    self._feed_depth(sweepers, index * every, poses[r, steps], cameras[steps], sweep[r, f])
+                last = (f + 1) * every - 1
+                frame = Frame(index, (index + 1) * every * dt, rgb[r, f], depth[r, f], poses[r, last], cameras[last],
                               box[r, f], label[r, f], conf[r, f])
                 for online in mappers.values():
                     if index:  # the empty map (0 frames) was scored when the mapper was built
                         self._score(online, index)
                     online.mapper.add(frame)
 
-    def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, sweep: np.ndarray) -> None:
+    def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, cameras: np.ndarray, sweep: np.ndarray) -> None:
         """Send ``mappers`` the depth of one decision's steps after step ``before``: poses
-        (decide_every, 3), sweep (decide_every, h, w); the last step is the detector frame's."""
-        dt, far = self.group.env.dt, self.group.config.camera.max_range
+        (decide_every, 3), their camera poses (decide_every, 4, 4), sweep (decide_every, h, w)
+        (0: no return); the last step is the detector frame's."""
+        dt = self.group.env.dt
         for j in range(len(sweep) - 1):
             step = before + j + 1  # step s ends at s dt
-            frame = DepthFrame(step, step * dt, np.where(sweep[j] < far, sweep[j], 0), poses[j],
-                               self.camera.pose(poses[j]))
+            frame = DepthFrame(step, step * dt, sweep[j], poses[j], cameras[j])
             for mapper in mappers:
                 mapper.add_depth(frame)
 
