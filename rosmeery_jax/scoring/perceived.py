@@ -384,9 +384,9 @@ class _Table:
     """Cube keys to instances, looked up many keys at once. Most keys are held in a sorted
     array (a vectorised binary search), the latest in a dictionary, merged into the array
     once they are many. Most keys a frame looks up are in no table (walls and furniture no
-    detection named): a bitmap of the keys' hashes (1 MiB) answers those at once."""
+    detection named): a bitmap of the keys' hashes (256 KiB) answers those at once."""
 
-    _BITS = 20
+    _BITS = 18
 
     def __init__(self):
         self._keys, self._insts = np.zeros(0, np.int64), np.zeros(0, np.int64)  # sorted by key
