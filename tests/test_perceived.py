@@ -44,6 +44,14 @@ OFF_GRID = """
 FLUSH = """
 <body name="chair"><geom type="box" pos="-1.8 -1.0 0.3" size="0.2 0.2 0.3"/></body>
 """
+# Frame: a "chair" of four 2 cm bars, 1 m square, 1.2 m in front of the camera and 2.4 m in
+# front of the far wall: the wall seen through it fills most of its box.
+FRAME = """
+<body name="chair">
+  <geom type="box" pos="-0.49 0.4 0.55" size="0.01 0.01 0.5"/><geom type="box" pos="0.49 0.4 0.55" size="0.01 0.01 0.5"/>
+  <geom type="box" pos="0 0.4 1.04" size="0.5 0.01 0.01"/><geom type="box" pos="0 0.4 0.06" size="0.5 0.01 0.01"/>
+</body>
+"""
 POSE = np.array([0.0, 1.6, -np.pi / 2], np.float32)  # looking down -y at both objects
 ONE = PerceivedConfig(min_views=1)  # instances in the map from their first detection
 
@@ -53,7 +61,7 @@ def scenes(tmp_path_factory):
     """{name: (env, render(pose) -> depth, labels)}, one compile each."""
     out = {}
     for name, bodies in (("apart", APART), ("together", TOGETHER), ("by_wall", BY_WALL), ("off_grid", OFF_GRID),
-                         ("flush", FLUSH)):
+                         ("flush", FLUSH), ("frame", FRAME)):
         path = tmp_path_factory.mktemp(name) / "room.xml"
         cats = {"chair": "chair", "desk": "desk"} if "desk" in bodies else {"chair": "chair"}
         path.write_text(room_xml(bodies, cats, spawn=(0.0, 1.0, 0.0)))
@@ -250,6 +258,22 @@ def test_a_boxs_wall_pixels_are_not_kept(scenes, tmp_path):
         kept[name] = score(env.world, _as_map(tmp_path / name, env, m))
     assert kept["segments"].off_object == 0.0 and list(kept["segments"].matched) == [0]
     assert kept["no cut"].off_object > 0.3  # without the depth-discontinuity cut the wall is kept
+
+
+def test_a_wall_seen_through_a_thin_object_is_not_taken_for_it(scenes, tmp_path):
+    env, depth, label = _frame(scenes, "frame")
+    obj, boxes = _tight(label)
+    x1, y1, x2, y2 = boxes[0].astype(int)
+    box = np.s_[y1:y2, x1:x2]
+    frame_share = (label[box] == 0).sum() / (depth[box] > 0).sum()
+    assert 0.05 < frame_share < 0.2  # the bars hold too little of their box's pixels to be the object for sure
+    kept = {}
+    for name, behind in (("default", PerceivedConfig().behind), ("off", np.inf)):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, behind=behind))
+        m.fold(POSE, depth, boxes, np.array([0]), np.array([0.9], np.float32))
+        kept[name] = m.semantic_map().points
+    assert len(kept["default"]) == 0  # the wall behind the bars is background: the detection adds nothing
+    assert len(kept["off"]) > 100 and (tie(env.world, kept["off"], 0.05) < 0).mean() > 0.9  # else the wall is kept
 
 
 def test_an_instance_enters_the_map_on_its_second_detection(scenes):

@@ -19,7 +19,11 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    than ``inside`` of its pixels in the box is background running on past it (a wall, a
    large piece of furniture behind, a neighbour in front). The nearest of the other
    segments that holds at least ``min_share`` of the box's pixels is the object; if none
-   does, the detection adds no points. The rest is dropped.
+   does, the detection adds no points. The rest is dropped. If one of those segments
+   holding at least ``front_share`` of the box stands more than ``behind`` nearer than the
+   object's, the object is that thing in front, too thin a share of its box to be told
+   from what shows through it (a chair's back and legs), and the segment behind is a wall
+   seen past it: the detection adds no points.
 3. **Voxels**: the segment's points are binned into ``voxel`` cubes; a voxel belongs to the
    first instance that claimed it and keeps its first point (a point on the surface, so it
    ties to a sample like any mapper's point). Voxels are half the surface samples' spacing:
@@ -76,6 +80,8 @@ class PerceivedConfig:
     edge_rel: float = 0.03  # edge_rel * depth lie on different surfaces (rule 2)
     min_share: float = 0.2  # the nearest segment with this share of a box's pixels is the object,
     inside: float = 0.5  # of the segments with at least this share of their pixels in the box
+    front_share: float = 0.05  # a segment with this share of the box, standing more than
+    behind: float = 0.5  # m nearer than the object's, shows the latter to be background (inf: off)
     cell: float = 0.05  # m: the association's coarse cells (rule 4)
     overlap: float = 0.2  # share of a detection's cells an instance must hold to take it
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
@@ -282,16 +288,19 @@ class PerceivedMapper(Mapper):
 
     def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> tuple:
         """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
-        of their pixels in the box, the nearest holding ``min_share`` of the box's points."""
-        n = int(mine.sum())
+        of their pixels in the box, the nearest holding ``min_share`` of the box's points,
+        unless one holding ``front_share`` stands ``behind`` nearer."""
+        cfg, n = self.cfg, int(mine.sum())
         part = cloud.part[mine]
         size = np.bincount(part, minlength=len(cloud.size))  # each segment's pixels in the box
-        fit = np.flatnonzero((size > 0) & (size >= self.cfg.min_share * n) & (size >= self.cfg.inside * cloud.size))
-        if not len(fit):
-            return self._voxels(cloud, mine & False)
+        inside = (size > 0) & (size >= cfg.inside * cloud.size)
+        fit = inside & (size >= cfg.min_share * n)
+        seen = np.flatnonzero(inside & (size >= min(cfg.front_share, cfg.min_share) * n))
         depth = cloud.depth[mine]
-        near = [depth[part == s].min() for s in fit.tolist()]  # a segment's nearest point: how near it stands
-        return self._voxels(cloud, mine & (cloud.part == fit[int(np.argmin(near))]))
+        near = np.array([depth[part == s].min() for s in seen.tolist()])  # a segment's nearest point: how near it stands
+        if not fit.any() or near[fit[seen]].min() > near.min() + cfg.behind:
+            return self._voxels(cloud, mine & False)
+        return self._voxels(cloud, mine & (cloud.part == seen[fit[seen]][int(np.argmin(near[fit[seen]]))]))
 
     def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
