@@ -16,7 +16,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
-from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper
+from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _keys
 from rosmeery_jax.sim.sensors import rgbd
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
 
@@ -113,6 +113,18 @@ def test_tight_boxes_give_one_instance_per_object_and_points_only_on_objects(sce
 
 
 NEAR = POSE + np.array([0.0, -0.3, 0.0], np.float32)  # 0.3 m closer to both objects
+
+
+def test_two_boxes_of_one_frame_never_join_one_instance(scenes):
+    env, _ = scenes["apart"]
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    pts = np.stack(np.meshgrid(np.arange(10) * 0.025, np.arange(10) * 0.025, [0.5]), -1).reshape(-1, 3) + 0.01
+    keys, cells = _keys(pts.T, 0.025), np.unique(_keys(pts.T, 0.05))  # a 25 cm patch: 100 voxels, 25 cells
+    first = m._associate(cells, 0, set())
+    m._claim(np.array([first]), keys, pts, cells)
+    assert m._associate(cells, 0, set()) == first  # another frame's box on the patch joins it
+    second = m._associate(cells, 0, {first})  # the same frame's second box on it: another object
+    assert second != first and m._associate(cells, 0, set()) == first  # and the patch stays the first's
 
 
 def _two_views(scenes):

@@ -36,7 +36,9 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    instances, one carrying the detection's label first); otherwise the detection starts a
    new instance. Its unclaimed voxels join that instance. The other instances that hold
    ``overlap`` of the detection's cells and carry its label are merged into it (one object
-   split by earlier views).
+   split by earlier views). One detection per instance per frame: an instance an earlier
+   detection of the frame joined (they come most confident first) is no candidate, and is
+   not merged (two boxes in one frame are two objects).
 5. **Label**: an instance holds the label of its most confident detection so far.
 6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
    spurious box in one frame never does; a frame sent again by a robot at rest counts
@@ -188,10 +190,12 @@ class PerceivedMapper(Mapper):
         self._fold_swept()
         keep = np.asarray(label) >= 0
         boxes, label, conf = np.asarray(boxes)[keep], np.asarray(label)[keep], np.asarray(conf)[keep]
+        taken: set[int] = set()  # the instances this frame's detections joined so far
         for (keys, cells, pts), k, c in zip(self._frame_voxels(pose, depth, boxes), label, conf):
             if len(keys) < max(self.cfg.min_voxels, 1):
                 continue
-            inst = self._associate(cells, int(k))
+            inst = self._associate(cells, int(k), taken)
+            taken.add(inst)
             self._claim(np.array([inst]), keys, pts, cells)
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
@@ -310,13 +314,14 @@ class PerceivedMapper(Mapper):
         cells = keys if self.cfg.cell == self.cfg.voxel else np.unique(_keys((x, y, z), self.cfg.cell))
         return keys, cells, np.stack([x[first], y[first], z[first]], -1)
 
-    def _associate(self, cells: np.ndarray, label: int) -> int:
+    def _associate(self, cells: np.ndarray, label: int, taken: set[int]) -> int:
         """The instance a detection joins, from the instances seen in its cells (rule 4):
-        of those holding ``overlap`` of them, the one holding most among those of the
-        detection's label, else among all; the others of that label merge into it."""
+        of those holding ``overlap`` of them and not ``taken`` by another detection of the
+        frame, the one holding most among those of the detection's label, else among all;
+        the others of that label merge into it."""
         held = self._roots()[self.cells.get(cells)]
         ids, counts = np.unique(held[held >= 0], return_counts=True)
-        keep = counts >= self.cfg.overlap * len(cells)
+        keep = (counts >= self.cfg.overlap * len(cells)) & ~np.isin(ids, list(taken))
         ids, counts = ids[keep], counts[keep]
         if len(ids):
             same = np.array([self.label[i] == label for i in ids.tolist()])
