@@ -215,9 +215,9 @@ class PerceivedMapper(Mapper):
         new = new[self.owner.get(keys[new]) < 0]
         self.owner.add(keys[new], insts[rank[new]])
         split = np.searchsorted(rank[new], np.arange(1, len(insts)))  # ordered by instance: one batch each
-        for inst, taken in zip(insts.tolist(), np.split(pts[new], split)):
-            if len(taken):
-                self.pending[inst].append(taken)
+        for inst, batch in zip(insts.tolist(), np.split(pts[new], split)):
+            if len(batch):
+                self.pending[inst].append(batch)
             self._publish(inst)
         fresh = _first_claims(cells, cell_rank)
         fresh = fresh[self.claimed.get(cells[fresh]) < 0]
@@ -299,12 +299,15 @@ class PerceivedMapper(Mapper):
         size = np.bincount(part, minlength=len(cloud.size))  # each segment's pixels in the box
         inside = (size > 0) & (size >= cfg.inside * cloud.size)
         fit = inside & (size >= cfg.min_share * n)
-        seen = np.flatnonzero(inside & (size >= min(cfg.front_share, cfg.min_share) * n))
+        if not fit.any():
+            return self._voxels(cloud, mine & False)
+        seen = np.flatnonzero(inside & (size >= min(cfg.front_share, cfg.min_share) * n))  # the fit, and thin things
         depth = cloud.depth[mine]
         near = np.array([depth[part == s].min() for s in seen.tolist()])  # a segment's nearest point: how near it stands
-        if not fit.any() or near[fit[seen]].min() > near.min() + cfg.behind:
+        fits = fit[seen]
+        if near[fits].min() > near.min() + cfg.behind:  # a thin thing in front: the fit is what shows through it
             return self._voxels(cloud, mine & False)
-        return self._voxels(cloud, mine & (cloud.part == seen[fit[seen]][int(np.argmin(near[fit[seen]]))]))
+        return self._voxels(cloud, mine & (cloud.part == seen[fits][int(np.argmin(near[fits]))]))
 
     def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
