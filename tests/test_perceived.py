@@ -16,7 +16,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
-from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _keys
+from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _first_claims, _keys, _Table
 from rosmeery_jax.sim.sensors import rgbd
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
 
@@ -437,3 +437,34 @@ def test_the_depth_between_two_detector_frames_is_folded_together(scenes, tmp_pa
                 m.semantic_map()
         off[read_each] = score(env.world, _as_map(tmp_path / str(read_each), env, m)).off_object
     assert off[False] == 0.0 and off[True] > 0.05
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, 1500), min_size=1, max_size=6), st.integers(0, 2 ** 32))
+def test_a_cube_table_answers_as_a_dictionary(sizes, seed):
+    """Batches of keys added (past 1,024 the latest move into the sorted array), each looked
+    up with as many keys never added."""
+    table, plain = _Table(), {}
+    rng = np.random.default_rng(seed)
+    for k, size in enumerate(sizes):
+        keys = np.unique(np.r_[rng.integers(-2 ** 40, 2 ** 40, size), list(plain)[:size // 2]]).astype(np.int64)
+        new = keys[[key not in plain for key in keys.tolist()]]
+        table.add(new, np.full(len(new), k))
+        plain.update(dict.fromkeys(new.tolist(), k))
+        probe = np.r_[keys, rng.integers(-2 ** 40, 2 ** 40, len(keys) + 1)]
+        assert table.get(probe).tolist() == [plain.get(p, -1) for p in probe.tolist()]
+    assert len(table) == len(plain)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 20), st.integers(0, 3)), max_size=60))
+def test_claims_made_together_equal_claims_made_one_after_another(entries):
+    keys = np.array([k for k, _ in entries], np.int64)
+    rank = np.array([r for _, r in entries], np.int64)
+    expect, taken = [], set()
+    for r in sorted(set(rank.tolist())):  # each rank in turn takes the keys no earlier rank took
+        mine = [i for i in range(len(keys)) if rank[i] == r]
+        for key in sorted(set(keys[mine].tolist()) - taken):
+            taken.add(key)
+            expect.append(min(i for i in mine if keys[i] == key))  # its first entry of that key
+    assert _first_claims(keys, rank).tolist() == expect
