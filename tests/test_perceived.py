@@ -16,7 +16,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
-from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _first_claims, _keys, _Table
+from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _first_claims, _keys, _Rows, _Table
 from rosmeery_jax.sim.sensors import rgbd
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
 
@@ -468,3 +468,22 @@ def test_claims_made_together_equal_claims_made_one_after_another(entries):
             taken.add(key)
             expect.append(min(i for i in mine if keys[i] == key))  # its first entry of that key
     assert _first_claims(keys, rank).tolist() == expect
+
+
+def test_a_maps_points_handed_out_never_change_as_it_grows():
+    rows = _Rows((3,), np.float64)
+    rows.append(np.ones((10, 3)))
+    before = rows.rows
+    for k in range(2, 8):  # past its capacity several times
+        rows.append(np.full((7 * k, 3), float(k)))
+    assert (before == 1).all() and len(before) == 10  # the scorer keeps the rows it was given
+    assert len(rows.rows) == 10 + 7 * sum(range(2, 8)) and (rows.rows[:10] == 1).all() and (rows.rows[-7:] == 7).all()
+
+
+def test_camera_poses_of_many_robot_poses_equal_one_at_a_time(scenes):
+    env, _ = scenes["apart"]
+    cam = Camera.of(env.config.camera)
+    poses = np.random.default_rng(0).uniform(-3, 3, (2, 5, 3))
+    many = cam.pose(poses)
+    assert many.shape == (2, 5, 4, 4)
+    assert np.array_equal(many, np.stack([[cam.pose(p) for p in row] for row in poses]))
