@@ -199,7 +199,7 @@ def _print_summary(out: Path) -> None:
                   f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
         if t.get("score_s"):  # a mapper's maps were scored (mapper_s also counts the empty feed)
             print(f"mappers (fed and scored): {t['mapper_s']:.1f} s in the same worker thread, of which scoring "
-                  f"their maps {t.get('score_s', 0.0):.1f} s")
+                  f"their maps {t['score_s']:.1f} s")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
 

@@ -223,9 +223,10 @@ class PerceivedMapper(Mapper):
         fresh = fresh[self.claimed.get(cells[fresh]) < 0]
         self.claimed.add(cells[fresh], insts[cell_rank[fresh]])
         near = (cells[fresh][:, None] + _NEIGHBOURS).ravel()  # the fresh cells and their neighbours
-        first = _first_claims(near, np.repeat(cell_rank[fresh], len(_NEIGHBOURS)))
+        near_rank = np.repeat(cell_rank[fresh], len(_NEIGHBOURS))
+        first = _first_claims(near, near_rank)
         first = first[self.cells.get(near[first]) < 0]  # the first seen stays
-        self.cells.add(near[first], insts[np.repeat(cell_rank[fresh], len(_NEIGHBOURS))[first]])
+        self.cells.add(near[first], insts[near_rank[first]])
 
     def _grow(self, cloud: _Cloud) -> None:
         """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
