@@ -439,6 +439,59 @@ def test_the_depth_between_two_detector_frames_is_folded_together(scenes, tmp_pa
     assert off[False] == 0.0 and off[True] > 0.05
 
 
+def _patch(x: tuple, y: tuple, z: tuple) -> np.ndarray:
+    """Points 2.5 cm apart filling x, y, z ranges (start, stop) (a flat range: one layer)."""
+    axes = [np.arange(a, b + 1e-9, 0.025) if b > a else np.array([a]) for a, b in (x, y, z)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3) + 0.001
+
+
+def _seen(m: PerceivedMapper, pts: np.ndarray, label: int) -> int:
+    """Fold ``pts`` as one detection of ``label`` seen twice (confirmed); its instance."""
+    cells = np.unique(_keys(pts.T, m.cfg.cell))
+    inst = m._associate(cells, label, set())
+    m._claim(np.array([inst]), _keys(pts.T, m.cfg.voxel), pts, cells)
+    m.label[inst], m.conf[inst], m.views[inst] = label, np.float32(0.9), m.views[inst] + 2
+    m._publish(inst)
+    return inst
+
+
+# a desk-like instance: two layers 1 m square, 0.4 m apart
+DESK = np.r_[_patch((0.0, 1.0), (0.0, 1.0), (0.3, 0.3)), _patch((0.0, 1.0), (0.0, 1.0), (0.7, 0.7))]
+
+
+@pytest.mark.parametrize("where, label, merged", [
+    ((0.3, 0.55), 4, True),  # a part of its label between its layers: part of it
+    ((1.5, 1.75), 4, False),  # the same beside it: another desk
+    ((0.3, 0.55), 0, False),  # a chair inside its box: another object
+])
+def test_a_small_instance_inside_a_larger_one_of_its_label_merges_into_it(scenes, where, label, merged):
+    env, _ = scenes["apart"]
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    desk = _seen(m, DESK, 4)
+    m._absorb()
+    part = _seen(m, _patch(where, where, (0.5, 0.5)), label)  # 11 x 11 points, 5 cm cells away from both layers
+    assert part != desk and m.instances == 2  # a detection of its own: a new instance
+    m._absorb()
+    assert m.instances == (1 if merged else 2)
+    roots = m._roots()
+    assert (roots[part] == desk) == merged
+    points, instance, labels, _ = m.semantic_map()
+    assert len(points) == len(DESK) + 121 and set(labels[np.unique(instance)]) == {4, label}
+
+
+@pytest.mark.parametrize("x1, merged", [(0.70, True), (0.75, False)])
+def test_a_part_merges_when_enough_of_its_points_lie_inside(scenes, x1, merged):
+    """A strip of 20 x 5 points from x1 along x, past the desk's box widened to x = 1.101:
+    17 of its 20 columns inside (85 %) from 0.70, 15 (75 %) from 0.75; 80 % needed."""
+    env, _ = scenes["apart"]
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    desk = _seen(m, DESK, 4)
+    part = _seen(m, _patch((x1, x1 + 0.475), (0.3, 0.4), (0.5, 0.5)), 4)
+    assert len(m.semantic_map().points) == len(DESK) + 100
+    m._absorb()
+    assert (m._roots()[part] == desk) == merged
+
+
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.integers(0, 1500), min_size=1, max_size=6), st.integers(0, 2 ** 32))
 def test_a_cube_table_answers_as_a_dictionary(sizes, seed):

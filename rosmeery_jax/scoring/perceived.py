@@ -54,6 +54,13 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    against the map as it stood before them, so an instance still grows by at most one
    cell per decision (one frame at a time, a segment that runs on into a wall would creep
    along it ten times as fast).
+9. **Fragments**: a confirmed instance with at least ``absorb`` of its points inside the
+   box of a confirmed instance of its label that holds more points than it by a factor of
+   ``1 / absorb_size`` (the box widened by ``absorb_margin``) is a part of that one seen
+   apart (a chair's seat and its back, cut apart at a depth discontinuity, or one side of
+   a desk first seen alone): it merges into it. Instances are checked after each frame
+   whose points changed them, the smallest first. Two objects of one label side by side
+   stay two: neither lies inside the other's box.
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -90,6 +97,9 @@ class PerceivedConfig:
     min_views: int = 2  # detections that confirm an instance (rule 6)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
     depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
+    absorb: float = 0.8  # rule 9: share of an instance's points inside a larger one's box that makes it
+    absorb_margin: float = 0.1  # part of it (inf: off); m: the box widened by this;
+    absorb_size: float = 0.5  # the smaller holds fewer points than this share of the larger's
 
 
 class _Cloud(NamedTuple):
@@ -142,6 +152,9 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
         self.point_instance = _Rows((), np.int64)
+        self.box = _Rows((2, 3), np.float64)  # per instance: its points' lower and upper corner,
+        self.count: list[int] = []  # and how many, merged instances' included (rule 9)
+        self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
         self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
@@ -175,6 +188,7 @@ class PerceivedMapper(Mapper):
             poses, depths = (np.stack(a) for a in zip(*self._swept))
             self._swept = []
             self._grow(self._cloud(poses, depths, self.sweep_rays, self.sweep_cfg))
+            self._absorb()
 
     def semantic_map(self) -> MapState:
         """The map of every frame folded so far: confirmed instances only, merged ids resolved.
@@ -203,6 +217,7 @@ class PerceivedMapper(Mapper):
             self._publish(inst)
         if self.cfg.grow > 0 and not self._repeat:  # a repeated frame holds nothing new to grow into
             self._grow(self._last.cloud)
+        self._absorb()
 
     def _claim(self, insts: np.ndarray, keys: np.ndarray, pts: np.ndarray, cells: np.ndarray,
                rank: np.ndarray | int = 0, cell_rank: np.ndarray | int = 0) -> None:
@@ -340,6 +355,8 @@ class PerceivedMapper(Mapper):
         self.parent.append(len(self.parent))
         self.label.append(-1)
         self.conf.append(np.float32(0.0))
+        self.box.append(np.array([[np.inf] * 3, [-np.inf] * 3]))
+        self.count.append(0)
         return len(self.parent) - 1
 
     def _merge(self, j: int, into: int) -> None:
@@ -351,6 +368,7 @@ class PerceivedMapper(Mapper):
         self.label[j], self.conf[j] = -1, np.float32(0.0)
         self.pending[into] += self.pending[j]
         self.pending[j] = []
+        self._extend(into, self.box.rows[j], self.count[j])
         self._publish(into)
 
     def _publish(self, inst: int) -> None:
@@ -360,6 +378,54 @@ class PerceivedMapper(Mapper):
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst))
             self.pending[inst] = []
+            self._extend(inst, np.stack([pts.min(0), pts.max(0)]), len(pts))
+
+    def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
+        """Instance ``inst``'s points in the map now include ``count`` more within ``box`` (2, 3)."""
+        if count:
+            own = self.box.rows[inst]
+            own[0], own[1] = np.minimum(own[0], box[0]), np.maximum(own[1], box[1])
+            self.count[inst] += count
+            self._changed.add(inst)
+
+    def _absorb(self) -> None:
+        """Rule 9: each confirmed instance mostly inside the widened box of a much larger
+        one of its label merges into it (of several, the one holding most of it), the
+        smallest first; only pairs of which one changed since the last call are checked."""
+        cfg = self.cfg
+        if not self._changed or cfg.absorb > 1:
+            self._changed.clear()
+            return
+        changed, self._changed = self._changed, set()
+        ids = np.flatnonzero((self._roots()[:-1] == np.arange(len(self.parent))) & (np.array(self.count) > 0)
+                             & (np.array(self.label) >= 0))
+        lo, hi = self.box.rows[ids, 0], self.box.rows[ids, 1]
+        count, label = np.array(self.count)[ids], np.array(self.label)[ids]
+        wide_lo, wide_hi = lo - cfg.absorb_margin, hi + cfg.absorb_margin
+        meet = ((lo[:, None] <= wide_hi[None]) & (hi[:, None] >= wide_lo[None])).all(-1)  # (a, b): a's box meets b's
+        touched = np.isin(ids, list(changed))
+        pair = (meet & (label[:, None] == label[None]) & (count[:, None] < cfg.absorb_size * count[None])
+                & (touched[:, None] | touched[None]))
+        root = None  # each map point's instance, read once if a partial overlap needs the points
+        for a in np.argsort(count, kind="stable").tolist():
+            best, most = -1, cfg.absorb
+            for b in np.flatnonzero(pair[a]).tolist():
+                if ((lo[a] >= wide_lo[b]) & (hi[a] <= wide_hi[b])).all():
+                    share = 1.0  # its whole box lies inside
+                else:
+                    if root is None:
+                        root = self._roots()[self.point_instance.rows]
+                    pts = self.points.rows[root == ids[a]]
+                    share = ((pts >= wide_lo[b]) & (pts <= wide_hi[b])).all(-1).mean()
+                if share >= most and (best < 0 or share > most):
+                    best, most = b, share
+            if best >= 0:
+                self._merge(int(ids[a]), int(ids[best]))
+                pair[:, a] = pair[a] = False  # a is gone
+                lo[best], hi[best] = self.box.rows[ids[best]]
+                wide_lo[best], wide_hi[best] = lo[best] - cfg.absorb_margin, hi[best] + cfg.absorb_margin
+                if root is not None:
+                    root[root == ids[a]] = ids[best]
 
 
 class _Rows:
