@@ -459,17 +459,18 @@ def _seen(m: PerceivedMapper, pts: np.ndarray, label: int) -> int:
 DESK = np.r_[_patch((0.0, 1.0), (0.0, 1.0), (0.3, 0.3)), _patch((0.0, 1.0), (0.0, 1.0), (0.7, 0.7))]
 
 
-@pytest.mark.parametrize("where, label, merged", [
-    ((0.3, 0.55), 4, True),  # a part of its label between its layers: part of it
-    ((1.5, 1.75), 4, False),  # the same beside it: another desk
-    ((0.3, 0.55), 0, False),  # a chair inside its box: another object
+@pytest.mark.parametrize("where, z, label, merged", [
+    ((0.3, 0.55), 0.5, 4, True),  # a part of its label between its layers: part of it
+    ((0.3, 0.55), 1.2, 4, True),  # above it: part of it too (judged in plan view)
+    ((1.5, 1.75), 0.5, 4, False),  # the same beside it: another desk
+    ((0.3, 0.55), 0.5, 0, False),  # a chair over its floor area: another object
 ])
-def test_a_small_instance_inside_a_larger_one_of_its_label_merges_into_it(scenes, where, label, merged):
+def test_a_small_instance_over_a_larger_one_of_its_label_merges_into_it(scenes, where, z, label, merged):
     env, _ = scenes["apart"]
     m = PerceivedMapper(Camera.of(env.config.camera))
     desk = _seen(m, DESK, 4)
     m._absorb()
-    part = _seen(m, _patch(where, where, (0.5, 0.5)), label)  # 11 x 11 points, 5 cm cells away from both layers
+    part = _seen(m, _patch(where, where, (z, z)), label)  # 11 x 11 points, 5 cm cells away from both layers
     assert part != desk and m.instances == 2  # a detection of its own: a new instance
     m._absorb()
     assert m.instances == (1 if merged else 2)
@@ -481,7 +482,7 @@ def test_a_small_instance_inside_a_larger_one_of_its_label_merges_into_it(scenes
 
 @pytest.mark.parametrize("x1, merged", [(0.70, True), (0.75, False)])
 def test_a_part_merges_when_enough_of_its_points_lie_inside(scenes, x1, merged):
-    """A strip of 20 x 5 points from x1 along x, past the desk's box widened to x = 1.101:
+    """A strip of 20 x 5 points from x1 along x, past the desk's plan-view box widened to x = 1.101:
     17 of its 20 columns inside (85 %) from 0.70, 15 (75 %) from 0.75; 80 % needed."""
     env, _ = scenes["apart"]
     m = PerceivedMapper(Camera.of(env.config.camera))

@@ -54,13 +54,14 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    against the map as it stood before them, so an instance still grows by at most one
    cell per decision (one frame at a time, a segment that runs on into a wall would creep
    along it ten times as fast).
-9. **Fragments**: a confirmed instance with at least ``absorb`` of its points inside the
-   box of a confirmed instance of its label that holds more points than it by a factor of
-   ``1 / absorb_size`` (the box widened by ``absorb_margin``) is a part of that one seen
-   apart (a chair's seat and its back, cut apart at a depth discontinuity, or one side of
-   a desk first seen alone): it merges into it. Instances are checked after each frame
-   whose points changed them, the smallest first. Two objects of one label side by side
-   stay two: neither lies inside the other's box.
+9. **Parts seen apart**: a confirmed instance with at least ``absorb`` of its points over
+   the floor area of a confirmed instance of its label that holds more points than it by
+   a factor of ``1 / absorb_size`` (the plan-view box of its points, widened by
+   ``absorb_margin``) is a part of that one (a chair's seat and its back, cut apart at a
+   depth discontinuity; a desk's top and the panel below it): it merges into it. An
+   object's parts stand one above another; two objects of one label stand side by side,
+   and neither lies over the other's floor area. Instances are checked after each frame
+   whose points changed them, the smallest first.
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -97,8 +98,8 @@ class PerceivedConfig:
     min_views: int = 2  # detections that confirm an instance (rule 6)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
     depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
-    absorb: float = 0.8  # rule 9: share of an instance's points inside a larger one's box that makes it
-    absorb_margin: float = 0.1  # part of it (inf: off); m: the box widened by this;
+    absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
+    absorb_margin: float = 0.1  # makes it part of that one (inf: off); m: the box widened by this;
     absorb_size: float = 0.5  # the smaller holds fewer points than this share of the larger's
 
 
@@ -152,7 +153,7 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
         self.point_instance = _Rows((), np.int64)
-        self.box = _Rows((2, 3), np.float64)  # per instance: its points' lower and upper corner,
+        self.box = _Rows((2, 2), np.float64)  # per instance: its points' plan-view box (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self._last: _Seen | None = None  # the latest frame
@@ -355,7 +356,7 @@ class PerceivedMapper(Mapper):
         self.parent.append(len(self.parent))
         self.label.append(-1)
         self.conf.append(np.float32(0.0))
-        self.box.append(np.array([[np.inf] * 3, [-np.inf] * 3]))
+        self.box.append(np.array([[np.inf] * 2, [-np.inf] * 2]))
         self.count.append(0)
         return len(self.parent) - 1
 
@@ -378,10 +379,10 @@ class PerceivedMapper(Mapper):
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst))
             self.pending[inst] = []
-            self._extend(inst, np.stack([pts.min(0), pts.max(0)]), len(pts))
+            self._extend(inst, np.stack([pts.min(0), pts.max(0)])[:, :2], len(pts))
 
     def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
-        """Instance ``inst``'s points in the map now include ``count`` more within ``box`` (2, 3)."""
+        """Instance ``inst``'s points in the map now include ``count`` more within plan-view ``box`` (2, 2)."""
         if count:
             own = self.box.rows[inst]
             own[0], own[1] = np.minimum(own[0], box[0]), np.maximum(own[1], box[1])
@@ -389,8 +390,8 @@ class PerceivedMapper(Mapper):
             self._changed.add(inst)
 
     def _absorb(self) -> None:
-        """Rule 9: each confirmed instance mostly inside the widened box of a much larger
-        one of its label merges into it (of several, the one holding most of it), the
+        """Rule 9: each confirmed instance mostly over the widened plan-view box of a much
+        larger one of its label merges into it (of several, the one it lies over most), the
         smallest first; only pairs of which one changed since the last call are checked."""
         cfg = self.cfg
         if not self._changed or cfg.absorb > 1:
@@ -415,7 +416,7 @@ class PerceivedMapper(Mapper):
                 else:
                     if root is None:
                         root = self._roots()[self.point_instance.rows]
-                    pts = self.points.rows[root == ids[a]]
+                    pts = self.points.rows[root == ids[a], :2]
                     share = ((pts >= wide_lo[b]) & (pts <= wide_hi[b])).all(-1).mean()
                 if share >= most and (best < 0 or share > most):
                     best, most = b, share
