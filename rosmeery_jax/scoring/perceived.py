@@ -400,15 +400,20 @@ class PerceivedMapper(Mapper):
         changed, self._changed = self._changed, set()
         ids = np.flatnonzero((self._roots()[:-1] == np.arange(len(self.parent))) & (np.array(self.count) > 0)
                              & (np.array(self.label) >= 0))
+        if len(ids) < 2:
+            return
         lo, hi = self.box.rows[ids, 0], self.box.rows[ids, 1]
         count, label = np.array(self.count)[ids], np.array(self.label)[ids]
         wide_lo, wide_hi = lo - cfg.absorb_margin, hi + cfg.absorb_margin
         meet = ((lo[:, None] <= wide_hi[None]) & (hi[:, None] >= wide_lo[None])).all(-1)  # (a, b): a's box meets b's
-        touched = np.isin(ids, list(changed))
+        touched = np.zeros(len(self.parent), bool)
+        touched[list(changed)] = True
+        touched = touched[ids]
         pair = (meet & (label[:, None] == label[None]) & (count[:, None] < cfg.absorb_size * count[None])
                 & (touched[:, None] | touched[None]))
         root = None  # each map point's instance, read once if a partial overlap needs the points
-        for a in np.argsort(count, kind="stable").tolist():
+        order = np.argsort(count, kind="stable")
+        for a in order[pair.any(1)[order]].tolist():
             best, most = -1, cfg.absorb
             for b in np.flatnonzero(pair[a]).tolist():
                 if ((lo[a] >= wide_lo[b]) & (hi[a] <= wide_hi[b])).all():
