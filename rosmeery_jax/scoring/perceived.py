@@ -153,7 +153,7 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
         self.point_instance = _Rows((), np.int64)
-        self.box = _Rows((2, 2), np.float64)  # per instance: its points' plan-view box (x, y corners),
+        self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self._last: _Seen | None = None  # the latest frame
@@ -356,7 +356,7 @@ class PerceivedMapper(Mapper):
         self.parent.append(len(self.parent))
         self.label.append(-1)
         self.conf.append(np.float32(0.0))
-        self.box.append(np.array([[np.inf] * 2, [-np.inf] * 2]))
+        self.box.append(np.array([[np.inf, np.inf], [-np.inf, -np.inf]]))
         self.count.append(0)
         return len(self.parent) - 1
 
@@ -369,7 +369,7 @@ class PerceivedMapper(Mapper):
         self.label[j], self.conf[j] = -1, np.float32(0.0)
         self.pending[into] += self.pending[j]
         self.pending[j] = []
-        self._extend(into, self.box.rows[j], self.count[j])
+        self._extend(into, self.box[j], self.count[j])
         self._publish(into)
 
     def _publish(self, inst: int) -> None:
@@ -384,8 +384,8 @@ class PerceivedMapper(Mapper):
     def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
         """Instance ``inst``'s points in the map now include ``count`` more within plan-view ``box`` (2, 2)."""
         if count:
-            own = self.box.rows[inst]
-            own[0], own[1] = np.minimum(own[0], box[0]), np.maximum(own[1], box[1])
+            own = self.box[inst]
+            self.box[inst] = np.stack([np.minimum(own[0], box[0]), np.maximum(own[1], box[1])])
             self.count[inst] += count
             self._changed.add(inst)
 
@@ -393,45 +393,50 @@ class PerceivedMapper(Mapper):
         """Rule 9: each confirmed instance mostly over the widened plan-view box of a much
         larger one of its label merges into it (of several, the one it lies over most), the
         smallest first; only pairs of which one changed since the last call are checked."""
-        cfg = self.cfg
-        if not self._changed or cfg.absorb > 1:
+        if not self._changed or self.cfg.absorb > 1:
             self._changed.clear()
             return
-        changed, self._changed = self._changed, set()
-        ids = np.flatnonzero((self._roots()[:-1] == np.arange(len(self.parent))) & (np.array(self.count) > 0)
-                             & (np.array(self.label) >= 0))
-        if len(ids) < 2:
-            return
-        lo, hi = self.box.rows[ids, 0], self.box.rows[ids, 1]
-        count, label = np.array(self.count)[ids], np.array(self.label)[ids]
-        wide_lo, wide_hi = lo - cfg.absorb_margin, hi + cfg.absorb_margin
-        meet = ((lo[:, None] <= wide_hi[None]) & (hi[:, None] >= wide_lo[None])).all(-1)  # (a, b): a's box meets b's
-        touched = np.zeros(len(self.parent), bool)
-        touched[list(changed)] = True
-        touched = touched[ids]
-        pair = (meet & (label[:, None] == label[None]) & (count[:, None] < cfg.absorb_size * count[None])
-                & (touched[:, None] | touched[None]))
+        ids, own, count, pair = self._part_pairs()
+        box = own + [[-self.cfg.absorb_margin], [self.cfg.absorb_margin]]  # each widened
         root = None  # each map point's instance, read once if a partial overlap needs the points
         order = np.argsort(count, kind="stable")
         for a in order[pair.any(1)[order]].tolist():
-            best, most = -1, cfg.absorb
+            best, most = -1, self.cfg.absorb
             for b in np.flatnonzero(pair[a]).tolist():
-                if ((lo[a] >= wide_lo[b]) & (hi[a] <= wide_hi[b])).all():
+                if ((own[a, 0] >= box[b, 0]) & (own[a, 1] <= box[b, 1])).all():
                     share = 1.0  # its whole box lies inside
                 else:
                     if root is None:
                         root = self._roots()[self.point_instance.rows]
                     pts = self.points.rows[root == ids[a], :2]
-                    share = ((pts >= wide_lo[b]) & (pts <= wide_hi[b])).all(-1).mean()
+                    share = ((pts >= box[b, 0]) & (pts <= box[b, 1])).all(-1).mean()
                 if share >= most and (best < 0 or share > most):
                     best, most = b, share
             if best >= 0:
                 self._merge(int(ids[a]), int(ids[best]))
-                pair[:, a] = pair[a] = False  # a is gone
-                lo[best], hi[best] = self.box.rows[ids[best]]
-                wide_lo[best], wide_hi[best] = lo[best] - cfg.absorb_margin, hi[best] + cfg.absorb_margin
+                pair[:, a] = pair[a] = False  # a is gone; best's box has grown
+                own[best] = self.box[ids[best]]
+                box[best] = own[best] + [[-self.cfg.absorb_margin], [self.cfg.absorb_margin]]
                 if root is not None:
                     root[root == ids[a]] = ids[best]
+
+    def _part_pairs(self) -> tuple:
+        """Rule 9's candidates: ids (K,) the confirmed labelled instances; box (K, 2, 2)
+        their plan-view boxes; count (K,) their points; pair (K, K) whether a may be a part
+        of b: its box meets b's widened by ``absorb_margin``, same label, under
+        ``absorb_size`` of b's points, and one of the two changed since the last check."""
+        cfg, changed = self.cfg, np.zeros(len(self.parent), bool)
+        changed[list(self._changed)] = True
+        self._changed = set()
+        count, label = np.array(self.count), np.array(self.label)
+        ids = np.flatnonzero((self._roots()[:-1] == np.arange(len(self.parent))) & (count > 0) & (label >= 0))
+        box = np.array(self.box).reshape(-1, 2, 2)[ids]
+        count, label, changed = count[ids], label[ids], changed[ids]
+        m = cfg.absorb_margin
+        meet = ((box[:, None, 0] <= box[None, :, 1] + m) & (box[:, None, 1] >= box[None, :, 0] - m)).all(-1)
+        pair = (meet & (label[:, None] == label[None]) & (count[:, None] < cfg.absorb_size * count[None])
+                & (changed[:, None] | changed[None]))
+        return ids, box, count, pair
 
 
 class _Rows:
