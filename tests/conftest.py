@@ -48,13 +48,13 @@ def pytest_collection_modifyitems(items):
 
 
 def room_xml(bodies: str, categories: dict[str, str], spawn=(0.0, 0.0, 0.0), half: float = 2.0,
-             walls: bool = True, extra_custom: str = "") -> str:
-    """A square room of side 2*half (walls 0.1 m thick, 2 m high) around the origin."""
+             walls: bool = True, extra_custom: str = "", height: float = 2.0) -> str:
+    """A square room of side 2*half (walls 0.1 m thick, ``height`` high) around the origin."""
     wall = ""
     if walls:
         t, h = 0.05, half + 0.05
         wall = "\n".join(
-            f'<geom name="wall_{i}" type="box" pos="{x} {y} 1" size="{sx} {sy} 1"/>'
+            f'<geom name="wall_{i}" type="box" pos="{x} {y} {height / 2}" size="{sx} {sy} {height / 2}"/>'
             for i, (x, y, sx, sy) in enumerate([(h, 0, t, h + t), (-h, 0, t, h + t), (0, h, h + t, t), (0, -h, h + t, t)])
         )
     cats = "\n".join(f'<text name="rosmeery:category:{b}" data="{c}"/>' for b, c in categories.items())

@@ -60,11 +60,12 @@ ONE = PerceivedConfig(min_views=1)  # instances in the map from their first dete
 def scenes(tmp_path_factory):
     """{name: (env, render(pose) -> depth, labels)}, one compile each."""
     out = {}
-    for name, bodies in (("apart", APART), ("together", TOGETHER), ("by_wall", BY_WALL), ("off_grid", OFF_GRID),
-                         ("flush", FLUSH), ("frame", FRAME)):
+    for name, bodies, height in (("apart", APART, 2), ("together", TOGETHER, 2), ("by_wall", BY_WALL, 2),
+                                 ("off_grid", OFF_GRID, 2), ("flush", FLUSH, 2), ("frame", FRAME, 2),
+                                 ("flush_tall", FLUSH, 3)):
         path = tmp_path_factory.mktemp(name) / "room.xml"
         cats = {"chair": "chair", "desk": "desk"} if "desk" in bodies else {"chair": "chair"}
-        path.write_text(room_xml(bodies, cats, spawn=(0.0, 1.0, 0.0)))
+        path.write_text(room_xml(bodies, cats, spawn=(0.0, 1.0, 0.0), height=height))
         env = make(str(path), camera__hfov=float(np.deg2rad(90)))
         render = jax.jit(lambda pose, env=env: rgbd(env.rays, env.config.camera, pose)[1:])
         out[name] = env, render
@@ -286,6 +287,32 @@ def test_a_wall_seen_through_a_thin_object_is_not_taken_for_it(scenes, tmp_path)
         kept[name] = m.semantic_map().points
     assert len(kept["default"]) == 0  # the wall behind the bars is background: the detection adds nothing
     assert len(kept["off"]) > 100 and (tie(env.world, kept["off"], 0.05) < 0).mean() > 0.9  # else the wall is kept
+
+
+def test_a_wall_seen_above_every_object_is_cut_from_the_chair_against_it(scenes, tmp_path):
+    """The flush chair in a room of 3 m walls: the frame sees the walls above 2.2 m, so
+    their cells are walls, and the chair is a segment of its own."""
+    env, depth, label = _frame(scenes, "flush_tall")
+    obj, boxes = _tight(label)
+    kept = {}
+    for name, above in (("walls", PerceivedConfig().wall_above), ("off", np.inf)):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, wall_above=above))
+        m.fold(POSE, depth, boxes, np.array([0]), np.array([0.9], np.float32))
+        kept[name] = m.semantic_map().points
+    assert len(kept["off"]) == 0  # one segment with the walls, running past the box: nothing
+    assert len(kept["walls"]) > 100 and (tie(env.world, kept["walls"], 0.05) >= 0).all()  # the chair, no wall
+
+
+def test_a_wall_cell_stays_a_wall_in_frames_that_see_it_only_low(scenes):
+    env, _ = scenes["apart"]
+    m = PerceivedMapper(Camera.of(env.config.camera))
+    z = np.linspace(0.1, 2.5, 25)
+    column = (np.full(25, 1.03), np.full(25, 0.03), z)  # a wall's column, 2.5 m high
+    low = (np.full(5, 0.03), np.full(5, 0.03), np.full(5, 0.5))  # a chair's points 1 m away
+    assert not m._off_walls(*column).any() and m._off_walls(*low).all()
+    later = (np.full(3, 1.07), np.full(3, 0.07), np.full(3, 0.4))  # the wall seen low, same 10 cm cell
+    assert not m._off_walls(*later).any()
+    assert PerceivedMapper(Camera.of(env.config.camera))._off_walls(*later).all()  # without the first view: kept
 
 
 def test_an_instance_enters_the_map_on_its_second_detection(scenes):

@@ -14,7 +14,7 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    (smallest distance to the box centre in half-widths), so two touching objects' boxes,
    which overlap, do not take each other's pixels.
 2. **The object's segment**: the frame's pixels with a depth return above the floor
-   (``floor_z``) are cut into segments at depth discontinuities (4-neighbours further apart
+   (``floor_z``) and off the walls (rule 10) are cut into segments at depth discontinuities (4-neighbours further apart
    than ``edge_abs + edge_rel * depth``). An object ends at its box, so a segment with less
    than ``inside`` of its pixels in the box is background running on past it (a wall, a
    large piece of furniture behind, a neighbour in front). The nearest of the other
@@ -62,6 +62,12 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    object's parts stand one above another; two objects of one label stand side by side,
    and neither lies over the other's floor area. Instances are checked after each frame
    whose points changed them, the smallest first.
+10. **Walls**: nothing but walls stands higher than ``wall_above``, so a plan-view cell
+   (``wall_cell``) in which any frame's depth point stood higher is a wall's, and the
+   pixels of every later frame in it are dropped before rule 2 (with the pixels of the
+   frame that showed it). A wall seen once from afar, where the camera sees it above that
+   height, is then cut from the objects that stand against it, even in frames that see it
+   only low: they are no longer one depth segment with it.
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -101,6 +107,8 @@ class PerceivedConfig:
     absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
     absorb_margin: float = 0.1  # makes it part of that one (inf: off); m: the box widened by this;
     absorb_size: float = 0.5  # the smaller holds fewer points than this share of the larger's
+    wall_above: float = 2.2  # m: rule 10: a point higher than this is a wall's (inf: off);
+    wall_cell: float = 0.1  # m: the plan-view cells of the walls
 
 
 class _Cloud(NamedTuple):
@@ -156,6 +164,7 @@ class PerceivedMapper(Mapper):
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
+        self.walls = _Table()  # plan-view cell key -> 0 where a wall stands (rule 10)
         self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
         self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
@@ -304,8 +313,25 @@ class PerceivedMapper(Mapper):
         c, s = np.cos(pose[:, 2])[at], np.sin(pose[:, 2])[at]  # rx, ry in the camera frame (x forward), turned by yaw
         x = pose[at, 0] + self.config.mount_x * c + c * rx - s * ry
         y = pose[at, 1] + self.config.mount_x * s + s * rx + c * ry
+        z = z[valid]
+        keep = self._off_walls(x, y, z)
+        if not keep.all():
+            valid[valid] = keep
+            d, x, y, z = d[keep], x[keep], y[keep], z[keep]
         count, part = _segments(depth, valid, cfg)
-        return _Cloud(valid, d, x, y, z[valid], part, np.bincount(part, minlength=count))
+        return _Cloud(valid, d, x, y, z, part, np.bincount(part, minlength=count))
+
+    def _off_walls(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Rule 10: (k,) which of the points (k,) each lie off the walls, after the cells of
+        those higher than ``wall_above`` join the walls."""
+        if not np.isfinite(self.cfg.wall_above):
+            return np.ones(len(x), bool)
+        cell = _keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
+        tall = np.unique(cell[z > self.cfg.wall_above])
+        tall = tall[self.walls.get(tall) < 0]
+        if len(tall):
+            self.walls.add(tall, np.zeros(len(tall), np.int64))
+        return self.walls.get(cell) < 0
 
     def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> tuple:
         """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
