@@ -14,8 +14,8 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    (smallest distance to the box centre in half-widths), so two touching objects' boxes,
    which overlap, do not take each other's pixels.
 2. **The object's segment**: the frame's pixels with a depth return above the floor
-   (``floor_z``) and off the walls (rule 10) are cut into segments at depth discontinuities (4-neighbours further apart
-   than ``edge_abs + edge_rel * depth``). An object ends at its box, so a segment with less
+   (``floor_z``) and off the walls (rule 10) are cut into segments at depth
+   discontinuities (4-neighbours further apart than ``edge_abs + edge_rel * depth``). An object ends at its box, so a segment with less
    than ``inside`` of its pixels in the box is background running on past it (a wall, a
    large piece of furniture behind, a neighbour in front). The nearest of the other
    segments that holds at least ``min_share`` of the box's pixels is the object; if none
