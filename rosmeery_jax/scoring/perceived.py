@@ -15,10 +15,10 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    which overlap, do not take each other's pixels.
 2. **The object's segment**: the frame's pixels with a depth return above the floor
    (``floor_z``) and off the walls (rule 10) are cut into segments at depth
-   discontinuities (4-neighbours further apart than ``edge_abs + edge_rel * depth``). An object ends at its box, so a segment with less
-   than ``inside`` of its pixels in the box is background running on past it (a wall, a
-   large piece of furniture behind, a neighbour in front). The nearest of the other
-   segments that holds at least ``min_share`` of the box's pixels is the object; if none
+   discontinuities (4-neighbours further apart than ``edge_abs + edge_rel * depth``). An
+   object ends at its box, so a segment with less than ``inside`` of its pixels in the box
+   is background running on past it (a wall, a large piece of furniture behind, a
+   neighbour in front). The nearest of the other segments that holds at least ``min_share`` of the box's pixels is the object; if none
    does, the detection adds no points. The rest is dropped. If one of those segments
    holding at least ``front_share`` of the box stands more than ``behind`` nearer than the
    object's, the object is that thing in front, too thin a share of its box to be told
@@ -422,7 +422,8 @@ class PerceivedMapper(Mapper):
         if not self._changed or self.cfg.absorb > 1:
             self._changed.clear()
             return
-        ids, own, count, pair = self._part_pairs()
+        changed, self._changed = self._changed, set()
+        ids, own, count, pair = self._part_pairs(changed)
         box = own + [[-self.cfg.absorb_margin], [self.cfg.absorb_margin]]  # each widened
         root = None  # each map point's instance, read once if a partial overlap needs the points
         order = np.argsort(count, kind="stable")
@@ -446,22 +447,21 @@ class PerceivedMapper(Mapper):
                 if root is not None:
                     root[root == ids[a]] = ids[best]
 
-    def _part_pairs(self) -> tuple:
+    def _part_pairs(self, changed: set[int]) -> tuple:
         """Rule 9's candidates: ids (K,) the confirmed labelled instances; box (K, 2, 2)
         their plan-view boxes; count (K,) their points; pair (K, K) whether a may be a part
         of b: its box meets b's widened by ``absorb_margin``, same label, under
-        ``absorb_size`` of b's points, and one of the two changed since the last check."""
-        cfg, changed = self.cfg, np.zeros(len(self.parent), bool)
-        changed[list(self._changed)] = True
-        self._changed = set()
+        ``absorb_size`` of b's points, and one of the two among the ``changed`` instances."""
+        cfg, touched = self.cfg, np.zeros(len(self.parent), bool)
+        touched[list(changed)] = True
         count, label = np.array(self.count), np.array(self.label)
         ids = np.flatnonzero((self._roots()[:-1] == np.arange(len(self.parent))) & (count > 0) & (label >= 0))
         box = np.array(self.box).reshape(-1, 2, 2)[ids]
-        count, label, changed = count[ids], label[ids], changed[ids]
+        count, label, touched = count[ids], label[ids], touched[ids]
         m = cfg.absorb_margin
         meet = ((box[:, None, 0] <= box[None, :, 1] + m) & (box[:, None, 1] >= box[None, :, 0] - m)).all(-1)
         pair = (meet & (label[:, None] == label[None]) & (count[:, None] < cfg.absorb_size * count[None])
-                & (changed[:, None] | changed[None]))
+                & (touched[:, None] | touched[None]))
         return ids, box, count, pair
 
 
