@@ -18,8 +18,9 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    discontinuities (4-neighbours further apart than ``edge_abs + edge_rel * depth``). An
    object ends at its box, so a segment with less than ``inside`` of its pixels in the box
    is background running on past it (a wall, a large piece of furniture behind, a
-   neighbour in front). The nearest of the other segments that holds at least ``min_share`` of the box's pixels is the object; if none
-   does, the detection adds no points. The rest is dropped. If one of those segments
+   neighbour in front). The nearest of the other segments that holds at least
+   ``min_share`` of the box's pixels is the object; if none does, the detection adds no
+   points. The rest is dropped. If one of those segments
    holding at least ``front_share`` of the box stands more than ``behind`` nearer than the
    object's, the object is that thing in front, too thin a share of its box to be told
    from what shows through it (a chair's back and legs), and the segment behind is a wall
