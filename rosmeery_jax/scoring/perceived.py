@@ -347,7 +347,8 @@ class PerceivedMapper(Mapper):
             return self._voxels(cloud, mine & False)
         seen = np.flatnonzero(inside & (size >= min(cfg.front_share, cfg.min_share) * n))  # the fit, and thin things
         depth = cloud.depth[mine]
-        near = np.array([depth[part == s].min() for s in seen.tolist()])  # a segment's nearest point: how near it stands
+        # a segment's nearest point: how near it stands
+        near = np.array([depth[part == s].min() for s in seen.tolist()])
         fits = fit[seen]
         if near[fits].min() > near.min() + cfg.behind:  # a thin thing in front: the fit is what shows through it
             return self._voxels(cloud, mine & False)
