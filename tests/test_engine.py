@@ -63,15 +63,21 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, tmp_path)
     """A world padded to a larger one, beside other worlds, policies and seeds, with the
     detector's labels reaching semantic_nbv on the schedule: bitwise the same as alone, for
     the built-in knowledge and the perceived mapper alike (mapping from an instance's first
-    detection: 20 s gives few detections, and a second one of the same object may not come)."""
+    detection: 20 s gives few detections, and a second one of the same object may not come).
+    The random walker draws the same targets over the padded grid as over its own."""
     plugin = tmp_path / "one_view.py"
     plugin.write_text(ONE_VIEW)
     both = ("--detector", "oracle", "--mapper", f"oracle,{plugin}:OneView")
-    alone = _run(tmp_path / "alone", room, "semantic_nbv", 2, *both)
+    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both)
     mixed = _run(tmp_path / "mixed", f"{room},small_office", "random,semantic_nbv", 3, *both)
-    a, b = _rows(alone, "room", "semantic_nbv", 2), _rows(mixed, "room", "semantic_nbv", 2)
-    assert len(a) and len(a) == len(b)
-    assert (a.value.to_numpy() == b.value.to_numpy()).all()
+    for policy in ("random", "semantic_nbv"):
+        a, b = _rows(alone, "room", policy, 2), _rows(mixed, "room", policy, 2)
+        assert len(a) and len(a) == len(b)
+        assert (a.value.to_numpy() == b.value.to_numpy()).all(), policy
+    ra, rb = (pd.read_csv(d / "runs" / "room__random.trajectory.csv") for d in (tmp_path / "alone", tmp_path / "mixed"))
+    rb = rb[rb.seed < 2].reset_index(drop=True)
+    assert np.array_equal(ra[["x", "y", "yaw"]].to_numpy(), rb[["x", "y", "yaw"]].to_numpy())
+    assert np.ptp(ra.x) > 0.3
     assert a.value[a.metric == "opi"].max() > 0  # labels arrived: the comparison has something to compare
     assert set(a.mapper) == {"oracle", "one_view"}
     final = a[(a.metric == "ori") & (a.time_s == a.time_s.max())].set_index(["mapper", "seed"]).value

@@ -136,6 +136,19 @@ def test_flood_is_the_connected_component(h, w, density, seed):
     assert not (np.asarray(grid.spread(jnp.asarray(start), jnp.asarray(open_))) & ~want).any()
 
 
+def test_draw_by_hand_and_padding_draws_the_same_cells():
+    """Cells are drawn in proportion to their weight, a cell of weight 0 never; the same
+    weights padded with zero rows and columns (as a session pads a world) give the same
+    cells, row and column for row and column."""
+    w = jnp.asarray([[0.0, 1.0], [0.0, 3.0]])
+    flat = np.asarray(grid.draw(jax.random.key(0), w, 40_000))
+    assert set(flat.tolist()) == {1, 3}
+    assert abs(np.mean(flat == 3) - 0.75) < 0.01
+    padded = jnp.pad(w, ((0, 3), (0, 5)))
+    again = np.asarray(grid.draw(jax.random.key(0), padded, 40_000))
+    np.testing.assert_array_equal(np.stack(np.unravel_index(flat, w.shape)), np.stack(np.unravel_index(again, padded.shape)))
+
+
 def test_account_by_hand():
     # 30 steps of 0.1 s: 10 moving 0.2 m each along x, 10 recovering in place, 5 stuck, 5 reached.
     status = np.array([IDLE] + [MOVING] * 10 + [RECOVERING] * 10 + [STUCK] * 5 + [REACHED] * 5)

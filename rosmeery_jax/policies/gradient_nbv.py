@@ -174,8 +174,9 @@ class GradientNBVPolicy(ViewPolicy):
         # evidence (a robot standing still would otherwise 'see' everything in time).
         viewed = jnp.maximum(ps.viewed, jnp.maximum(now, promised))
         weight = held * (1.0 - viewed)
-        # Each start looks at a belief point drawn by weight, from its own ring direction.
-        pick = jax.random.categorical(key, jnp.log(weight + 1e-9), shape=(self.ring.shape[0],))
+        # Each start looks at a belief point drawn by weight (floored over the world's cells,
+        # for when every weight is spent), from its own ring direction.
+        pick = grid.draw(key, jnp.where(self.coarse.inside().reshape(-1), weight + 1e-9, 0.0), self.ring.shape[0])
         centre = table.points[:2, pick].T  # (M, 2)
         xy = centre + self.ring
         face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])

@@ -84,3 +84,15 @@ def _fill_runs(m: jax.Array, open_: jax.Array, axis: int) -> jax.Array:
 def wrap_angle(a):
     """Angles wrapped into [-pi, pi) (numpy or jax)."""
     return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def draw(key: jax.Array, weights: jax.Array, k: int) -> jax.Array:
+    """(k,) int32 flat indices into ``weights`` (any shape, >= 0, not all 0), each drawn
+    with probability proportional to its weight, by the inverse of the cumulative weight in
+    row-major order. Cells of weight 0 change no draw, so a world's grid padded with rows and
+    columns of weight 0 (a session pads every world to its largest) draws the same cells as
+    the world alone; a Gumbel draw (``jax.random.categorical``) would not, as it draws one
+    number per cell."""
+    cum = jnp.cumsum(weights.reshape(-1).astype(jnp.float32))
+    u = jax.random.uniform(key, (k,)) * cum[-1]
+    return jnp.minimum(jnp.searchsorted(cum, u, side="right"), cum.shape[0] - 1).astype(jnp.int32)

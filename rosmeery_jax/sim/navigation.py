@@ -176,7 +176,7 @@ class Navigator:
         on this map (never none: the robot's own cell is one), each with a uniform yaw."""
         k_cell, k_yaw = jax.random.split(key)
         reach = self.reachable(nav, pose, occupied)  # (Hc, Wc)
-        cells = jax.random.categorical(k_cell, jnp.where(reach.reshape(-1), 0.0, -jnp.inf), shape=(k,))
+        cells = grid.draw(k_cell, reach, k)
         xy = self.coarse.center(cells // reach.shape[1], cells % reach.shape[1])
         return jnp.concatenate([xy, jax.random.uniform(k_yaw, (k, 1), minval=-jnp.pi, maxval=jnp.pi)], -1)
 
