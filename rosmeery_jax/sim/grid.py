@@ -92,7 +92,8 @@ def draw(key: jax.Array, weights: jax.Array, k: int) -> jax.Array:
     row-major order. Cells of weight 0 change no draw, so a world's grid padded with rows and
     columns of weight 0 (a session pads every world to its largest) draws the same cells as
     the world alone; a Gumbel draw (``jax.random.categorical``) would not, as it draws one
-    number per cell."""
+    number per cell. Exactly so for whole-number weights (their float sums are exact below
+    2^24); fractional weights' sums can round differently over a longer array."""
     cum = jnp.cumsum(weights.reshape(-1).astype(jnp.float32))
     u = jax.random.uniform(key, (k,)) * cum[-1]
     return jnp.minimum(jnp.searchsorted(cum, u, side="right"), cum.shape[0] - 1).astype(jnp.int32)
