@@ -128,6 +128,26 @@ def test_two_boxes_of_one_frame_never_join_one_instance(scenes):
     assert second != first and m._associate(cells, 0, set()) == first  # and the patch stays the first's
 
 
+def test_a_detection_joins_an_instance_of_its_label_on_a_smaller_overlap(scenes):
+    """A long object seen in parts: a box holding a few of an instance's cells joins it if
+    the two carry one label (``same_overlap``), and starts an instance of its own if not
+    (``overlap``)."""
+    env, _ = scenes["apart"]
+    cfg = PerceivedConfig(overlap=0.2, same_overlap=0.05)
+    strip = np.stack(np.meshgrid(np.arange(40) * 0.05, [0.0], [0.5]), -1).reshape(-1, 3) + 0.01  # 2 m of 5 cm cells
+    part, rest = strip[:10], strip[8:]  # the second box reaches 10 cm into the first part
+    for label, joins in ((4, True), (0, False)):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
+        cells = np.unique(_keys(part.T, 0.05))
+        first = m._associate(cells, 4, set())
+        m._claim(np.array([first]), _keys(part.T, 0.025), part, cells)
+        m.label[first] = 4  # a desk
+        later = np.unique(_keys(rest.T, 0.05))
+        held = (m.cells.get(later) == first).mean()  # its two cells and the neighbour's
+        assert cfg.same_overlap <= held < cfg.overlap
+        assert (m._associate(later, label, set()) == first) == joins
+
+
 def _two_views(scenes):
     """The "apart" scene from POSE and from NEAR: env, depth, label, tight boxes, then the
     nearer view's depth and tight boxes."""

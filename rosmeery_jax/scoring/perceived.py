@@ -33,11 +33,12 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
 4. **Association**: coarse cells (``cell``: two views of one surface rarely hit the same
    5 cm voxels) record the first instance seen in them or in a neighbouring cell (so a
    view of another face of the object still meets it). The instance holding the most of
-   the detection's cells takes it if it holds at least ``overlap`` of them (of several such
-   instances, one carrying the detection's label first); otherwise the detection starts a
-   new instance. Its unclaimed voxels join that instance. The other instances that hold
-   ``overlap`` of the detection's cells and carry its label are merged into it (one object
-   split by earlier views). One detection per instance per frame: an instance an earlier
+   the detection's cells takes it if it holds at least ``overlap`` of them, or
+   ``same_overlap`` if it carries the detection's label (of several such instances, one
+   carrying the label first); otherwise the detection starts a new instance. Its unclaimed
+   voxels join that instance. The other instances that carry the detection's label and hold
+   ``same_overlap`` of its cells are merged into it (one object split by earlier views: a
+   long desk seen a part at a time, each part's box reaching a little into the last). One detection per instance per frame: an instance an earlier
    detection of the frame joined (they come most confident first) is no candidate, and is
    not merged (two boxes in one frame are two objects).
 5. **Label**: an instance holds the label of its most confident detection so far.
@@ -100,7 +101,8 @@ class PerceivedConfig:
     front_share: float = 0.05  # a segment with this share of the box, standing more than
     behind: float = 0.5  # m nearer than the object's, shows the latter to be background (inf: off)
     cell: float = 0.05  # m: the association's coarse cells (rule 4)
-    overlap: float = 0.2  # share of a detection's cells an instance must hold to take it
+    overlap: float = 0.2  # share of a detection's cells an instance must hold to take it,
+    same_overlap: float = 0.05  # or, if it carries the detection's label, this share (rule 4)
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
     min_views: int = 2  # detections that confirm an instance (rule 6)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
@@ -369,10 +371,11 @@ class PerceivedMapper(Mapper):
         the others of that label merge into it."""
         held = self._roots()[self.cells.get(cells)]
         ids, counts = np.unique(held[held >= 0], return_counts=True)
-        keep = (counts >= self.cfg.overlap * len(cells)) & ~np.isin(ids, list(taken))
-        ids, counts = ids[keep], counts[keep]
+        same = np.array([self.label[i] == label for i in ids.tolist()], bool)
+        share = counts / len(cells)
+        keep = ((share >= self.cfg.overlap) | same & (share >= self.cfg.same_overlap)) & ~np.isin(ids, list(taken))
+        ids, counts, same = ids[keep], counts[keep], same[keep]
         if len(ids):
-            same = np.array([self.label[i] == label for i in ids.tolist()])
             pool = same if same.any() else np.ones(len(ids), bool)
             inst = int(ids[pool][np.argmax(counts[pool])])
             for j in ids[same].tolist():
