@@ -335,6 +335,40 @@ def test_a_wall_cell_stays_a_wall_in_frames_that_see_it_only_low(scenes):
     assert PerceivedMapper(Camera.of(env.config.camera))._off_walls(*later).all()  # without the first view: kept
 
 
+def test_a_wall_found_later_takes_its_points_out_of_the_map(scenes):
+    """A box on a wall seen only low put the wall's points in the map; once a later frame
+    sees that wall above ``wall_above``, its cells' points leave the map, whether already in
+    it or still waiting for confirmation, and the scorer scores what is left."""
+    env, _ = scenes["apart"]
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=ONE)
+    scorer = OnlineScorer(env.world, 0.05)
+    y, z = np.meshgrid(np.arange(20) * 0.025, np.arange(20) * 0.05 + 0.1)
+    patch = np.stack([np.full(y.size, -1.97), y.ravel() + 0.01, z.ravel()], -1)  # 0.5 m of a wall, low
+    cells = np.unique(_keys(patch.T, 0.05))
+    first = m._associate(cells, 4, set())
+    m.views[first] = 1
+    m._claim(np.array([first]), _keys(patch.T, 0.025), patch, cells)
+    before = m.semantic_map()
+    assert len(before.points) == len(patch) and scorer.score(before).off_object == 1.0
+    other = patch + [0, 0.6, 0]  # a second patch, further along the wall
+    other_cells = np.unique(_keys(other.T, 0.05))
+    unconfirmed = m._associate(other_cells, 4, set())
+    m._claim(np.array([unconfirmed]), _keys(other.T, 0.025), other, other_cells)
+    assert unconfirmed != first and len(m.pending[unconfirmed][0]) == len(other)
+    high = patch[patch[:, 1] < 0.09][:1] + [0, 0, 2.3]  # the wall above 2.2 m, in the patch's first 10 cm cell
+    m._off_walls(*high.T)
+    after = m.semantic_map()
+    gone = patch[:, 1] < 0.1
+    np.testing.assert_array_equal(after.points, before.points[before.points[:, 1] >= 0.1])  # the rest stays, in order
+    assert m.box[first][0, 1] >= 0.1 and m.count[first] == (~gone).sum()
+    m.views[unconfirmed] = 1
+    m._publish(unconfirmed)  # the second patch, confirmed now, loses nothing: its cells are no wall's
+    assert len(m.semantic_map().points) == (~gone).sum() + len(patch)
+    m._off_walls(*(high + [0, 0.6, 0]).T)  # the wall seen high in the second patch's first cell
+    assert len(m.semantic_map().points) == 2 * (~gone).sum()
+    np.testing.assert_equal(scorer.score(m.semantic_map()), OnlineScorer(env.world, 0.05).score(m.semantic_map()))
+
+
 def test_an_instance_enters_the_map_on_its_second_detection(scenes):
     env, depth, label, boxes, depth2, boxes2 = _two_views(scenes)
     m = PerceivedMapper(Camera.of(env.config.camera))  # the default: two views confirm

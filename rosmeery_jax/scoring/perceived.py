@@ -69,7 +69,10 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    pixels of every later frame in it are dropped before rule 2 (with the pixels of the
    frame that showed it). A wall seen once from afar, where the camera sees it above that
    height, is then cut from the objects that stand against it, even in frames that see it
-   only low: they are no longer one depth segment with it.
+   only low: they are no longer one depth segment with it. The map's points in a cell found
+   to be a wall's leave the map, and points waiting for their instance's confirmation there
+   never enter it: a box over a wall seen only low, taken before the wall was known, keeps
+   none of it once the wall is.
 
 Policies still decide on the built-in knowledge: this mapper only scores what a mapper fed
 the same frames would hold. Shapes: H x W the detector frame, D detections, V voxels, I
@@ -164,6 +167,8 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
         self.point_instance = _Rows((), np.int64)
+        self.point_wall = _Rows((), np.int64)  # per map point: its plan-view cell key (rule 10)
+        self.held = _Table()  # plan-view cell key -> 0 where the map holds a point (rule 10)
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
@@ -205,7 +210,8 @@ class PerceivedMapper(Mapper):
 
     def semantic_map(self) -> MapState:
         """The map of every frame folded so far: confirmed instances only, merged ids resolved.
-        Points only ever join the end, so the scorer ties each point once."""
+        Points join the end, and leave only when a wall is found where they lie (rule 10),
+        so the scorer ties each point once but after those rare changes."""
         self._fold_swept()
         instance = self._roots()[self.point_instance.rows]  # merged ids resolved to their last instance
         return MapState(self.points.rows, instance, np.array(self.label, np.int32), np.array(self.conf, np.float32))
@@ -334,6 +340,8 @@ class PerceivedMapper(Mapper):
         tall = tall[self.walls.get(tall) < 0]
         if len(tall):
             self.walls.add(tall, np.zeros(len(tall), np.int64))
+            if (self.held.get(tall) >= 0).any():  # the map holds points of that wall
+                self._drop_walled()
         return self.walls.get(cell) < 0
 
     def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> tuple:
@@ -404,13 +412,39 @@ class PerceivedMapper(Mapper):
         self._publish(into)
 
     def _publish(self, inst: int) -> None:
-        """A confirmed instance's pending points join the map's end (rule 6)."""
+        """A confirmed instance's pending points join the map's end (rule 6), but for those
+        in a wall's cells (rule 10: the wall may have been found since they were seen)."""
         if self.views[inst] >= self.cfg.min_views and self.pending[inst]:
             pts = np.concatenate(self.pending[inst])
+            self.pending[inst] = []
+            cell = _keys((pts[:, 0], pts[:, 1], np.zeros(len(pts))), self.cfg.wall_cell)
+            off = self.walls.get(cell) < 0
+            pts, cell = pts[off], cell[off]
+            if not len(pts):
+                return
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst))
-            self.pending[inst] = []
+            self.point_wall.append(cell)
+            cell = np.unique(cell)
+            cell = cell[self.held.get(cell) < 0]
+            self.held.add(cell, np.zeros(len(cell), np.int64))
             self._extend(inst, np.stack([pts.min(0), pts.max(0)])[:, :2], len(pts))
+
+    def _drop_walled(self) -> None:
+        """Rule 10: the map's points in cells found to be a wall's leave it (the points after
+        them move up), and each instance's plan-view box and count are those of what is left."""
+        keep = self.walls.get(self.point_wall.rows) < 0
+        rows = [r.rows[keep] for r in (self.points, self.point_instance, self.point_wall)]
+        self.points, self.point_instance, self.point_wall = (_Rows(r.shape[1:], r.dtype) for r in rows)
+        for buf, r in zip((self.points, self.point_instance, self.point_wall), rows):
+            buf.append(r)
+        root = self._roots()[self.point_instance.rows]
+        count = np.bincount(root, minlength=len(self.parent))
+        box = np.tile(np.array([[np.inf, np.inf], [-np.inf, -np.inf]]), (len(self.parent), 1, 1))
+        np.minimum.at(box[:, 0], root, rows[0][:, :2])
+        np.maximum.at(box[:, 1], root, rows[0][:, :2])
+        for i in np.flatnonzero(self._roots()[:-1] == np.arange(len(self.parent))).tolist():
+            self.count[i], self.box[i] = int(count[i]), box[i]
 
     def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
         """Instance ``inst``'s points in the map now include ``count`` more within plan-view ``box`` (2, 2)."""
