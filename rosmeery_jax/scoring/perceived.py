@@ -38,9 +38,10 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    carrying the label first); otherwise the detection starts a new instance. Its unclaimed
    voxels join that instance. The other instances that carry the detection's label and hold
    ``same_overlap`` of its cells are merged into it (one object split by earlier views: a
-   long desk seen a part at a time, each part's box reaching a little into the last). One detection per instance per frame: an instance an earlier
-   detection of the frame joined (they come most confident first) is no candidate, and is
-   not merged (two boxes in one frame are two objects).
+   long desk seen a part at a time, each part's box reaching a little into the last). One
+   detection per instance per frame: an instance an earlier detection of the frame joined
+   (they come most confident first) is no candidate, and is not merged (two boxes in one
+   frame are two objects).
 5. **Label**: an instance holds the label of its most confident detection so far.
 6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
    spurious box in one frame never does; a frame sent again by a robot at rest counts
@@ -434,16 +435,15 @@ class PerceivedMapper(Mapper):
         """Rule 10: the map's points in cells found to be a wall's leave it (the points after
         them move up), and each instance's plan-view box and count are those of what is left."""
         keep = self.walls.get(self.point_wall.rows) < 0
-        rows = [r.rows[keep] for r in (self.points, self.point_instance, self.point_wall)]
-        self.points, self.point_instance, self.point_wall = (_Rows(r.shape[1:], r.dtype) for r in rows)
-        for buf, r in zip((self.points, self.point_instance, self.point_wall), rows):
-            buf.append(r)
-        root = self._roots()[self.point_instance.rows]
+        pts, inst, wall = (rows.rows[keep] for rows in (self.points, self.point_instance, self.point_wall))
+        self.points, self.point_instance, self.point_wall = _Rows.of(pts), _Rows.of(inst), _Rows.of(wall)
+        roots = self._roots()
+        root = roots[inst]
         count = np.bincount(root, minlength=len(self.parent))
         box = np.tile(np.array([[np.inf, np.inf], [-np.inf, -np.inf]]), (len(self.parent), 1, 1))
-        np.minimum.at(box[:, 0], root, rows[0][:, :2])
-        np.maximum.at(box[:, 1], root, rows[0][:, :2])
-        for i in np.flatnonzero(self._roots()[:-1] == np.arange(len(self.parent))).tolist():
+        np.minimum.at(box[:, 0], root, pts[:, :2])
+        np.maximum.at(box[:, 1], root, pts[:, :2])
+        for i in np.flatnonzero(roots[:-1] == np.arange(len(self.parent))).tolist():
             self.count[i], self.box[i] = int(count[i]), box[i]
 
     def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
@@ -511,6 +511,13 @@ class _Rows:
 
     def __init__(self, shape: tuple, dtype):
         self._buf, self._n = np.zeros((16, *shape), dtype), 0
+
+    @classmethod
+    def of(cls, rows: np.ndarray) -> "_Rows":
+        """A new buffer holding a copy of ``rows`` (n, *shape)."""
+        out = cls(rows.shape[1:], rows.dtype)
+        out.append(rows)
+        return out
 
     def append(self, rows: np.ndarray) -> None:
         n = self._n + len(rows)
