@@ -168,7 +168,6 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
         self.point_instance = _Rows((), np.int64)
-        self.point_wall = _Rows((), np.int64)  # per map point: its plan-view cell key (rule 10)
         self.held = _Table()  # plan-view cell key -> 0 where the map holds a point (rule 10)
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
@@ -336,7 +335,7 @@ class PerceivedMapper(Mapper):
         those higher than ``wall_above`` join the walls."""
         if not np.isfinite(self.cfg.wall_above):
             return np.ones(len(x), bool)
-        cell = _keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
+        cell = self._plan_cells(x, y)
         tall = np.unique(cell[z > self.cfg.wall_above])
         tall = tall[self.walls.get(tall) < 0]
         if len(tall):
@@ -344,6 +343,10 @@ class PerceivedMapper(Mapper):
             if (self.held.get(tall) >= 0).any():  # the map holds points of that wall
                 self._drop_walled()
         return self.walls.get(cell) < 0
+
+    def _plan_cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(k,) the plan-view cell keys (``wall_cell``) of points at x, y (k,) (rule 10)."""
+        return _keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
 
     def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> tuple:
         """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
@@ -418,14 +421,13 @@ class PerceivedMapper(Mapper):
         if self.views[inst] >= self.cfg.min_views and self.pending[inst]:
             pts = np.concatenate(self.pending[inst])
             self.pending[inst] = []
-            cell = _keys((pts[:, 0], pts[:, 1], np.zeros(len(pts))), self.cfg.wall_cell)
+            cell = self._plan_cells(pts[:, 0], pts[:, 1])
             off = self.walls.get(cell) < 0
             pts, cell = pts[off], cell[off]
             if not len(pts):
                 return
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst))
-            self.point_wall.append(cell)
             cell = np.unique(cell)
             cell = cell[self.held.get(cell) < 0]
             self.held.add(cell, np.zeros(len(cell), np.int64))
@@ -434,9 +436,10 @@ class PerceivedMapper(Mapper):
     def _drop_walled(self) -> None:
         """Rule 10: the map's points in cells found to be a wall's leave it (the points after
         them move up), and each instance's plan-view box and count are those of what is left."""
-        keep = self.walls.get(self.point_wall.rows) < 0
-        pts, inst, wall = (rows.rows[keep] for rows in (self.points, self.point_instance, self.point_wall))
-        self.points, self.point_instance, self.point_wall = _Rows.of(pts), _Rows.of(inst), _Rows.of(wall)
+        pts = self.points.rows
+        keep = self.walls.get(self._plan_cells(pts[:, 0], pts[:, 1])) < 0
+        pts, inst = pts[keep], self.point_instance.rows[keep]
+        self.points, self.point_instance = _Rows.of(pts), _Rows.of(inst)
         roots = self._roots()
         root = roots[inst]
         count = np.bincount(root, minlength=len(self.parent))
