@@ -269,3 +269,16 @@ def test_declared_requirements_and_docs_stand_alone():
     for page in (root / "docs").glob("*.md"):
         assert page.name in readme or any(page.name in p.read_text() for p in root.joinpath("docs").glob("*.md")
                                           if p != page), f"{page.name} is linked from nowhere"
+
+
+def test_every_link_and_picture_of_the_docs_resolves():
+    """Relative links and pictures in the README, the changelog and docs/ name files that exist,
+    relative to the page (as a repository browser resolves them)."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    pages = [root / "README.md", root / "CHANGELOG.md", *root.joinpath("docs").glob("*.md")]
+    broken = [(page.name, target) for page in pages
+              for target in re.findall(r"\]\(([^)#\s]+)", page.read_text(encoding="utf-8"))
+              if "://" not in target and not (page.parent / target).exists()]
+    assert len(pages) > 10 and not broken, broken
