@@ -16,7 +16,8 @@ SESSIONS = sorted(p.relative_to(ROOT) for p in (ROOT / "experiments").rglob("*.t
 
 def test_every_session_config_is_found():
     names = {p.name for p in SESSIONS}
-    assert {"session.toml", "confident.toml", "evaluate.toml", "gradient_variants.toml", "view_oracle.toml"} <= names
+    assert {"session.toml", "confident.toml", "evaluate.toml", "gradient_variants.toml", "view_oracle.toml",
+            "object_views.toml"} <= names
 
 
 @pytest.mark.parametrize("path", SESSIONS, ids=str)

@@ -61,24 +61,34 @@ def offer(env, state, current: jax.Array, key: jax.Array, k: int, radius: float)
     drawn = env.navigator.draw_reachable(state.nav, state.pose, occ == occupancy.OCCUPIED, key, k)  # (K, 3)
     targets = jnp.concatenate([current[None].astype(jnp.float32), drawn])  # (K+1, 3)
     valid = jnp.ones(k + 1, bool).at[0].set(driving(state))
+    keep = jnp.zeros(k + 1, bool).at[0].set(True)
     k_obs = env.labelled_knowledge(state)
-    near = _surroundings(env, state, occ, k_obs, targets, radius)
-    feats = jnp.concatenate([_placement(state.pose, targets, valid), near], -1)
     observed = jnp.sum(k_obs.seen.astype(jnp.float32)) / 1000.0
-    return Offer(targets, feats, jnp.stack([gave_up(state).astype(jnp.float32), observed]))
+    return Offer(targets, describe(env, state, targets, valid, keep, radius, occ, k_obs),
+                 jnp.stack([gave_up(state).astype(jnp.float32), observed]))
 
 
-def _placement(pose: jax.Array, targets: jax.Array, valid: jax.Array) -> jax.Array:
-    """(K+1, 5): valid, keep, distance / 10 m, and the bearing's cos and sin in the robot's frame."""
+def describe(env, state, targets: jax.Array, valid: jax.Array, keep: jax.Array, radius: float,
+             occ: jax.Array | None = None, k_obs=None) -> jax.Array:
+    """(M, F) the :data:`FEATURES` of any M target poses (M, 3) for one env: ``valid`` (M,)
+    which are offered, ``keep`` (M,) which is the kept target. ``occ`` and ``k_obs`` (the
+    classified map and the labelled knowledge) are computed if not given."""
+    occ = env.occupancy(state) if occ is None else occ
+    k_obs = env.labelled_knowledge(state) if k_obs is None else k_obs
+    near = _surroundings(env, state, occ, k_obs, targets, radius)
+    return jnp.concatenate([_placement(state.pose, targets, valid, keep), near], -1)
+
+
+def _placement(pose: jax.Array, targets: jax.Array, valid: jax.Array, keep: jax.Array) -> jax.Array:
+    """(M, 5): valid, keep, distance / 10 m, and the bearing's cos and sin in the robot's frame."""
     d = targets[:, :2] - pose[:2]
     bearing = wrap_angle(jnp.arctan2(d[:, 1], d[:, 0]) - pose[2])
-    keep = jnp.zeros(targets.shape[0]).at[0].set(1.0)
-    return jnp.stack([valid.astype(jnp.float32), keep, jnp.linalg.norm(d, axis=-1) / 10.0, jnp.cos(bearing),
-                      jnp.sin(bearing)], -1)
+    return jnp.stack([valid.astype(jnp.float32), keep.astype(jnp.float32), jnp.linalg.norm(d, axis=-1) / 10.0,
+                      jnp.cos(bearing), jnp.sin(bearing)], -1)
 
 
 def _surroundings(env, state, occ: jax.Array, k_obs, targets: jax.Array, radius: float) -> jax.Array:
-    """(K+1, 5): unknown, occupied, surface, labelled (fine grid) and visited (the
+    """(M, 5): unknown, occupied, surface, labelled (fine grid) and visited (the
     navigator's coarse trail), each the mean over the window around the candidate (all
     but unknown x 10, capped at 1)."""
     grid = env.grid

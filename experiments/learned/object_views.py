@@ -1,0 +1,50 @@
+"""``learned_views`` (docs/learned.md, tried and not shipped): the shipped learned policy,
+offered in sessions ``views`` more candidates beside its draws: views drawn among
+semantic_nbv's (on a ring around each labelled object's observed centroid, facing it, on a
+free cell), described by the same features, so the network scores them as any candidate."""
+
+import jax
+import jax.numpy as jnp
+
+from rosmeery_jax.policies.frontier import blocked_within
+from rosmeery_jax.policies.learned import CANDIDATES, Choice, LearnedPolicy
+from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
+from rosmeery_jax.rl.candidates import Offer, describe, driving, offer
+from rosmeery_jax.rl.env import flat_obs
+from rosmeery_jax.sim import grid, occupancy
+
+
+class LearnedViews(LearnedPolicy):
+    name = "learned_views"
+    views = 8
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.name = "learned_views"
+        self.nbv = SemanticNBVPolicy(env)
+
+    def object_views(self, state, key) -> tuple[jax.Array, jax.Array]:
+        """(views, 3) poses facing labelled objects, drawn among the free ones, and (views,) which are free."""
+        nbv, env = self.nbv, self.env
+        k = env.labelled_knowledge(state)
+        centroid, _, count = nbv._objects(k.seen)  # (N, 2), (N,)
+        ring = centroid[:, None, :] + nbv.ring[None]  # (N, V, 2)
+        face = jnp.arctan2(centroid[:, None, 1] - ring[..., 1], centroid[:, None, 0] - ring[..., 0]).reshape(-1)
+        ring = ring.reshape(-1, 2)
+        occ = env.occupancy(state)
+        blocked = blocked_within(occ == occupancy.OCCUPIED, nbv.grow)
+        i, j = env.grid.cell(ring)
+        free = (occ[i, j] == occupancy.FREE) & ~blocked[i, j] & jnp.repeat((k.label >= 0) & (count > 0), nbv.v)
+        pick = grid.draw(key, jnp.where(free, 1.0, 0.0) + 1e-12, self.views)  # uniform over the free ones
+        return jnp.concatenate([ring[pick], face[pick, None]], -1), free[pick]
+
+    def decide(self, state, ps, key):
+        k_draw, k_view = jax.random.split(key)
+        base = offer(self.env, state, ps.target, k_draw, CANDIDATES, self.rl.radius)
+        views, free = self.object_views(state, k_view)
+        feats = describe(self.env, state, views, free, jnp.zeros(self.views, bool), self.rl.radius)
+        full = Offer(jnp.concatenate([base.targets, views]), jnp.concatenate([base.features, feats]), base.globals)
+        logits, _ = self.net.apply(self.params, flat_obs(full))
+        due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
+        target = jnp.where(due, full.targets[jnp.argmax(logits)], ps.target)
+        return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
