@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
-from rosmeery_jax.sim.coverage import FAR, SampleTable
+from rosmeery_jax.sim.coverage import FAR
 
 
 class GradIt0(GradientNBVPolicy):
@@ -46,7 +46,4 @@ class GradOracle(GradientNBVPolicy):
         i, j = self.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
         hc, wc = self.shape
         count = jax.ops.segment_sum(unseen.astype(jnp.float32), i * wc + j, hc * wc)
-        xy = self.coarse.centers().reshape(-1, 2)
-        held = ((count > 0) & self.coarse.inside().reshape(-1)).astype(jnp.float32)
-        points = jnp.concatenate([xy.T, jnp.full((1, xy.shape[0]), self.height, jnp.float32)], 0)
-        return SampleTable(points, jnp.zeros_like(points), jnp.zeros(xy.shape[0], jnp.int32), 1), held
+        return self.belief_points(), ((count > 0) & self.coarse.inside().reshape(-1)).astype(jnp.float32)

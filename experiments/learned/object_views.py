@@ -6,12 +6,11 @@ free cell), described by the same features, so the network scores them as any ca
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.policies.frontier import blocked_within
 from rosmeery_jax.policies.learned import CANDIDATES, Choice, LearnedPolicy
-from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
+from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy, facing
 from rosmeery_jax.rl.candidates import Offer, describe, driving, offer
 from rosmeery_jax.rl.env import flat_obs
-from rosmeery_jax.sim import grid, occupancy
+from rosmeery_jax.sim import grid
 
 
 class LearnedViews(LearnedPolicy):
@@ -25,16 +24,11 @@ class LearnedViews(LearnedPolicy):
 
     def object_views(self, state, key) -> tuple[jax.Array, jax.Array]:
         """(views, 3) poses facing labelled objects, drawn among the free ones, and (views,) which are free."""
-        nbv, env = self.nbv, self.env
-        k = env.labelled_knowledge(state)
-        centroid, _, count = nbv._objects(k.seen)  # (N, 2), (N,)
-        ring = centroid[:, None, :] + nbv.ring[None]  # (N, V, 2)
-        face = jnp.arctan2(centroid[:, None, 1] - ring[..., 1], centroid[:, None, 0] - ring[..., 0]).reshape(-1)
-        ring = ring.reshape(-1, 2)
-        occ = env.occupancy(state)
-        blocked = blocked_within(occ == occupancy.OCCUPIED, nbv.grow)
-        i, j = env.grid.cell(ring)
-        free = (occ[i, j] == occupancy.FREE) & ~blocked[i, j] & jnp.repeat((k.label >= 0) & (count > 0), nbv.v)
+        k = self.env.labelled_knowledge(state)
+        centroid, _, count = self.nbv._objects(k.seen)  # (N, 2), (N,)
+        ring, free = self.nbv.ring_views(state, centroid, (k.label >= 0) & (count > 0))  # (N, V, 2), (N, V)
+        face = facing(centroid[:, None], ring).reshape(-1)
+        ring, free = ring.reshape(-1, 2), free.reshape(-1)
         pick = grid.draw(key, jnp.where(free, 1.0, 0.0) + 1e-12, self.views)  # uniform over the free ones
         return jnp.concatenate([ring[pick], face[pick, None]], -1), free[pick]
 

@@ -4,19 +4,13 @@ would newly observe the most ground-truth surface samples (``view_oracle``), or 
 metre of travel plus one (``view_oracle_pm``). It decides when learned does. It reads the
 ground truth, so it is a measure, not an explorer."""
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy
+from rosmeery_jax.policies.learned import Choice  # learned's state: target and when it was chosen
 from rosmeery_jax.rl.candidates import driving
 from rosmeery_jax.sim import coverage, occupancy
-
-
-class Choice(NamedTuple):
-    target: jax.Array  # (3,)
-    chosen_at: jax.Array  # int32: the control step of the last choice
 
 
 class ViewOracle(Policy):

@@ -113,10 +113,14 @@ class GradientNBVPolicy(ViewPolicy):
         seen_here = grid.block_any(surface > 0, self.f)
         occ = self.env.occupancy(state)
         free = grid.block_any(occ == occupancy.FREE, self.f) & ~grid.block_any(occ == occupancy.OCCUPIED, self.f)
-        xy = self.coarse.centers().reshape(-1, 2)
         held = (~free & near & ~seen_here & self.coarse.inside()).reshape(-1).astype(jnp.float32)
+        return self.belief_points(), held
+
+    def belief_points(self) -> SampleTable:
+        """Hc * Wc points, one at each coarse cell's centre, ``point_height`` up."""
+        xy = self.coarse.centers().reshape(-1, 2)
         points = jnp.concatenate([xy.T, jnp.full((1, xy.shape[0]), self.height, jnp.float32)], 0)
-        return SampleTable(points, jnp.zeros_like(points), jnp.zeros(xy.shape[0], jnp.int32), 1), held
+        return SampleTable(points, jnp.zeros_like(points), jnp.zeros(xy.shape[0], jnp.int32), 1)
 
     # --- The differentiable view model ----------------------------------------------
 

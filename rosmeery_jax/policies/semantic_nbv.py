@@ -68,6 +68,16 @@ class SemanticNBVPolicy(ViewPolicy):
         area = jnp.where(count > 0, jnp.maximum(hi_x - lo_x, 0.1) * jnp.maximum(hi_y - lo_y, 0.1), 0.0)
         return c, area, count
 
+    def ring_views(self, state, centroid: jax.Array, objects: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The candidate views' positions (N, V, 2), on the ring around each object's centroid
+        (N, 2), and (N, V) which of them stand on a cell the robot's map shows free, away from
+        obstacles, around one of the ``objects`` (N,) bool. A view faces its object (:func:`facing`)."""
+        cand = centroid[:, None, :] + self.ring[None]
+        occ = self.env.occupancy(state)
+        blocked = blocked_within(occ == occupancy.OCCUPIED, self.grow)
+        i, j = self.env.grid.cell(cand)
+        return cand, (occ[i, j] == occupancy.FREE) & ~blocked[i, j] & objects[:, None]
+
     def decide(self, state, ps: NBVState, key):
         env = self.env
         k = env.labelled_knowledge(state)
@@ -82,21 +92,21 @@ class SemanticNBVPolicy(ViewPolicy):
         done_view = needs_target(state) & ~ps.exploring
         seen_from = seen_from.at[ps.view[0], ps.view[1]].set(seen_from[ps.view[0], ps.view[1]] | done_view)
 
-        # Candidates (N, V): on the ring around each labelled object, on known-free cells.
-        cand = centroid[:, None, :] + self.ring[None]
-        occ = env.occupancy(state)
-        free = occ == occupancy.FREE
-        blocked = blocked_within(occ == occupancy.OCCUPIED, self.grow)
-        i, j = env.grid.cell(cand)
-        ok = free[i, j] & ~blocked[i, j] & labelled[:, None] & ~seen_from
+        cand, free = self.ring_views(state, centroid, labelled)
+        ok = free & ~seen_from
         dist = jnp.linalg.norm(cand - state.pose[:2], axis=-1)
         score = jnp.where(ok, area[:, None] / (dist + 1.0), -1.0)
         best = jnp.argmax(score.ravel())
         n_best, v_best = best // self.v, best % self.v
         goal = cand[n_best, v_best]
-        face = jnp.arctan2(centroid[n_best, 1] - goal[1], centroid[n_best, 0] - goal[0])
         have_view = score.ravel()[best] > 0
 
-        target, f_state, exploring, renew = self.choose(state, ps, key, have_view, jnp.concatenate([goal, face[None]]))
+        target, f_state, exploring, renew = self.choose(state, ps, key, have_view,
+                                                        jnp.concatenate([goal, facing(centroid[n_best], goal)[None]]))
         view = jnp.where(renew & have_view, jnp.stack([n_best, v_best]).astype(jnp.int32), ps.view)
         return target, NBVState(target, seen_from, count, f_state, exploring, view)
+
+
+def facing(centroid: jax.Array, at: jax.Array) -> jax.Array:
+    """(...) the yaw from positions ``at`` (..., 2) towards ``centroid`` (..., 2) (broadcast)."""
+    return jnp.arctan2(centroid[..., 1] - at[..., 1], centroid[..., 0] - at[..., 0])
