@@ -165,6 +165,17 @@ class GradientNBVPolicy(ViewPolicy):
 
     # --- Deciding ---------------------------------------------------------------------
 
+    def views(self, state, opacity, table, weight, key) -> tuple[jax.Array, jax.Array]:
+        """The refined views (M, 3) and their expected gains (M,): each start looks at a
+        belief point drawn by ``weight`` (floored over the world's cells, for when every
+        weight is spent), from its own ring direction."""
+        pick = grid.draw(key, jnp.where(self.coarse.inside().reshape(-1), weight + 1e-9, 0.0), self.ring.shape[0])
+        centre = table.points[:2, pick].T  # (M, 2)
+        xy = centre + self.ring
+        face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])
+        views, gains = self.refine(opacity, table, weight, state.pose, jnp.concatenate([xy, face[:, None]], 1))
+        return views.at[:, 2].set(grid.wrap_angle(views[:, 2])), gains
+
     def decide(self, state, ps: GradientNBVState, key):
         env = self.env
         table, held = self.belief(state)
@@ -178,14 +189,7 @@ class GradientNBVPolicy(ViewPolicy):
         # evidence (a robot standing still would otherwise 'see' everything in time).
         viewed = jnp.maximum(ps.viewed, jnp.maximum(now, promised))
         weight = held * (1.0 - viewed)
-        # Each start looks at a belief point drawn by weight (floored over the world's cells,
-        # for when every weight is spent), from its own ring direction.
-        pick = grid.draw(key, jnp.where(self.coarse.inside().reshape(-1), weight + 1e-9, 0.0), self.ring.shape[0])
-        centre = table.points[:2, pick].T  # (M, 2)
-        xy = centre + self.ring
-        face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])
-        views, gains = self.refine(opacity, table, weight, state.pose, jnp.concatenate([xy, face[:, None]], 1))
-        views = views.at[:, 2].set(grid.wrap_angle(views[:, 2]))
+        views, gains = self.views(state, opacity, table, weight, key)
         occ = env.occupancy(state)
         blocked = blocked_within(occ == occupancy.OCCUPIED, self.grow_clear)
         i, j = env.grid.cell(views[:, :2])

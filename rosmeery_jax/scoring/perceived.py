@@ -83,7 +83,6 @@ instances, F frames, N objects.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from itertools import repeat
 from typing import NamedTuple
 
 import numpy as np
@@ -551,20 +550,22 @@ def _depth_rays(camera, w: int, h: int) -> tuple:
 
 
 class _Table:
-    """Cube keys to instances, looked up many keys at once. Most keys are held in a sorted
-    array (a vectorised binary search), the latest in a dictionary, merged into the array
-    once they are many. Most keys a frame looks up are in no table (walls and furniture no
-    detection named): a bitmap of the keys' hashes (256 KiB) answers those at once."""
+    """Cube keys to instances, looked up many keys at once. Keys are held in two sorted
+    arrays, each searched in one vectorised call: most in the main one, the latest in a
+    small one, merged into the main one once they are many (so an add costs a copy of the
+    small one, not of the whole table). Most keys a frame looks up are in no table (walls
+    and furniture no detection named): a bitmap of the keys' hashes (256 KiB) answers those
+    at once."""
 
     _BITS = 18
 
     def __init__(self):
-        self._keys, self._insts = np.zeros(0, np.int64), np.zeros(0, np.int64)  # sorted by key
-        self._latest: dict[int, int] = {}
+        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self._main, self._latest = empty, empty  # (keys ascending, their instances)
         self._seen = np.zeros(1 << self._BITS, bool)
 
     def __len__(self) -> int:
-        return len(self._keys) + len(self._latest)
+        return len(self._main[0]) + len(self._latest[0])
 
     def _hash(self, keys: np.ndarray) -> np.ndarray:
         return (keys.view(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - self._BITS)  # Fibonacci hashing
@@ -573,26 +574,28 @@ class _Table:
         """(K,) the instances the table holds for int64 ``keys`` (K,), -1 where it holds none."""
         out = np.full(len(keys), -1, np.int64)
         maybe = np.flatnonzero(self._seen[self._hash(keys)])
-        if len(self._keys) and len(maybe):
-            at = np.minimum(np.searchsorted(self._keys, keys[maybe]), len(self._keys) - 1)
-            found = self._keys[at] == keys[maybe]
-            out[maybe[found]] = self._insts[at[found]]
-            maybe = maybe[~found]
-        if self._latest and len(maybe):
-            out[maybe] = np.fromiter(map(self._latest.get, keys[maybe].tolist(), repeat(-1)), np.int64, len(maybe))
+        for held, insts in (self._main, self._latest):
+            if len(held) and len(maybe):
+                at = np.minimum(np.searchsorted(held, keys[maybe]), len(held) - 1)
+                found = held[at] == keys[maybe]
+                out[maybe[found]] = insts[at[found]]
+                maybe = maybe[~found]
         return out
 
     def add(self, keys: np.ndarray, insts: np.ndarray) -> None:
-        """Record instances ``insts`` (K,) for int64 ``keys`` (K,), none of them in the table yet."""
-        self._latest.update(zip(keys.tolist(), insts.tolist()))
+        """Record instances ``insts`` (K,) for distinct int64 ``keys`` (K,), none of them in the table yet."""
         self._seen[self._hash(keys)] = True
-        if len(self._latest) > max(1024, len(self._keys) // 16):
-            keys = np.fromiter(self._latest, np.int64, len(self._latest))
-            insts = np.fromiter(self._latest.values(), np.int64, len(self._latest))
-            order = np.argsort(keys)
-            at = np.searchsorted(self._keys, keys[order])
-            self._keys, self._insts = np.insert(self._keys, at, keys[order]), np.insert(self._insts, at, insts[order])
-            self._latest = {}
+        self._latest = _insert(self._latest, keys, insts)
+        if len(self._latest[0]) > max(1024, len(self._main[0]) // 16):
+            self._main = _insert(self._main, *self._latest)
+            self._latest = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def _insert(table: tuple, keys: np.ndarray, insts: np.ndarray) -> tuple:
+    """A sorted (keys, instances) pair with ``keys`` (K,) and their ``insts`` (K,) inserted."""
+    order = np.argsort(keys)
+    at = np.searchsorted(table[0], keys[order])
+    return np.insert(table[0], at, keys[order]), np.insert(table[1], at, insts[order])
 
 
 def _keys(xyz: tuple, size: float) -> np.ndarray:
