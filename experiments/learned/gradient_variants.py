@@ -1,7 +1,7 @@
 """Variants of ``gradient_nbv`` that test what limits it (docs/learned.md): no gradient step,
-more steps, more starts, the ground truth as its belief, as its view model, and as both. Run as plugins by
-``gradient_variants.toml``; none is a policy to explore with (``grad_oracle`` reads the
-ground truth)."""
+more steps, more starts, more candidates of random's kind, and the ground truth as its
+belief, as its view model, or both. Run as plugins by ``gradient_variants.toml``; none is a
+policy to explore with (those named for the ground truth or a true view read it)."""
 
 from pathlib import Path
 

@@ -560,12 +560,11 @@ class _Table:
     _BITS = 18
 
     def __init__(self):
-        empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
-        self._main, self._latest = empty, empty  # (keys ascending, their instances)
+        self._main, self._latest = _Sorted.empty(), _Sorted.empty()
         self._seen = np.zeros(1 << self._BITS, bool)
 
     def __len__(self) -> int:
-        return len(self._main[0]) + len(self._latest[0])
+        return len(self._main.keys) + len(self._latest.keys)
 
     def _hash(self, keys: np.ndarray) -> np.ndarray:
         return (keys.view(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - self._BITS)  # Fibonacci hashing
@@ -574,7 +573,7 @@ class _Table:
         """(K,) the instances the table holds for int64 ``keys`` (K,), -1 where it holds none."""
         out = np.full(len(keys), -1, np.int64)
         maybe = np.flatnonzero(self._seen[self._hash(keys)])
-        for held, insts in (self._main, self._latest):
+        for held, insts in (self._main, self._latest):  # each _Sorted: keys, their instances
             if len(held) and len(maybe):
                 at = np.minimum(np.searchsorted(held, keys[maybe]), len(held) - 1)
                 found = held[at] == keys[maybe]
@@ -585,17 +584,26 @@ class _Table:
     def add(self, keys: np.ndarray, insts: np.ndarray) -> None:
         """Record instances ``insts`` (K,) for distinct int64 ``keys`` (K,), none of them in the table yet."""
         self._seen[self._hash(keys)] = True
-        self._latest = _insert(self._latest, keys, insts)
-        if len(self._latest[0]) > max(1024, len(self._main[0]) // 16):
-            self._main = _insert(self._main, *self._latest)
-            self._latest = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self._latest = self._latest.insert(keys, insts)
+        if len(self._latest.keys) > max(1024, len(self._main.keys) // 16):
+            self._main, self._latest = self._main.insert(*self._latest), _Sorted.empty()
 
 
-def _insert(table: tuple, keys: np.ndarray, insts: np.ndarray) -> tuple:
-    """A sorted (keys, instances) pair with ``keys`` (K,) and their ``insts`` (K,) inserted."""
-    order = np.argsort(keys)
-    at = np.searchsorted(table[0], keys[order])
-    return np.insert(table[0], at, keys[order]), np.insert(table[1], at, insts[order])
+class _Sorted(NamedTuple):
+    """Keys (K,) ascending and their instances (K,)."""
+
+    keys: np.ndarray
+    insts: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "_Sorted":
+        return cls(np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    def insert(self, keys: np.ndarray, insts: np.ndarray) -> "_Sorted":
+        """These with ``keys`` (K,), none of them held yet, and their ``insts`` (K,) added."""
+        order = np.argsort(keys)
+        at = np.searchsorted(self.keys, keys[order])
+        return _Sorted(np.insert(self.keys, at, keys[order]), np.insert(self.insts, at, insts[order]))
 
 
 def _keys(xyz: tuple, size: float) -> np.ndarray:
