@@ -45,3 +45,10 @@ class ViewOracle(Policy):
 class ViewOraclePerMetre(ViewOracle):
     name = "view_oracle_pm"
     per_metre = True
+
+
+class ViewOracleWide(ViewOraclePerMetre):
+    """More search: three times the draws, and a choice every second rather than every three."""
+    name = "view_oracle_pm_wide"
+    draws = 96
+    decide_every = 10
