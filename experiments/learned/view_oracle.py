@@ -1,8 +1,10 @@
 """A ceiling for the learned explorer's kind of choice (docs/learned.md): at each decision it
 takes, among the kept target and 32 targets of random's draw, the one from which the camera
 would newly observe the most ground-truth surface samples (``view_oracle``), or the most per
-metre of travel plus one (``view_oracle_pm``). It decides when learned does. It reads the
-ground truth, so it is a measure, not an explorer."""
+metre of travel plus one (``view_oracle_pm``). It decides when learned does. Two more test
+how far more search (``view_oracle_pm_wide``) and a view after the next
+(``view_oracle_2step``) take it. They read the ground truth, so they are measures, not
+explorers."""
 
 import jax
 import jax.numpy as jnp
@@ -11,6 +13,13 @@ from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.learned import Choice  # learned's state: target and when it was chosen
 from rosmeery_jax.rl.candidates import driving
 from rosmeery_jax.sim import coverage, occupancy
+
+
+def newly_observed(env, state, pose):
+    """(N,) which ground-truth samples the camera would newly observe from ``pose`` (3,)."""
+    sk = env.sk
+    depth, _ = env.look(pose)
+    return coverage.observed(sk.table, sk.cfg.coverage, sk.camera, pose, depth) & (state.knowledge.seen <= 0.5)
 
 
 class ViewOracle(Policy):
@@ -24,10 +33,7 @@ class ViewOracle(Policy):
 
     def gain(self, state, pose):
         """Ground-truth samples the camera would newly observe from ``pose`` (3,)."""
-        sk = self.env.sk
-        depth, _ = self.env.look(pose)
-        new = coverage.observed(sk.table, sk.cfg.coverage, sk.camera, pose, depth) & (state.knowledge.seen <= 0.5)
-        return jnp.sum(new.astype(jnp.float32))
+        return jnp.sum(newly_observed(self.env, state, pose).astype(jnp.float32))
 
     def decide(self, state, ps, key):
         occupied = self.env.occupancy(state) == occupancy.OCCUPIED
@@ -52,3 +58,26 @@ class ViewOracleWide(ViewOraclePerMetre):
     name = "view_oracle_pm_wide"
     draws = 96
     decide_every = 10
+
+
+class ViewOracleTwoSteps(ViewOraclePerMetre):
+    """Choosing with the view after it in mind: each candidate (the kept target and 32
+    draws, as ``view_oracle_pm``'s) is scored by the most that it and one of 32 more draws
+    would newly observe together, per metre of the two legs plus one."""
+    name = "view_oracle_2step"
+
+    def decide(self, state, ps, key):
+        occupied = self.env.occupancy(state) == occupancy.OCCUPIED
+        k1, k2 = jax.random.split(key)
+        first = jnp.concatenate([ps.target[None], self.env.navigator.draw_reachable(
+            state.nav, state.pose, occupied, k1, self.draws)], 0)  # (1 + draws, 3): the kept target first
+        second = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k2, self.draws)  # (draws, 3)
+        a, b = (jax.vmap(lambda q: newly_observed(self.env, state, q))(qs) for qs in (first, second))
+        both = jnp.sum((a[:, None] | b[None]).astype(jnp.float32), -1)  # (1 + draws, draws)
+        legs = (jnp.linalg.norm(first[:, None, :2] - state.pose[:2], axis=-1)
+                + jnp.linalg.norm(second[None, :, :2] - first[:, None, :2], axis=-1))
+        score = jnp.max(both / (legs + 1.0), -1)
+        score = score.at[0].set(jnp.where(driving(state), score[0], -1.0))  # kept only while driving to it
+        due = ~driving(state) | (state.t - ps.chosen_at >= self.decide_every)
+        target = jnp.where(due, first[jnp.argmax(score)], ps.target)
+        return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
