@@ -3,12 +3,20 @@
 
     .venv/bin/python scripts/learned_table.py results/learned_eval [--figures docs/learned]
 
+The measures of what limits the explorers (``experiments/learned/*.toml``) run the same
+worlds and seeds, so their runs pair by seed with the evaluation's: ``--with`` adds their
+folders, and ``--against`` compares every policy with one, per world (the tables of
+docs/learned.md):
+
+    .venv/bin/python scripts/learned_table.py results/learned_eval --with results/gradient_variants --against semantic_nbv
+
 ORI AUC is the time average of a run's ORI curve (``rosmeery_jax.scoring.metrics.summarize``).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -49,12 +57,15 @@ def table(runs: pd.DataFrame, policies: list[str]) -> None:
             g = runs[runs.world == w]
             auc = g.pivot_table(index="seed", columns="policy", values="auc")
             final = g.groupby("policy").final.mean()
-            cells = stats.bold_cells(auc, policies,
-                                     lambda p, ci: f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})")
-            print(f"| {label(w)} | " + " | ".join(cells) + " |")
+            ran = [p for p in policies if p in auc]  # a measure may run some worlds only
+            cells = dict(zip(ran, stats.bold_cells(
+                auc, ran, lambda p, ci: f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})")))
+            print(f"| {label(w)} | " + " | ".join(cells.get(p, "-") for p in policies) + " |")
         if worlds:
-            means = runs[runs.world.isin(worlds)].groupby("policy").auc.mean()
-            cells = [f"**{means[p]:.3f}**" if p == means.idxmax() else f"{means[p]:.3f}" for p in policies]
+            sets = runs[runs.world.isin(worlds)].groupby("policy")
+            means = sets.auc.mean()[sets.world.nunique() == len(worlds)]  # over every world of the set only
+            cells = [f"**{means[p]:.3f}**" if p == means.idxmax() else f"{means[p]:.3f}" if p in means else "-"
+                     for p in policies]
             print(f"| *mean, {name}* | " + " | ".join(cells) + " |")
 
 
@@ -89,6 +100,21 @@ def targets(runs: pd.DataFrame) -> None:
               + ", ".join(f"{w} {paper.gradient_nbv[w] - paper.semantic_nbv[w]:+.3f}" for w in paper.index))
 
 
+def against(runs: pd.DataFrame, base: str) -> None:
+    """Every other policy against ``base`` on ORI AUC, paired by seed, per world: the mean
+    difference, in standard deviations of the per-seed differences, and the test's p."""
+    print(f"\nagainst {base}, ORI AUC paired by seed: difference (in SDs of the per-seed differences), p")
+    for p in sorted(set(runs.policy) - {base}):
+        cells = []
+        for w, g in runs.groupby("world", sort=False):
+            auc = g.pivot_table(index="seed", columns="policy", values="auc")
+            if p in auc and base in auc:
+                r = stats.paired(auc[base], auc[p])
+                sds = f"{r.in_sds:+.1f}" if math.isfinite(r.in_sds) else "no spread"
+                cells.append(f"{label(w)} {r.diff.mean:+.3f} ({sds}) p {r.p:.3f}")
+        print(f"  {p}: " + "; ".join(cells))
+
+
 def figures(df: pd.DataFrame, directory: Path) -> None:
     import matplotlib.pyplot as plt
 
@@ -104,18 +130,28 @@ def figures(df: pd.DataFrame, directory: Path) -> None:
     print(f"\nwrote {save_figure(fig, directory / 'ori.png')}")
 
 
+def _metrics(folder: Path) -> pd.DataFrame:
+    df = pd.read_csv(folder / "metrics.csv")
+    if "mapper" not in df.columns:
+        df["mapper"] = "oracle"
+    return df
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folder", nargs="?", default="results/learned_eval")
     ap.add_argument("--figures", default="", help="folder for ori.png (none when empty)")
+    ap.add_argument("--with", dest="more", action="append", default=[],
+                    help="another results folder of the same worlds and seeds (repeatable)")
+    ap.add_argument("--against", default="", help="compare every policy with this one, per world")
     args = ap.parse_args()
-    df = pd.read_csv(Path(args.folder) / "metrics.csv")
-    if "mapper" not in df.columns:
-        df["mapper"] = "oracle"
+    df = pd.concat([_metrics(Path(f)) for f in [args.folder, *args.more]], ignore_index=True)
     runs = per_run(df)
     policies = [p for p in POLICIES if p in set(runs.policy)] + sorted(set(runs.policy) - set(POLICIES))
     table(runs, policies)
     targets(runs)
+    if args.against:
+        against(runs, args.against)
     if args.figures:
         figures(df, Path(args.figures))
 

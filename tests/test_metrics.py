@@ -334,3 +334,38 @@ def test_compare_sessions_finals_aucs_and_noise_flags(tmp_path):
     assert not t.loc[("random", "final"), "beyond_1std"] and t.loc[("random", "final"), "p"] == 1.0
     assert t.loc[("frontier", "final"), "diff"] == -0.5 and t.loc[("frontier", "final"), "beyond_1std"]
     assert t.loc[("frontier", "auc"), "diff"] == -0.375  # AUC 0.75 -> 0.375
+
+
+def test_learned_table_joins_folders_and_compares_every_policy_with_one(tmp_path, capsys, monkeypatch):
+    """scripts/learned_table.py on two hand-made folders: a measure run in one world of two,
+    paired by seed with the evaluation's runs; curves over 0..2 s, so AUC = 0.75 x final."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("learned_table", Path(__file__).parents[1] / "scripts" /
+                                                  "learned_table.py")
+    lt = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(lt)
+
+    def folder(name, finals):  # finals: {(world, policy): [final ORI of seeds 0, 1, 2]}
+        rows = [(w, p, "yolo", "oracle", seed, float(t), "ori", v * min(t, 1))
+                for (w, p), vals in finals.items() for seed, v in enumerate(vals) for t in range(3)]
+        (tmp_path / name).mkdir()
+        pd.DataFrame(rows, columns=["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
+                     ).to_csv(tmp_path / name / "metrics.csv", index=False)
+        return str(tmp_path / name)
+
+    ev = folder("eval", {(w, p): [0.4, 0.4, 0.4] for w in ("kitchen", "laboratory") for p in ("random", "semantic_nbv")})
+    more = folder("measure", {("kitchen", "variant"): [0.6, 0.8, 0.4]})
+    monkeypatch.setattr(sys, "argv", ["learned_table.py", ev, "--with", more, "--against", "semantic_nbv"])
+    lt.main()
+    out = capsys.readouterr().out
+    lab = next(line for line in out.splitlines() if line.startswith("| Laboratory |"))
+    assert lab.endswith("| - |")  # the measure did not run there
+    mean = next(line for line in out.splitlines() if line.startswith("| *mean, paper worlds* |"))
+    assert mean.endswith("| - |")  # nor is it averaged over the worlds it ran
+    # AUC differences by seed 0.75 x (0.2, 0.4, 0): mean 0.15, SD 0.15, so 1.0 SD; the sign-flip
+    # test's 8 patterns sum to +-0.45 four times in all, as extreme as the data: p 0.5
+    assert "  variant: Kitchen +0.150 (+1.0) p 0.500" in out
+    assert "  random: Kitchen +0.000 (no spread) p 1.000; Laboratory +0.000 (no spread) p 1.000" in out

@@ -40,6 +40,15 @@ def test_a_paired_difference_is_signed_b_minus_a():
     assert r.diff.mean == pytest.approx(0.09833, abs=1e-4) and r.diff.low > 0 and r.significant and r.seeds == 6
 
 
+def test_the_effect_size_is_the_mean_difference_in_standard_deviations_of_the_differences():
+    # d = (1, 3): mean 2, SD (ddof 1) sqrt(((1 - 2)^2 + (3 - 2)^2) / 1) = sqrt(2)
+    r = stats.paired([0, 0], [1, 3])
+    assert r.sd == pytest.approx(np.sqrt(2)) and r.in_sds == pytest.approx(2 / np.sqrt(2))
+    assert stats.paired([0, 0, 0], [-3, -1, -2]).in_sds == pytest.approx(-2.0)  # behind: negative
+    assert np.isnan(stats.paired([0, 0], [1, 1]).in_sds)  # every seed the same difference: no spread
+    assert np.isnan(stats.paired([0], [1]).sd)  # one seed: no spread to measure
+
+
 def test_tied_with_best_bolds_the_best_and_what_a_paired_test_cannot_tell_from_it():
     import pandas as pd
 

@@ -36,15 +36,23 @@ class Interval(NamedTuple):
 
 
 class Paired(NamedTuple):
-    """b - a by seed: the mean difference with its interval, and the permutation test's p."""
+    """b - a by seed: the mean difference with its interval, the permutation test's p, and
+    the standard deviation of the per-seed differences (ddof 1; nan under 2 seeds)."""
 
     diff: Interval
     p: float
     seeds: int
+    sd: float = float("nan")
 
     @property
     def significant(self) -> bool:
         return self.p < 1 - LEVEL
+
+    @property
+    def in_sds(self) -> float:
+        """The mean difference in standard deviations of the per-seed differences (an effect
+        size: "ahead by more than one standard deviation" is ``in_sds > 1``)."""
+        return self.diff.mean / self.sd if self.sd > 0 else float("nan")
 
 
 def interval(values, level: float = LEVEL) -> Interval:
@@ -68,12 +76,13 @@ def interval(values, level: float = LEVEL) -> Interval:
 def paired(a, b, level: float = LEVEL) -> Paired:
     """Compare ``b`` with ``a``, both (S,) in seed order."""
     d = np.asarray(b, float) - np.asarray(a, float)
+    sd = float(d.std(ddof=1)) if len(d) > 1 else float("nan")
     if len(d) < 2 or np.all(d == d[0]):
         return Paired(Interval(float(d.mean()), float(d.mean()), float(d.mean())), 1.0 if not d.any() else
-                      2.0 ** (1 - len(d)), len(d))
+                      2.0 ** (1 - len(d)), len(d), sd)
     test = stats.permutation_test((d,), np.mean, permutation_type="samples", alternative="two-sided",
                                   n_resamples=RESAMPLES, random_state=np.random.default_rng(0))
-    return Paired(interval(d, level), float(test.pvalue), len(d))
+    return Paired(interval(d, level), float(test.pvalue), len(d), sd)
 
 
 def tied_with_best(per_seed) -> dict:
