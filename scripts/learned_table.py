@@ -83,8 +83,9 @@ def targets(runs: pd.DataFrame) -> None:
     auc = runs.groupby(["world", "policy"]).auc.mean().unstack()
     for name, worlds in (("paper worlds", [w for w in PAPER if w in auc.index]),
                          ("generated held-out worlds", [w for w in auc.index if w not in PAPER])):
-        if worlds:
-            print(f"\nmean ORI AUC over the {len(worlds)} {name}:\n" + auc.loc[worlds].mean().round(3).to_string())
+        if worlds:  # the policies that ran every one of them
+            print(f"\nmean ORI AUC over the {len(worlds)} {name}:\n"
+                  + auc.loc[worlds].dropna(axis=1).mean().round(3).to_string())
     paper = auc.loc[[w for w in PAPER if w in auc.index]]
     if {"learned", "frontier", "random"} <= set(paper.columns):
         m = paper.mean()
@@ -108,10 +109,12 @@ def against(runs: pd.DataFrame, base: str) -> None:
         cells = []
         for w, g in runs.groupby("world", sort=False):
             auc = g.pivot_table(index="seed", columns="policy", values="auc")
-            if p in auc and base in auc:
-                r = stats.paired(auc[base], auc[p])
+            both = auc[[base, p]].dropna() if p in auc and base in auc else ()  # the seeds both ran
+            if len(both):
+                r = stats.paired(both[base], both[p])
                 sds = f"{r.in_sds:+.1f}" if math.isfinite(r.in_sds) else "no spread"
-                cells.append(f"{label(w)} {r.diff.mean:+.3f} ({sds}) p {r.p:.3f}")
+                cells.append(f"{label(w)} {r.diff.mean:+.3f} ({sds}) p {r.p:.3f}"
+                             + (f" ({r.seeds} seeds)" if r.seeds < len(auc) else ""))
         print(f"  {p}: " + "; ".join(cells))
 
 

@@ -356,16 +356,20 @@ def test_learned_table_joins_folders_and_compares_every_policy_with_one(tmp_path
                      ).to_csv(tmp_path / name / "metrics.csv", index=False)
         return str(tmp_path / name)
 
-    ev = folder("eval", {(w, p): [0.4, 0.4, 0.4] for w in ("kitchen", "laboratory") for p in ("random", "semantic_nbv")})
-    more = folder("measure", {("kitchen", "variant"): [0.6, 0.8, 0.4]})
+    ev = folder("eval", {(w, p): [0.4, 0.4, 0.4] for w in ("kitchen", "laboratory", "small_office")
+                         for p in ("random", "semantic_nbv")})
+    more = folder("measure", {("kitchen", "variant"): [0.6, 0.8, 0.4], ("laboratory", "variant"): [0.6]})
     monkeypatch.setattr(sys, "argv", ["learned_table.py", ev, "--with", more, "--against", "semantic_nbv"])
     lt.main()
     out = capsys.readouterr().out
-    lab = next(line for line in out.splitlines() if line.startswith("| Laboratory |"))
-    assert lab.endswith("| - |")  # the measure did not run there
-    mean = next(line for line in out.splitlines() if line.startswith("| *mean, paper worlds* |"))
-    assert mean.endswith("| - |")  # nor is it averaged over the worlds it ran
+    row = {line.split(" | ")[0]: line for line in out.splitlines() if line.startswith("| ")}
+    assert row["| Small Office"].endswith("| - |")  # the measure did not run there
+    assert row["| *mean, paper worlds*"].endswith("| - |")  # nor is it averaged over the worlds it ran
+    assert "**0.450 [" in row["| Laboratory"]  # its one seed: its mean, best (nothing shown behind)
     # AUC differences by seed 0.75 x (0.2, 0.4, 0): mean 0.15, SD 0.15, so 1.0 SD; the sign-flip
-    # test's 8 patterns sum to +-0.45 four times in all, as extreme as the data: p 0.5
-    assert "  variant: Kitchen +0.150 (+1.0) p 0.500" in out
+    # test's 8 patterns sum to +-0.45 four times in all, as extreme as the data: p 0.5. In the
+    # Laboratory the measure ran seed 0 alone: it is paired on that seed only, and said so.
+    assert "  variant: Kitchen +0.150 (+1.0) p 0.500; Laboratory +0.150 (no spread) p 1.000 (1 seeds)" in out
     assert "  random: Kitchen +0.000 (no spread) p 1.000; Laboratory +0.000 (no spread) p 1.000" in out
+    assert "nan" not in out.split("against semantic_nbv")[1]  # a seed or two: no interval, but every comparison
+    assert "variant" not in out.split("mean ORI AUC over the 3 paper worlds")[1].split("\n\n")[0]

@@ -6,8 +6,8 @@ and two policies run with the same seed start from the same pose, so comparisons
 by seed. We use SciPy's resampling rather than code of our own:
 
 - **Interval** of a mean over seeds: ``scipy.stats.bootstrap`` (BCa, 10,000 resamples, a
-  fixed random seed so a table is reproducible), at 95 %. With fewer than 3 seeds, or all
-  values equal, the interval is the mean itself.
+  fixed random seed so a table is reproducible), at 95 %. With fewer than 3 seeds there is
+  none (NaN bounds); with all values equal, the interval is the mean itself.
 - **Paired comparison** of two policies (or mappers) by seed: the mean difference, its
   bootstrap interval, and the two-sided p-value of a sign-flip permutation test
   (``scipy.stats.permutation_test``, ``permutation_type="samples"``: exact over all 2^S
@@ -88,16 +88,18 @@ def paired(a, b, level: float = LEVEL) -> Paired:
 def tied_with_best(per_seed) -> dict:
     """{column: bool} for a table of values (S seeds x policies, a pandas DataFrame): the
     policy with the highest mean, and every policy a paired test by seed does not show to
-    be behind it (the ones results tables print in bold)."""
+    be behind it (the ones results tables print in bold). A policy missing some seeds (NaN)
+    is paired on the seeds both ran."""
     best = per_seed.mean().idxmax()
-    return {p: p == best or not paired(per_seed[p], per_seed[best]).significant for p in per_seed.columns}
+    return {p: p == best or not paired(*per_seed[[p, best]].dropna().T.to_numpy()).significant
+            for p in per_seed.columns}
 
 
 def bold_cells(per_seed, policies, text) -> list[str]:
     """A results table's cells for ``policies`` (columns of ``per_seed``, S seeds x
     policies): ``text(policy, interval)``, in bold where :func:`tied_with_best`."""
     tied = tied_with_best(per_seed)
-    cells = [text(p, interval(per_seed[p])) for p in policies]
+    cells = [text(p, interval(per_seed[p].dropna())) for p in policies]
     return [f"**{c}**" if tied[p] else c for p, c in zip(policies, cells)]
 
 
