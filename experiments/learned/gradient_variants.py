@@ -66,12 +66,8 @@ class GradTrueView(GradientNBVPolicy):
     def __init__(self, env):
         super().__init__(env, iterations=0)
 
-    def decide(self, state, ps, key):
-        self._state = state  # read by refine, within this same trace
-        return super().decide(state, ps, key)
-
-    def refine(self, opacity, table, weight, robot, starts):
-        return starts, jax.vmap(lambda q: ViewOracle.gain(self, self._state, q))(starts)
+    def refine(self, opacity, table, weight, state, starts):
+        return starts, jax.vmap(lambda q: ViewOracle.gain(self, state, q))(starts)
 
 
 class GradOracleTrueView(GradTrueView, GradOracle):

@@ -42,7 +42,12 @@ class ViewOracle(Policy):
         score = jax.vmap(lambda q: self.gain(state, q))(cands)
         if self.per_metre:
             score = score / (jnp.linalg.norm(cands[:, :2] - state.pose[:2], axis=-1) + 1.0)
-        score = score.at[0].set(jnp.where(driving(state), score[0], -1.0))  # kept only while driving to it
+        return self.choose(state, ps, cands, score)
+
+    def choose(self, state, ps, cands, score):
+        """The best of ``cands`` (1 + K, 3) by ``score`` (1 + K,), the kept target first and
+        kept only while driving to it, when a choice is due; else the kept target."""
+        score = score.at[0].set(jnp.where(driving(state), score[0], -1.0))
         due = ~driving(state) | (state.t - ps.chosen_at >= self.decide_every)
         target = jnp.where(due, cands[jnp.argmax(score)], ps.target)
         return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
@@ -76,8 +81,4 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
         both = jnp.sum((a[:, None] | b[None]).astype(jnp.float32), -1)  # (1 + draws, draws)
         legs = (jnp.linalg.norm(first[:, None, :2] - state.pose[:2], axis=-1)
                 + jnp.linalg.norm(second[None, :, :2] - first[:, None, :2], axis=-1))
-        score = jnp.max(both / (legs + 1.0), -1)
-        score = score.at[0].set(jnp.where(driving(state), score[0], -1.0))  # kept only while driving to it
-        due = ~driving(state) | (state.t - ps.chosen_at >= self.decide_every)
-        target = jnp.where(due, first[jnp.argmax(score)], ps.target)
-        return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
+        return self.choose(state, ps, first, jnp.max(both / (legs + 1.0), -1))

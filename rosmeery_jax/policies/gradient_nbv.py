@@ -142,12 +142,12 @@ class GradientNBVPolicy(ViewPolicy):
         p = coverage.observed_soft(table, self.cov, self.cam, pose, self.render(opacity, pose))
         return jnp.sum(weight * p)
 
-    def refine(self, opacity, table, weight, robot, starts) -> tuple[jax.Array, jax.Array]:
+    def refine(self, opacity, table, weight, state, starts) -> tuple[jax.Array, jax.Array]:
         """Adam on each start (M, 3); returns the refined views (M, 3) and their gains (M,)."""
         opt = optax.adam(self.lr)
 
         def objective(q):
-            travel = jnp.sqrt(jnp.sum((q[:2] - robot[:2]) ** 2) + 1e-6)
+            travel = jnp.sqrt(jnp.sum((q[:2] - state.pose[:2]) ** 2) + 1e-6)
             under = bilinear(opacity, self.coarse, q[None, :2])[0]
             return self.gain(opacity, table, weight, q) - self.distance_cost * travel - self.blocked_cost * under
 
@@ -173,7 +173,7 @@ class GradientNBVPolicy(ViewPolicy):
         centre = table.points[:2, pick].T  # (M, 2)
         xy = centre + self.ring
         face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])
-        views, gains = self.refine(opacity, table, weight, state.pose, jnp.concatenate([xy, face[:, None]], 1))
+        views, gains = self.refine(opacity, table, weight, state, jnp.concatenate([xy, face[:, None]], 1))
         return views.at[:, 2].set(grid.wrap_angle(views[:, 2])), gains
 
     def decide(self, state, ps: GradientNBVState, key):
