@@ -118,11 +118,40 @@ def test_procedural_names_load_everywhere_and_ranges_expand():
     ("procedural:office:1:floors=2", "floors"), ("procedural:office:1:rooms=two", "rooms"),
     ("procedural:office:1:rooms=0", "rooms"), ("procedural:office:1:objects=0", "objects"),
     ("procedural:office:1:objects=400", "objects"), ("procedural:office:1:clutter=2", "clutter"),
+    ("procedural:office:1:tuck=-0.1", "tuck"), ("procedural:office:1:tuck=x", "tuck"),
 ])
 def test_bad_procedural_names_are_one_clear_error(name, where):
     with pytest.raises(InputError) as err:
         parse_name(name)
     assert where in str(err.value) and "\n" not in str(err.value)
+
+
+def _chairs_under_tables(layout) -> list[float]:
+    """For each chair, how deep its plan rect reaches under a desk or table, as a share of
+    the chair's extent along that direction."""
+    tables = [it.rect for it in layout.items if it.piece.category in ("desk", "dining table")]
+    depths = []
+    for r in (it.rect for it in layout.items if it.piece.category == "chair"):
+        share = 0.0
+        for t in tables:
+            ox, oy = min(r.x1, t.x1) - max(r.x0, t.x0), min(r.y1, t.y1) - max(r.y0, t.y0)
+            if ox > 0 and oy > 0:  # the shallower overlap is the depth pushed in
+                share = max(share, ox / r.w if ox < oy else oy / r.h)
+        depths.append(share)
+    return depths
+
+
+def test_tuck_pushes_chairs_under_their_desk_by_at_most_half_their_depth():
+    assert all(d == 0 for d in _chairs_under_tables(generate(GenOptions("office", 3))))
+    tucked = generate(GenOptions("office", 3, tuck=1.0))
+    depths = _chairs_under_tables(tucked)
+    assert depths and all(0 <= d <= 0.5 + 1e-9 for d in depths)
+    assert sum(d > 0 for d in depths) >= len(depths) // 2  # a draw of 0 cm leaves a chair just touching
+    assert tucked.options.name == "procedural_office_3_t1"
+    assert parse_name("procedural:office:3:tuck=1") == GenOptions("office", 3, tuck=1.0)
+    world = load_world("procedural:office:3:tuck=1")
+    assert world.name == "procedural_office_3_t1" and world.truth.num_objects == len(tucked.items)
+    assert "--tuck 1" in tucked.xml() and "--tuck" not in generate(GenOptions("office", 3)).xml()
 
 
 def test_more_objects_than_fit_names_what_could_not_be_placed():
