@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import subprocess
 import sys
 
@@ -119,6 +120,7 @@ def test_procedural_names_load_everywhere_and_ranges_expand():
     ("procedural:office:1:rooms=0", "rooms"), ("procedural:office:1:objects=0", "objects"),
     ("procedural:office:1:objects=400", "objects"), ("procedural:office:1:clutter=2", "clutter"),
     ("procedural:office:1:tuck=-0.1", "tuck"), ("procedural:office:1:tuck=x", "tuck"),
+    ("procedural:office:1:turn=200", "turn"),
 ])
 def test_bad_procedural_names_are_one_clear_error(name, where):
     with pytest.raises(InputError) as err:
@@ -152,6 +154,17 @@ def test_tuck_pushes_chairs_under_their_desk_by_at_most_half_their_depth():
     world = load_world("procedural:office:3:tuck=1")
     assert world.name == "procedural_office_3_t1" and world.truth.num_objects == len(tucked.items)
     assert "--tuck 1" in tucked.xml() and "--tuck" not in generate(GenOptions("office", 3)).xml()
+
+
+def test_turn_leaves_chairs_askew_within_the_bound_and_nothing_else():
+    askew = generate(GenOptions("office", 3, tuck=1.0, turn=30))
+    assert askew.options.name == "procedural_office_3_t1_y30" and "--turn 30" in askew.xml()
+    # each body's yaw off its nearest quarter turn, in degrees
+    off = [math.degrees((b.pose[3] + math.pi / 4) % (math.pi / 2) - math.pi / 4) for b in askew.bodies()]
+    chairs = [o for o, b in zip(off, askew.bodies()) if b.category == "chair"]
+    assert chairs and all(abs(o) <= 30 + 1e-6 for o in chairs) and max(map(abs, chairs)) > 5
+    assert all(abs(o) < 1e-6 for o, b in zip(off, askew.bodies()) if b.category != "chair")
+    assert load_world("procedural:office:3:tuck=1:turn=30").truth.num_objects == len(askew.items)
 
 
 def test_more_objects_than_fit_names_what_could_not_be_placed():
