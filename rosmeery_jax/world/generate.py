@@ -2,8 +2,8 @@
 
 ``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
 world file in the format of ``rosmeery_jax/world/builtin/`` (it loads with ``load_world``). The
-name ``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X][:tuck=X][:turn=D]`` works wherever a world name
-does: the file is generated on first use into a cache folder (:func:`procedural_path`).
+name ``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X][:tuck=X][:turn=D]`` works
+wherever a world name does: the file is generated on first use into a cache folder (:func:`procedural_path`).
 
 How a world is made (all lengths whole centimetres, so the text is exact):
 
@@ -198,8 +198,8 @@ class Layout:
             sx, sy, sz = (v / 100 for v in it.size)
             parts = F.build(it.piece.template, (sx, sy, sz), (0.0, 0.0, sz / 2), **it.piece.kwargs, **it.colors)
             cx, cy = (it.rect.x0 + it.rect.x1) / 200, (it.rect.y0 + it.rect.y1) / 200
-            out.append(Body(f"{slug}_{n}", it.piece.category, (cx, cy, it.z / 100, it.k * math.pi / 2 + math.radians(it.turn)),
-                            parts))
+            yaw = it.k * math.pi / 2 + math.radians(it.turn)
+            out.append(Body(f"{slug}_{n}", it.piece.category, (cx, cy, it.z / 100, yaw), parts))
         return out
 
     def xml(self) -> str:
