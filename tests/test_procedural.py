@@ -120,7 +120,7 @@ def test_procedural_names_load_everywhere_and_ranges_expand():
     ("procedural:office:1:rooms=0", "rooms"), ("procedural:office:1:objects=0", "objects"),
     ("procedural:office:1:objects=400", "objects"), ("procedural:office:1:clutter=2", "clutter"),
     ("procedural:office:1:tuck=-0.1", "tuck"), ("procedural:office:1:tuck=x", "tuck"),
-    ("procedural:office:1:turn=200", "turn"),
+    ("procedural:office:1:turn=200", "turn"), ("procedural:office:1:islands=1.5", "islands"),
 ])
 def test_bad_procedural_names_are_one_clear_error(name, where):
     with pytest.raises(InputError) as err:
@@ -165,6 +165,20 @@ def test_turn_leaves_chairs_askew_within_the_bound_and_nothing_else():
     assert chairs and all(abs(o) <= 30 + 1e-6 for o in chairs) and max(map(abs, chairs)) > 5
     assert all(abs(o) < 1e-6 for o, b in zip(off, askew.bodies()) if b.category != "chair")
     assert load_world("procedural:office:3:tuck=1:turn=30").truth.num_objects == len(askew.items)
+
+
+def test_islands_set_desks_end_to_end_in_free_standing_rows_with_a_chair_and_monitor_each():
+    layout = generate(GenOptions("lab", 2, islands=1.0))
+    assert layout.options.name == "procedural_lab_2_i1" and "--islands 1" in layout.xml()
+    desks = [it for it in layout.items if it.piece.category == "desk"]
+    walls = [it for it in desks if any(abs(a - b) <= 2 for a, b in zip(it.rect, layout.rooms[it.room][1]))]
+    assert len(desks) >= 2 and not walls  # no desk against a wall
+    for d in desks:  # each desk touches another end to end or back to back, and has its chair
+        assert any(d is not e and d.rect.overlaps(e.rect.grow(1)) and d.size == e.size for e in desks)
+        assert sum(it.piece.category == "chair" and it.rect.overlaps(d.rect.grow(7)) for it in layout.items) >= 1
+    screens = [it for it in layout.items if it.piece.category == "monitor"]
+    assert all(any(s.z == d.top and s.rect.within(d.rect) for d in desks) for s in screens)
+    assert load_world("procedural:lab:2:islands=1").truth.num_objects == len(layout.items)
 
 
 def test_more_objects_than_fit_names_what_could_not_be_placed():

@@ -67,7 +67,7 @@ def _cmd_worlds(args) -> int:
 def _cmd_worlds_generate(args) -> int:
     if args.count < 1:
         raise InputError("command line", "--count", f"{args.count}: at least 1")
-    check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn), "command line")
+    check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands), "command line")
     if args.count > MAX_WORLDS:
         raise InputError("command line", "--count", f"{args.count}: at most {MAX_WORLDS:,} worlds at once")
     out = Path(args.out)
@@ -76,7 +76,7 @@ def _cmd_worlds_generate(args) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "--out", "exists and is not a folder")
     t0 = time.perf_counter()
-    layouts = [generate(GenOptions(args.kind, s, args.rooms, args.objects, args.clutter, args.tuck, args.turn))
+    layouts = [generate(GenOptions(args.kind, s, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands))
                for s in range(args.seed, args.seed + args.count)]  # all or nothing: generate, then write
     gen_s = time.perf_counter() - t0
     for layout in layouts:  # an edited world in --out refuses the whole command, before any write
@@ -427,6 +427,8 @@ def _worlds_parser(sub, d: SessionConfig) -> None:
                    help="share of chairs pushed in under their desk or table (0)")
     s.add_argument("--turn", type=float, default=0.0, metavar="DEG",
                    help="chairs at desks and tables turned by up to DEG degrees either way (0)")
+    s.add_argument("--islands", type=float, default=0.0, metavar="X",
+                   help="share of desk groups set as free-standing rows of desks (0)")
     s.add_argument("--out", required=True, metavar="DIR")
     s.add_argument("--check", action="store_true", help="also load every world with the loader's validation")
     s.set_defaults(func=_cmd_worlds_generate)
