@@ -64,10 +64,14 @@ def _cmd_worlds(args) -> int:
     return 0
 
 
+def _gen_options(args, seed: int) -> GenOptions:
+    return GenOptions(args.kind, seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands)
+
+
 def _cmd_worlds_generate(args) -> int:
     if args.count < 1:
         raise InputError("command line", "--count", f"{args.count}: at least 1")
-    check_options(GenOptions(args.kind, args.seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands), "command line")
+    check_options(_gen_options(args, args.seed), "command line")
     if args.count > MAX_WORLDS:
         raise InputError("command line", "--count", f"{args.count}: at most {MAX_WORLDS:,} worlds at once")
     out = Path(args.out)
@@ -76,7 +80,7 @@ def _cmd_worlds_generate(args) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "--out", "exists and is not a folder")
     t0 = time.perf_counter()
-    layouts = [generate(GenOptions(args.kind, s, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands))
+    layouts = [generate(_gen_options(args, s))
                for s in range(args.seed, args.seed + args.count)]  # all or nothing: generate, then write
     gen_s = time.perf_counter() - t0
     for layout in layouts:  # an edited world in --out refuses the whole command, before any write
