@@ -2,8 +2,9 @@
 
 ``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
 world file in the format of ``rosmeery_jax/world/builtin/`` (it loads with ``load_world``). The
-name ``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X][:tuck=X][:turn=D][:islands=X]`` works
-wherever a world name does: the file is generated on first use into a cache folder (:func:`procedural_path`).
+name ``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X][:tuck=X][:turn=D][:islands=X]``
+works wherever a world name does: the file is generated on first use into a cache folder
+(:func:`procedural_path`).
 
 How a world is made (all lengths whole centimetres, so the text is exact):
 
@@ -592,9 +593,9 @@ def _group(rng, name: str, room: _Room, placer: _Placer, o: GenOptions):
 
 def _leave_chairs(rng, items: list[Item], o: GenOptions) -> None:
     """Leave the floor chairs of a desk or table group (anchor first) as people do: each is
-    pushed in under the nearest desk or table with probability ``o.tuck``, by 0 to half its depth (cm, drawn
-    uniformly), and turned by up to ``o.turn`` degrees either way. Draws nothing when both
-    are 0, so worlds without them are those of before."""
+    pushed in under the nearest desk or table with probability ``o.tuck``, by 0 to half its
+    depth (cm, drawn uniformly), and turned by up to ``o.turn`` degrees either way. Draws
+    nothing when both are 0, so worlds without them are those of before."""
     tables = [it.rect for it in items if it.piece.category in ("desk", "dining table") and it.z == 0]
     if not (o.tuck or o.turn) or items[0].piece.category not in ("desk", "dining table"):
         return
