@@ -21,7 +21,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from rosmeery_jax.scoring import stats
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.scoring import results, stats
 from rosmeery_jax.scoring.metrics import summarize
 
 PAPER = ("kitchen", "laboratory", "small_office", "large_office")
@@ -133,13 +134,6 @@ def figures(df: pd.DataFrame, directory: Path) -> None:
     print(f"\nwrote {save_figure(fig, directory / 'ori.png')}")
 
 
-def _metrics(folder: Path) -> pd.DataFrame:
-    df = pd.read_csv(folder / "metrics.csv")
-    if "mapper" not in df.columns:
-        df["mapper"] = "oracle"
-    return df
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folder", nargs="?", default="results/learned_eval")
@@ -148,7 +142,7 @@ def main() -> None:
                     help="another results folder of the same worlds and seeds (repeatable)")
     ap.add_argument("--against", default="", help="compare every policy with this one, per world")
     args = ap.parse_args()
-    df = pd.concat([_metrics(Path(f)) for f in [args.folder, *args.more]], ignore_index=True)
+    df = pd.concat([results.load(f) for f in [args.folder, *args.more]], ignore_index=True)
     runs = per_run(df)
     policies = [p for p in POLICIES if p in set(runs.policy)] + sorted(set(runs.policy) - set(POLICIES))
     table(runs, policies)
@@ -160,4 +154,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except InputError as err:  # a folder that is not a results folder: one line, no traceback
+        raise SystemExit(f"error: {err}") from None

@@ -417,6 +417,12 @@ def _wall_rect(room: Rect, side: int, u0: int, u1: int, v0: int, v1: int) -> Rec
     return Rect(x1 - v1, y0 + u0, x1 - v0, y0 + u1)
 
 
+def _set_back(depth: int, piece_depth: int) -> int:
+    """How far (cm) a piece on a top ``depth`` deep stands from its back edge: a third of the
+    way in, 2 cm clear."""
+    return 2 + (depth - 4 - piece_depth) // 3
+
+
 def _wall_group(rng, room: Rect, key: str, front: list[str] = (), on: list[str] = (),
                 access: int = ACCESS):
     """``key`` against a random wall, pieces ``front`` facing it side by side in front of it,
@@ -444,7 +450,7 @@ def _wall_group(rng, room: Rect, key: str, front: list[str] = (), on: list[str] 
         if s[0] > slot or s[1] > size[1] - 4:
             continue
         u = t + i * slot + (slot - s[0]) // 2
-        back = GAP + 2 + (size[1] - 4 - s[1]) // 3
+        back = GAP + _set_back(size[1], s[1])
         items.append(Item(p, s, _wall_rect(room, side, u, u + s[0], back, back + s[1]), side, anchor.top, colors=c))
     zone = _wall_rect(room, side, t, t + size[0], v, v + access)
     return items, [zone]
@@ -509,7 +515,7 @@ def _island_group(rng, room: Rect):
             seat = Rect(u, v, u + cs[0], v + cs[1])
             mp, ms, mc = _draw(rng, "monitor")
             m = i * dw + (dw - ms[0]) // 2
-            off = 2 + (dd - 4 - ms[1]) // 3  # a third of the way in from the desk's back
+            off = _set_back(dd, ms[1])
             v = dd - off - ms[1] if row == 0 else dd + off
             screen = Rect(m, v, m + ms[0], v + ms[1])
             items += [desk, Item(cp, cs, seat, (k + 2) % 4, colors=cc), Item(mp, ms, screen, k, desk.top, colors=mc)]
@@ -596,9 +602,9 @@ def _leave_chairs(rng, items: list[Item], o: GenOptions) -> None:
     pushed in under the nearest desk or table with probability ``o.tuck``, by 0 to half its
     depth (cm, drawn uniformly), and turned by up to ``o.turn`` degrees either way. Draws
     nothing when both are 0, so worlds without them are those of before."""
-    tables = [it.rect for it in items if it.piece.category in ("desk", "dining table") and it.z == 0]
     if not (o.tuck or o.turn) or items[0].piece.category not in ("desk", "dining table"):
         return
+    tables = [it.rect for it in items if it.piece.category in ("desk", "dining table") and it.z == 0]
     for it in items[1:]:
         if it.piece.category != "chair" or it.z != 0:
             continue
