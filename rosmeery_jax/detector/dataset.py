@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import zlib
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 
 import cv2
@@ -33,7 +34,7 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.sim.raycast import ray_scene
+from rosmeery_jax.sim.raycast import SMALL_BITS, RayScene, ray_scene
 from rosmeery_jax.sim.sensors import CameraConfig, rgb
 from rosmeery_jax.world import load_world
 from rosmeery_jax.world.taxonomy import load_taxonomy
@@ -105,30 +106,44 @@ def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarra
     return np.concatenate([xy, yaw[:, None]], -1).astype(np.float32)
 
 
+SCENE_BUCKET = 128  # scenes are padded to a multiple of this many boxes: one compile per bucket
+
+
+@partial(xla.jit, static_argnames="cam")
+def _render(rs: RayScene, cam: CameraConfig, pose: jax.Array, scale: jax.Array):
+    """RGB (B, H, W, 3) and labels (B, H, W) at poses (B, 3) with colour scales (B, G + 1, 3)."""
+    g = rs.num_boxes
+
+    def one(p, s):
+        scene = rs._replace(rgb=jnp.clip(rs.rgb * s[:g], 0, 1), floor_rgb=jnp.clip(rs.floor_rgb * s[g], 0, 1))
+        return rgb(scene, cam, p)
+    return jax.vmap(one)(pose, scale)
+
+
 def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, batch: int = 64,
                  camera=None):
     """RGB (P, H, W, 3) uint8 and labels (P, H, W) at robot poses (P, 3); ``rgb_scale``
-    (P, G + 1, 3) multiplies each box's colour (last row: the floor) per frame."""
+    (P, G + 1, 3) multiplies each box's colour (last row: the floor) per frame.
+
+    The scene travels as an argument padded to a bucket of boxes (kept below the packed
+    key's small-scene size, so images are bitwise those of the unpadded scene): a dataset of
+    hundreds of worlds compiles a handful of times, not once per world."""
     cam = camera or CameraConfig()
-    rs = ray_scene(world.scene)
-    g = rs.num_boxes
+    g = ray_scene(world.scene).num_boxes
+    bucket = -(-g // SCENE_BUCKET) * SCENE_BUCKET
+    small = 2 ** SMALL_BITS
+    rs = ray_scene(world.scene, g if g < small <= bucket else bucket)
     if rgb_scale is None:
         rgb_scale = np.ones((len(poses), g + 1, 3), np.float32)
-
-    @xla.jit
-    def render(pose, scale):
-        def one(p, s):
-            scene = rs._replace(rgb=jnp.clip(rs.rgb * s[:g], 0, 1), floor_rgb=jnp.clip(rs.floor_rgb * s[g], 0, 1))
-            return rgb(scene, cam, p)
-        return jax.vmap(one)(pose, scale)
-
+    # padding boxes keep scale 1; the floor's row moves to the end
+    rgb_scale = np.concatenate([rgb_scale[:, :g], np.ones((len(poses), rs.num_boxes - g, 3), np.float32),
+                                rgb_scale[:, g:]], 1)
     imgs, labs = [], []
-    n = len(poses)
-    for i in range(0, n, batch):
+    for i in range(0, len(poses), batch):
         p, s = poses[i:i + batch], rgb_scale[i:i + batch]
         pad = batch - len(p)  # one compiled shape
-        out = render(jnp.asarray(np.concatenate([p, np.repeat(p[-1:], pad, 0)])),
-                     jnp.asarray(np.concatenate([s, np.repeat(s[-1:], pad, 0)])))
+        out = _render(rs, cam, jnp.asarray(np.concatenate([p, np.repeat(p[-1:], pad, 0)])),
+                      jnp.asarray(np.concatenate([s, np.repeat(s[-1:], pad, 0)])))
         imgs.append(np.asarray(out[0])[:len(p)])
         labs.append(np.asarray(out[1])[:len(p)])
     return np.concatenate(imgs), np.concatenate(labs)
