@@ -156,6 +156,37 @@ def test_dataset_frames_are_the_unpadded_scenes_bitwise_and_share_one_compile():
     assert dataset._render._cache_size() == 1
 
 
+def test_near_viewpoints_stand_close_to_their_object_where_the_robot_can_stand():
+    from rosmeery_jax.detector import dataset
+    from rosmeery_jax.world import load_world
+
+    w = load_world("large_office")
+    fs, centres = w.free_space, w.truth.bbox_center[:, :2]
+    ii, jj = np.nonzero(fs.reachable)
+    cell_xy = np.stack([fs.origin[0] + (jj + 0.5) * fs.resolution, fs.origin[1] + (ii + 0.5) * fs.resolution], -1)
+    gap = np.linalg.norm(cell_xy[None] - centres[:, None], axis=-1)
+    room = ((gap >= dataset.NEAR[0]) & (gap <= dataset.NEAR[1])).any(1)  # objects with a place to stand near
+    assert room.sum() >= 2 and not room.all()
+    pick = np.repeat(centres[[*np.flatnonzero(room)[:2], np.flatnonzero(~room)[0]]], 40, 0)
+    xy = np.zeros((120, 2))
+    which = np.arange(120) % 4 != 0  # a quarter stay where they were
+    moved = dataset._near(xy, pick, which, fs, ii, jj, np.random.default_rng(0))
+    d = np.linalg.norm(moved - pick, axis=-1)
+    slack = fs.resolution * np.sqrt(2) / 2  # a cell's centre within NEAR, the point anywhere in the cell
+    can = which & (np.arange(120) < 80)  # the third object has no place near: its viewpoints stay
+    assert (d[can] >= dataset.NEAR[0] - slack).all() and (d[can] <= dataset.NEAR[1] + slack).all()
+    assert (moved[~can] == 0).all()
+    cells = np.floor((moved[can] - fs.origin) / fs.resolution).astype(int)
+    assert fs.reachable[cells[:, 1], cells[:, 0]].all()
+    # through viewpoints: every pose reachable, and the aimed ones turned towards an object
+    near = dataset.viewpoints(w, dataset.DatasetConfig(per_world=200, aim=1.0, near=1.0), np.random.default_rng(3))
+    cells = np.floor((near[:, :2] - fs.origin) / fs.resolution).astype(int)
+    assert fs.reachable[cells[:, 1], cells[:, 0]].all()
+    ahead = centres[None] - near[:, None, :2]
+    off = np.abs(np.angle(np.exp(1j * (np.arctan2(ahead[..., 1], ahead[..., 0]) - near[:, 2:3])))).min(1)
+    assert np.median(off) < 0.35
+
+
 def test_visible_boxes_by_hand():
     seg = np.full((6, 8), -1, np.int32)
     seg[1:3, 2:5] = 7  # 6 px

@@ -213,7 +213,10 @@ def _cmd_detector_dataset(args) -> int:
     worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
-    cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed, balance=args.balance)
+    if not 0 <= args.near <= 1:
+        raise InputError("command line", "--near", f"{args.near} must be a share between 0 and 1")
+    cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed, balance=args.balance,
+                                near=args.near)
     with output_folder(out):
         summary = dataset.write(cfg, out, progress=not args.quiet)
     print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
@@ -549,6 +552,9 @@ def _detector_parser(sub, d: SessionConfig) -> None:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--balance", action="store_true",
                    help="aim at each object category equally often (more views of rare classes)")
+    s.add_argument("--near", type=float, default=0.0, metavar="X",
+                   help=f"share of the aimed viewpoints standing {dataset.NEAR[0]:g}-{dataset.NEAR[1]:g} m from their "
+                        "object (close, cut-off views; default 0)")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_detector_dataset)
     s = dsub.add_parser("train", help="train YOLO-v5 from scratch on a dataset folder (CPU)")

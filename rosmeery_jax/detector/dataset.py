@@ -52,6 +52,11 @@ class DatasetConfig:
     aim: float = 0.75  # share of viewpoints turned towards an object (the rest random yaw)
     balance: bool = False  # aim at each category equally often, not each object (rare classes
     # get more views: a world's one dining table as many as its twelve chairs)
+    near: float = 0.0  # share of aimed viewpoints standing NEAR metres from their object (close,
+    # cut-off views, as in small rooms; 0: wherever the robot can stand, as before)
+
+
+NEAR = (0.6, 2.0)  # metres from the aimed object's centre, for the ``near`` share
 
 
 def visible_boxes(labels: np.ndarray, min_pixels: int) -> np.ndarray:
@@ -101,9 +106,27 @@ def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarra
         pick = centres[rng.choice(len(centres), size=cfg.per_world, p=share)]
     else:  # uniform over objects (drawn as before ``balance`` existed: same datasets)
         pick = centres[rng.integers(len(centres), size=cfg.per_world)]
-    towards = np.arctan2(pick[:, 1] - xy[:, 1], pick[:, 0] - xy[:, 0]) + rng.normal(0, 0.35, cfg.per_world)
-    yaw = np.where(rng.random(cfg.per_world) < cfg.aim, towards, rng.uniform(-np.pi, np.pi, cfg.per_world))
-    return np.concatenate([xy, yaw[:, None]], -1).astype(np.float32)
+    noise = rng.normal(0, 0.35, cfg.per_world)
+    aimed = rng.random(cfg.per_world) < cfg.aim
+    yaw = rng.uniform(-np.pi, np.pi, cfg.per_world)
+    if cfg.near > 0:  # drawn after the rest: datasets without it are unchanged
+        xy = _near(xy, pick, aimed & (rng.random(cfg.per_world) < cfg.near), fs, ii, jj, rng)
+    towards = np.arctan2(pick[:, 1] - xy[:, 1], pick[:, 0] - xy[:, 0]) + noise
+    return np.concatenate([xy, np.where(aimed, towards, yaw)[:, None]], -1).astype(np.float32)
+
+
+def _near(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, fs, ii: np.ndarray, jj: np.ndarray,
+          rng: np.random.Generator) -> np.ndarray:
+    """xy (P, 2) with the viewpoints ``which`` (P,) moved to a random reachable cell within
+    :data:`NEAR` of their object's centre ``pick`` (P, 2) (left where they are if none is)."""
+    cells = np.stack([fs.origin[0] + (jj + 0.5) * fs.resolution, fs.origin[1] + (ii + 0.5) * fs.resolution], -1)
+    out = xy.copy()
+    for p in np.flatnonzero(which).tolist():
+        d = np.linalg.norm(cells - pick[p], axis=-1)
+        ok = np.flatnonzero((d >= NEAR[0]) & (d <= NEAR[1]))
+        if len(ok):
+            out[p] = cells[ok[rng.integers(len(ok))]] + (rng.random(2) - 0.5) * fs.resolution
+    return out
 
 
 SCENE_BUCKET = 128  # scenes are padded to a multiple of this many boxes: one compile per bucket
