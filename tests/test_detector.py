@@ -271,19 +271,36 @@ def test_shipped_weights_are_small_fp16_and_load():
     assert checkpoint.load(DEFAULT_WEIGHTS).nc == 27
 
 
-def test_the_held_out_detector_was_trained_on_generated_worlds_only():
-    """The weights carry their dataset's configuration; the manifest beside them lists the
-    same worlds, and every one is a procedural world (no paper world, no file)."""
+def test_the_default_detector_was_trained_on_generated_worlds_only():
+    """The default weights carry their dataset's configuration; the manifest of their recipe
+    lists the same worlds, and every one is a procedural world (no paper world, no file)."""
     import json
 
+    from rosmeery_jax.detector.detections import WEIGHTS
     from rosmeery_jax.world.generate import parse_name
 
-    folder = Path(__file__).resolve().parents[1] / "experiments" / "detector"
-    meta = torch.load(folder / "yolov5n_procedural.pt", weights_only=True)["meta"]
-    manifest = json.loads((folder / "dataset.json").read_text())["dataset"]
+    assert DEFAULT_WEIGHTS == WEIGHTS["procedural"] and DEFAULT_WEIGHTS.is_file()
+    meta = torch.load(DEFAULT_WEIGHTS, weights_only=True)["meta"]
+    recipe = Path(__file__).resolve().parents[1] / "experiments" / "detector"
+    manifest = json.loads((recipe / "dataset.json").read_text())["dataset"]
     assert meta["dataset"] == manifest and len(manifest["worlds"]) == 240
     kinds = {parse_name(w).kind for w in manifest["worlds"]}  # raises on any other name
     assert kinds == {"apartment", "office", "kitchen", "lab"}
+    paper = torch.load(WEIGHTS["paper_worlds"], weights_only=True)["meta"]["dataset"]["worlds"]
+    assert sorted(paper) == ["kitchen", "laboratory", "large_office", "small_office"]  # the named option
+
+
+def test_weights_are_named_or_a_path_and_a_bad_name_gives_one_line(tmp_path, capsys):
+    from rosmeery_jax.detector.detections import WEIGHTS, weights_file
+
+    assert weights_file(None) == weights_file("") == DEFAULT_WEIGHTS
+    assert weights_file("paper_worlds") == WEIGHTS["paper_worlds"] != DEFAULT_WEIGHTS
+    assert weights_file(tmp_path / "mine.pt") == tmp_path / "mine.pt"
+    code = main(["run", "--worlds", "small_office", "--policies", "random", "--seeds", "1", "--duration", "5",
+                 "--weights", "paper_world", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "weights" in err and "paper_worlds" in err and not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("detector", ["yolo", "oracle"])

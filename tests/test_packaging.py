@@ -20,7 +20,8 @@ def test_a_built_wheel_installed_outside_the_repo_finds_its_worlds(tmp_path):
     for world in ("kitchen", "laboratory", "small_office", "large_office"):
         assert f"rosmeery_jax/world/builtin/{world}.xml" in names
     assert {"rosmeery_jax/world/taxonomy.toml", "rosmeery_jax/apps/teleop/static/app.js",
-            "rosmeery_jax/detector/weights/yolov5n_rosmeery.pt"} <= names
+            "rosmeery_jax/detector/weights/yolov5n_procedural.pt",
+            "rosmeery_jax/detector/weights/yolov5n_paper_worlds.pt"} <= names
     site = tmp_path / "site"  # a fresh install target: the package from the wheel, nothing from the repo
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site), str(wheel)],
                    check=True, cwd=tmp_path)

@@ -25,7 +25,7 @@ from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector import runtime as runtimes
-from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 from rosmeery_jax.env import make
 from rosmeery_jax.rl import ppo
 from rosmeery_jax.scoring import evaluate as map_eval
@@ -252,7 +252,7 @@ def _cmd_detector_export(args) -> int:
             raise ValueError
     except ValueError:
         raise InputError("--size", "value", f"{args.size!r} is not WxH in whole pixels, e.g. 160x128") from None
-    model = checkpoint.load(Path(args.weights) if args.weights else DEFAULT_WEIGHTS)
+    model = checkpoint.load(weights_file(args.weights))
     size = runtimes.padded(h, w)
     runtimes.export(model, out, args.batch, *size)
     print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{size[0]}x{size[1]}")
@@ -270,7 +270,7 @@ def _positive(args, *names: str) -> None:
 def _cmd_detector_eval(args) -> int:
     from rosmeery_jax.detector.detections import YoloDetector  # torch (the detector extra): only here
 
-    weights = Path(args.weights) if args.weights else DEFAULT_WEIGHTS
+    weights = weights_file(args.weights)
     detector = YoloDetector((), weights, runtime=args.runtime)
     model = detector.model
     if args.data:
@@ -494,7 +494,7 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"(ground-truth labels of observed objects); default {d.detector}")
     p.add_argument("--conf-threshold", type=float, metavar="C", help=f"drop detections below C (default "
                    f"{d.conf_threshold:g})")
-    p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo (default: shipped)")
+    p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo: " + _WEIGHTS_HELP)
     p.add_argument("--detector-runtime", choices=runtimes.RUNTIMES, help="where YOLO's network runs (default "
                    f"{d.detector_runtime}; docs/detector.md)")
     p.add_argument("--metrics", metavar="M,N", help=f"active metrics (default: {','.join(d.metrics)})")
@@ -542,6 +542,9 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.set_defaults(func=_cmd_record)
 
 
+_WEIGHTS_HELP = f"a file, or the name of shipped weights: {', '.join(WEIGHTS)} (default: {next(iter(WEIGHTS))})"
+
+
 def _detector_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
     dsub = p.add_subparsers(dest="detector_command", required=True)
@@ -568,14 +571,14 @@ def _detector_parser(sub, d: SessionConfig) -> None:
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_detector_train)
     s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
-    s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
+    s.add_argument("--weights", metavar="FILE.pt", help=_WEIGHTS_HELP)
     s.add_argument("--data", metavar="DIR", help="a dataset folder (default: render the default held-out split)")
     s.add_argument("--runtime", default=runtimes.DEFAULT, choices=runtimes.RUNTIMES, help="where the network "
                    f"runs (default {runtimes.DEFAULT})")
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=_cmd_detector_eval)
     s = dsub.add_parser("export", help="write the network as an ONNX graph (for ONNX Runtime)")
-    s.add_argument("--weights", metavar="FILE.pt", help="default: the shipped weights")
+    s.add_argument("--weights", metavar="FILE.pt", help=_WEIGHTS_HELP)
     s.add_argument("--out", required=True, metavar="FILE.onnx")
     s.add_argument("--batch", type=int, default=32, help="frames per call (default 32, a session's)")
     s.add_argument("--size", default="160x128", metavar="WxH", help="frame size, padded to whole strides of 32 "
@@ -591,7 +594,7 @@ def _teleop_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--record", metavar="FILE.jsonl", help="default: recordings/<world>-<time>.jsonl")
     p.add_argument("--detector", default="yolo", choices=("yolo", "oracle", "off"))
     p.add_argument("--conf-threshold", type=float, default=d.conf_threshold, metavar="C")
-    p.add_argument("--weights", metavar="FILE.pt")
+    p.add_argument("--weights", metavar="FILE.pt", help=_WEIGHTS_HELP)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--view", default="blind", choices=("blind", "full"),
                    help="blind (default): only the map and the camera, as the paper's human saw; "

@@ -4,8 +4,9 @@ A detector takes a batch of RGB frames (I, H, W, 3) uint8 with their segmentatio
 (I, H, W) (object index per pixel, negative for walls / floor / nothing) and returns, per
 frame, arrays ``obj`` (D,), ``label`` (D,) taxonomy category index, ``conf`` (D,).
 
-- ``yolo``: the torch YOLO-v5 (the project's shipped weights by default, or any YOLO-v5
-  weights path; class names are matched to taxonomy categories by name, others dropped).
+- ``yolo``: the torch YOLO-v5 (by default the shipped weights trained on generated worlds
+  only, ``procedural``; ``paper_worlds`` those trained on the four paper worlds; or any
+  YOLO-v5 weights path; class names are matched to taxonomy categories by name, others dropped).
   A detection attaches to the object with the most pixels inside its box in the
   segmentation image, if that object covers at least ``MIN_SHARE`` of the box.
 - ``oracle``: simulated from ground truth, no torch, for fast sweeps. Confidence model: for
@@ -30,7 +31,18 @@ from rosmeery_jax.detector.boxes import nms
 from rosmeery_jax.detector.dataset import visible_boxes
 
 MIN_SHARE = 0.1  # share of a detection's box an object must cover to take the detection
-DEFAULT_WEIGHTS = Path(__file__).parent / "weights" / "yolov5n_rosmeery.pt"
+_FOLDER = Path(__file__).parent / "weights"
+WEIGHTS = {"procedural": _FOLDER / "yolov5n_procedural.pt",  # the default: trained on generated worlds only
+           "paper_worlds": _FOLDER / "yolov5n_paper_worlds.pt"}  # trained on the four paper worlds it is scored in
+DEFAULT_WEIGHTS = WEIGHTS["procedural"]
+
+
+def weights_file(weights: str | Path | None) -> Path:
+    """The weights file named by ``weights``: a name of :data:`WEIGHTS`, a path, or
+    None / "" for the default."""
+    if not weights:
+        return DEFAULT_WEIGHTS
+    return WEIGHTS.get(str(weights), Path(weights))
 
 
 def associate(boxes: np.ndarray, seg: np.ndarray) -> np.ndarray:
@@ -72,7 +84,7 @@ class YoloDetector:
 
         if threads:
             torch.set_num_threads(threads)
-        self.path = Path(weights) if weights else DEFAULT_WEIGHTS
+        self.path = weights_file(weights)
         self.model = checkpoint.load(self.path)
         index = {c: i for i, c in enumerate(categories)}
         self.class_map = np.array([index.get(n, -1) for n in self.model.names], np.int32)

@@ -16,6 +16,7 @@ from rosmeery_jax.core import overrides, plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import memory_bytes
 from rosmeery_jax.detector import runtime as runtimes
+from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.gym import AGENT, agent_class
 from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
@@ -49,7 +50,7 @@ class SessionConfig:
     duration: float = 300.0  # simulated seconds per run
     detector: str = "yolo"  # "yolo" (YOLO-v5n), "oracle" (simulated from ground truth), "off"
     conf_threshold: float = 0.25  # detections below it are dropped
-    weights: str = ""  # YOLO-v5 weights for "yolo" ("" = the shipped ones)
+    weights: str = ""  # YOLO-v5 weights for "yolo": a file, or "procedural" ("": the default) / "paper_worlds"
     detector_runtime: str = runtimes.DEFAULT  # where YOLO's network runs: torch, onnxruntime, openvino
     metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
     decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
@@ -101,8 +102,8 @@ class SessionConfig:
         _check_unique(self, worlds, source)
         if self.weights and self.detector != "yolo":
             raise InputError(source, "weights", f"{self.weights!r} is for --detector yolo, not {self.detector!r}")
-        if self.weights and not Path(self.weights).is_file():
-            raise InputError(source, "weights", f"{self.weights!r}: no such file")
+        if self.weights and not weights_file(self.weights).is_file():
+            raise InputError(source, "weights", f"{self.weights!r}: no such file (or a name: {', '.join(WEIGHTS)})")
         _check_devices(self, worlds, source)
         if self.detector == "yolo" and importlib.util.find_spec("torch") is None:  # found, not imported
             raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "

@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, claim_folder, require_same
-from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS
+from rosmeery_jax.detector.detections import weights_file
 from rosmeery_jax.gym import AGENT
 from rosmeery_jax.policies import REPLAY_PREFIX, LearnedPolicy, policy_class
 from rosmeery_jax.policies.learned import policy_file
@@ -56,7 +56,7 @@ def input_hashes(cfg: SessionConfig) -> dict:
            "policies": {p: _sha256(policy_file(p)) for p in cfg.policies
                         if not p.startswith(AGENT) and policy_class(p) is LearnedPolicy}}
     if cfg.detector == "yolo":
-        out["weights"] = _sha256(cfg.weights or DEFAULT_WEIGHTS)
+        out["weights"] = _sha256(weights_file(cfg.weights))
     return out
 
 
