@@ -74,13 +74,16 @@ def test_onnxruntime_float32_detections_equal_torchs(cache, frames, torch_detect
 
 
 def test_int8_detections_match_torchs_within_the_stated_tolerance(cache, frames, torch_detections):
-    """docs/detector.md: every torch detection has an int8 one of the same class with IoU >= 0.6
-    and a confidence within 0.2; at most 15 % more detections than torch."""
+    """docs/detector.md: at least 90 % of torch's detections, and every one with a confidence
+    of 0.5 or more, have an int8 one of the same class with IoU >= 0.6 and a confidence
+    within 0.2; the median IoU is above 0.85; at most 15 % more detections than torch."""
     got = YoloDetector((), runtime="onnxruntime-int8").forward(frames)
     iou, dconf, extra = _matches(torch_detections, got)
-    assert iou.min() >= 0.6 and dconf.max() <= 0.2
+    conf = np.concatenate([d[:, 4] for d in torch_detections])
+    match = (iou >= 0.6) & (dconf <= 0.2)
+    assert match.mean() >= 0.9 and match[conf >= 0.5].all()
+    assert np.median(iou) > 0.85
     assert extra <= 0.15 * len(iou)
-    assert np.median(iou) > 0.9
 
 
 def test_the_export_is_cached_by_content_and_shape_and_quantised_the_same_twice(cache, tmp_path):
