@@ -140,7 +140,7 @@ def test_dataset_frames_are_the_unpadded_scenes_bitwise_and_share_one_compile():
 
     worlds = [load_world(n) for n in ("kitchen", "large_office")]  # 205 and 226 boxes: one bucket
     poses = np.array([[0.5, 0.5, 0.3], [2.0, -1.0, 2.5], [-1.0, 2.0, -1.2]], np.float32)
-    dataset._render.clear_cache()
+    dataset.renderer().clear_cache()
     for w in worlds:
         rs = ray_scene(w.scene)
         scale = np.random.default_rng(0).uniform(0.6, 1.4, (len(poses), rs.num_boxes + 1, 3)).astype(np.float32)
@@ -153,7 +153,7 @@ def test_dataset_frames_are_the_unpadded_scenes_bitwise_and_share_one_compile():
         ref_img, ref_lab = jax.jit(jax.vmap(plain))(poses, scale)
         assert np.array_equal(img, np.asarray(ref_img)) and np.array_equal(lab, np.asarray(ref_lab))
         assert (lab >= 0).any()  # the poses see objects: the comparison is not of empty frames
-    assert dataset._render._cache_size() == 1
+    assert dataset.renderer()._cache_size() == 1
 
 
 def test_near_viewpoints_stand_close_to_their_object_where_the_robot_can_stand():
@@ -260,6 +260,14 @@ def test_training_from_scratch_on_a_tiny_generated_dataset_reduces_the_loss(tmp_
 def test_the_jax_core_never_imports_torch():
     code = ("import sys, rosmeery_jax, rosmeery_jax.env.environment, rosmeery_jax.session.runner, rosmeery_jax.scoring.metrics, "
             "rosmeery_jax.detector.dataset; assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_importing_the_command_line_starts_no_jax_backend():
+    """--devices makes host devices from the cores, which JAX allows only before it starts:
+    no import of the command line (session config, detector, dataset) may start it."""
+    code = ("import rosmeery_jax.apps.cli, rosmeery_jax.session.config, rosmeery_jax.detector.dataset; "
+            "from rosmeery_jax.core import xla; assert not xla.started(), 'JAX started on import'")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import zlib
 from dataclasses import asdict, dataclass
-from functools import partial
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -132,7 +132,6 @@ def _near(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, fs, ii: np.ndarra
 SCENE_BUCKET = 128  # scenes are padded to a multiple of this many boxes: one compile per bucket
 
 
-@partial(xla.jit, static_argnames="cam")
 def _render(rs: RayScene, cam: CameraConfig, pose: jax.Array, scale: jax.Array):
     """RGB (B, H, W, 3) and labels (B, H, W) at poses (B, 3) with colour scales (B, G + 1, 3)."""
     g = rs.num_boxes
@@ -141,6 +140,13 @@ def _render(rs: RayScene, cam: CameraConfig, pose: jax.Array, scale: jax.Array):
         scene = rs._replace(rgb=jnp.clip(rs.rgb * s[:g], 0, 1), floor_rgb=jnp.clip(rs.floor_rgb * s[g], 0, 1))
         return rgb(scene, cam, p)
     return jax.vmap(one)(pose, scale)
+
+
+@cache
+def renderer():
+    """The compiled :func:`_render`, one for the process (made on first use: compiling options
+    depend on JAX's backend, which importing this module must not start)."""
+    return xla.jit(_render, static_argnames="cam")
 
 
 def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, batch: int = 64,
@@ -165,8 +171,8 @@ def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, 
     for i in range(0, len(poses), batch):
         p, s = poses[i:i + batch], rgb_scale[i:i + batch]
         pad = batch - len(p)  # one compiled shape
-        out = _render(rs, cam, jnp.asarray(np.concatenate([p, np.repeat(p[-1:], pad, 0)])),
-                      jnp.asarray(np.concatenate([s, np.repeat(s[-1:], pad, 0)])))
+        out = renderer()(rs, cam, jnp.asarray(np.concatenate([p, np.repeat(p[-1:], pad, 0)])),
+                           jnp.asarray(np.concatenate([s, np.repeat(s[-1:], pad, 0)])))
         imgs.append(np.asarray(out[0])[:len(p)])
         labs.append(np.asarray(out[1])[:len(p)])
     return np.concatenate(imgs), np.concatenate(labs)
