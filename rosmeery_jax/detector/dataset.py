@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.sim.raycast import SMALL_BITS, RayScene, ray_scene
+from rosmeery_jax.sim.raycast import SMALL_BITS, RayScene, padded_boxes, ray_scene
 from rosmeery_jax.sim.sensors import CameraConfig, rgb
 from rosmeery_jax.world import load_world
 from rosmeery_jax.world.taxonomy import load_taxonomy
@@ -158,7 +158,7 @@ def render_world(world, poses: np.ndarray, rgb_scale: np.ndarray | None = None, 
     key's small-scene size, so images are bitwise those of the unpadded scene): a dataset of
     hundreds of worlds compiles a handful of times, not once per world."""
     cam = camera or CameraConfig()
-    g = ray_scene(world.scene).num_boxes
+    g = padded_boxes(world.scene.num_boxes)  # the colour scales' G
     bucket = -(-g // SCENE_BUCKET) * SCENE_BUCKET
     small = 2 ** SMALL_BITS
     rs = ray_scene(world.scene, g if g < small <= bucket else bucket)
@@ -210,7 +210,7 @@ def generate(cfg: DatasetConfig, splits: tuple[str, ...] = ("train", "val"), pro
         rng = np.random.default_rng([cfg.seed, w_i])
         poses = viewpoints(world, cfg, rng)
         val = _is_val(world.name, poses[:, :2], cfg)
-        scales = _perturbations(world, len(poses), cfg.perturb, rng, ray_scene(world.scene).num_boxes)
+        scales = _perturbations(world, len(poses), cfg.perturb, rng, padded_boxes(world.scene.num_boxes))
         scales[val] = 1.0
         keep = np.array([("val" if v else "train") in splits for v in val])
         idx = np.nonzero(keep)[0]

@@ -61,10 +61,15 @@ class Hit(NamedTuple):
     normal: jax.Array
 
 
+def padded_boxes(num_boxes: int) -> int:
+    """The boxes of a scene of ``num_boxes`` once padded to whole chunks (its RayScene's G)."""
+    return -(-num_boxes // CHUNK) * CHUNK
+
+
 def ray_scene(scene: Scene, boxes: int | None = None) -> RayScene:
     """Upload a world's scene, padded to ``boxes`` (at least its own) in whole chunks."""
     g = scene.num_boxes
-    pad = -(-max(g, boxes or 0) // CHUNK) * CHUNK - g
+    pad = padded_boxes(max(g, boxes or 0)) - g
     center = np.concatenate([scene.center, np.full((pad, 3), _FAR, np.float32)])
     half = np.concatenate([scene.half, np.full((pad, 3), 0.01, np.float32)])
     yaw = np.concatenate([scene.yaw, np.zeros(pad, np.float32)])
