@@ -257,6 +257,29 @@ def test_training_from_scratch_on_a_tiny_generated_dataset_reduces_the_loss(tmp_
     assert model.nc == 27 and next(model.parameters()).dtype == torch.float32
 
 
+def test_a_mosaic_puts_each_frame_at_half_size_in_its_quadrant_with_its_boxes():
+    from rosmeery_jax.detector.train import augment, mosaic
+
+    tiles = torch.stack([torch.full((3, 8, 12), float(q)) for q in range(4)])  # frame q is all q
+    rows = [np.array([[q, 0.5, 0.5, 0.5, 0.5]], np.float32) for q in range(4)]  # a 6 x 4 box in the middle
+    img, out = mosaic(tiles, rows)
+    assert img.shape == (3, 8, 12)
+    for q in range(4):  # quadrant q (6 x 4 pixels) holds frame q, and its box: 3 x 2 pixels at its middle
+        y, x = q // 2 * 4, q % 2 * 6
+        assert torch.all(img[:, y:y + 4, x:x + 6] == q)
+        np.testing.assert_allclose(out[q], [q, (x + 3) / 12, (y + 2) / 8, 3 / 12, 2 / 8], atol=1e-6)
+    tiny = [np.array([[0, 0.5, 0.5, 3 / 12, 0.5]], np.float32)] + rows[1:]  # 3 px wide: 1.5 at half size
+    assert list(mosaic(tiles, tiny)[1][:, 0]) == [1, 2, 3]
+    x = torch.rand(4, 3, 8, 12)
+    a, b = augment(x, rows, np.random.default_rng(5)), augment(x, rows, np.random.default_rng(5), 0.0)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])  # mosaic 0: the augmentation as without it
+    big = [np.array([[q, 0.5, 0.5, 0.3, 0.3]], np.float32) for q in range(4)]
+    _, t = augment(torch.rand(4, 3, 48, 64), big, np.random.default_rng(5), 1.0)
+    per_image = np.bincount(t[:, 0].int().numpy(), minlength=4)
+    assert per_image.min() >= 1 and per_image.max() == 4  # one box a frame: four only in a mosaic (a zoom
+    # may cut up to three)
+
+
 def test_the_jax_core_never_imports_torch():
     code = ("import sys, rosmeery_jax, rosmeery_jax.env.environment, rosmeery_jax.session.runner, rosmeery_jax.scoring.metrics, "
             "rosmeery_jax.detector.dataset; assert 'torch' not in sys.modules, 'torch imported'")

@@ -3,10 +3,11 @@
 Recipe (chosen for short CPU schedules, where AdamW converges faster than the official SGD):
 AdamW, lr 1e-3 with one warm-up epoch then cosine decay to 1e-5, weight decay 5e-4 on
 convolution weights only; an exponential moving average of the weights (decay 0.999,
-ramped) is what gets evaluated and saved; augmentation: horizontal flip, random zoom-crop
-(scale 0.7-1) and brightness / contrast / per-channel gain jitter. The loss is the
-official one (:mod:`.loss`). Every epoch logs the mean losses and the validation mAP@0.5
-to ``log.csv``; the weights with the best validation mAP are saved (fp16 state dict).
+ramped) is what gets evaluated and saved; augmentation: optionally a 2 x 2 mosaic of four
+frames at half size (``mosaic``), horizontal flip, random zoom-crop (scale 0.7-1) and
+brightness / contrast / per-channel gain jitter. The loss is the official one
+(:mod:`.loss`). Every epoch logs the mean losses and the validation mAP@0.5 to ``log.csv``;
+the weights with the best validation mAP are saved (fp16 state dict).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ class TrainConfig:
     seed: int = 0
     threads: int = 2
     max_images: int = 0  # 0 = the whole training split (a cap for quick tests)
+    mosaic: float = 0.0  # share of training images made a 2 x 2 mosaic at half size (far views)
 
 
 class EMA:
@@ -61,12 +63,45 @@ class EMA:
                 v.copy_(msd[k])
 
 
-def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator):
-    """x (I, 3, H, W) in [0, 1], YOLO rows per image -> augmented batch and targets (T, 6)."""
+def _to_corners(r: np.ndarray, w: int, h: int) -> np.ndarray:
+    """YOLO rows (k, 5) -> (k, 4) pixel corners x1 y1 x2 y2."""
+    return np.stack([(r[:, 1] - r[:, 3] / 2) * w, (r[:, 2] - r[:, 4] / 2) * h,
+                     (r[:, 1] + r[:, 3] / 2) * w, (r[:, 2] + r[:, 4] / 2) * h], -1)
+
+
+def _to_rows(cls: np.ndarray, b: np.ndarray, w: int, h: int) -> np.ndarray:
+    """Classes (k,) and pixel corners (k, 4) -> YOLO rows (k, 5)."""
+    return np.stack([cls, (b[:, 0] + b[:, 2]) / 2 / w, (b[:, 1] + b[:, 3]) / 2 / h,
+                     (b[:, 2] - b[:, 0]) / w, (b[:, 3] - b[:, 1]) / h], -1).astype(np.float32)
+
+
+def mosaic(tiles: torch.Tensor, rows: list[np.ndarray]) -> tuple[torch.Tensor, np.ndarray]:
+    """Four images (4, 3, H, W) at half size in a 2 x 2 grid (YOLOv5's mosaic, without its
+    random centre): one image (3, H, W) whose objects look as from twice as far, and the
+    four images' rows moved into their quadrants (boxes under 2 pixels a side dropped)."""
+    _, _, h, w = tiles.shape
+    small = F.interpolate(tiles, size=(h // 2, w // 2), mode="area")
+    img = torch.cat([torch.cat([small[0], small[1]], -1), torch.cat([small[2], small[3]], -1)], -2)
+    img = F.pad(img, (0, w - 2 * (w // 2), 0, h - 2 * (h // 2)), mode="replicate")
+    out = []
+    for q, r in enumerate(rows):
+        b = _to_corners(r, w, h) / 2 + np.array([q % 2 * (w // 2), q // 2 * (h // 2)] * 2)
+        keep = (b[:, 2] - b[:, 0] >= 2) & (b[:, 3] - b[:, 1] >= 2)
+        out.append(_to_rows(r[keep, 0], b[keep], w, h))
+    return img, np.concatenate(out) if out else np.zeros((0, 5), np.float32)
+
+
+def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator, mosaic_share: float = 0.0):
+    """x (I, 3, H, W) in [0, 1], YOLO rows per image -> augmented batch and targets (T, 6).
+    With probability ``mosaic_share`` an image becomes a :func:`mosaic` of itself and three
+    others of the batch; then zoom-crop, flip and colour jitter."""
     n, _, h, w = x.shape
     out, targets = torch.empty_like(x), []
     for i in range(n):
         img, r = x[i], rows[i].copy()
+        if mosaic_share > 0 and rng.random() < mosaic_share:  # no draw without it: same runs as before
+            pick = np.r_[i, rng.choice(np.delete(np.arange(n), i), 3, replace=n < 4)] if n > 1 else np.zeros(4, int)
+            img, r = mosaic(x[pick], [rows[j] for j in pick])
         s = rng.uniform(0.7, 1.0) if rng.random() < 0.5 else 1.0
         if s < 1.0:  # zoom: crop a window of scale s, resize back; boxes follow and are clipped
             cw, ch = s * w, s * h
@@ -76,17 +111,14 @@ def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator):
                                 mode="bilinear", align_corners=False)[0]
             if len(r):
                 sx, sy = w / int(cw), h / int(ch)
-                b = np.stack([(r[:, 1] - r[:, 3] / 2) * w, (r[:, 2] - r[:, 4] / 2) * h,
-                              (r[:, 1] + r[:, 3] / 2) * w, (r[:, 2] + r[:, 4] / 2) * h], -1)
+                b = _to_corners(r, w, h)
                 nb = np.stack([(b[:, 0] - x0i) * sx, (b[:, 1] - y0i) * sy, (b[:, 2] - x0i) * sx,
                                (b[:, 3] - y0i) * sy], -1)
                 area0 = (nb[:, 2] - nb[:, 0]) * (nb[:, 3] - nb[:, 1])
                 nb = np.clip(nb, 0, [w, h, w, h])
                 area = (nb[:, 2] - nb[:, 0]) * (nb[:, 3] - nb[:, 1])
                 keep = (area > 0.4 * area0) & (nb[:, 2] - nb[:, 0] > 3) & (nb[:, 3] - nb[:, 1] > 3)
-                nb, r = nb[keep], r[keep]
-                r = np.stack([r[:, 0], (nb[:, 0] + nb[:, 2]) / 2 / w, (nb[:, 1] + nb[:, 3]) / 2 / h,
-                              (nb[:, 2] - nb[:, 0]) / w, (nb[:, 3] - nb[:, 1]) / h], -1).astype(np.float32)
+                r = _to_rows(r[keep, 0], nb[keep], w, h)
         if rng.random() < 0.5:
             img = img.flip(-1)
             r[:, 1] = 1 - r[:, 1]
@@ -145,7 +177,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
             for b in bar:
                 idx = order[b * cfg.batch:(b + 1) * cfg.batch]
                 x = torch.from_numpy(images[idx]).permute(0, 3, 1, 2).float() / 255
-                x, targets = augment(x, [rows[i] for i in idx], rng)
+                x, targets = augment(x, [rows[i] for i in idx], rng, cfg.mosaic)
                 for g in opt.param_groups:
                     g["lr"] = lr_at(step)
                 loss, parts = compute_loss(model(x), targets)
