@@ -36,7 +36,7 @@ class OneView(PerceivedMapper):
     name = "one_view"
 
     def __init__(self, camera, categories=()):
-        super().__init__(camera, categories, PerceivedConfig(min_views=1))
+        super().__init__(camera, categories, PerceivedConfig(min_views=1, min_conf=0.0))
 """
 KEY = ["world", "policy", "mapper", "seed", "metric", "time_s"]
 

@@ -43,9 +43,12 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    (they come most confident first) is no candidate, and is not merged (two boxes in one
    frame are two objects).
 5. **Label**: an instance holds the label of its most confident detection so far.
-6. **Confirmation**: an instance enters the map once ``min_views`` detections support it (a
-   spurious box in one frame never does; a frame sent again by a robot at rest counts
-   again, as it would for any mapper fed that stream).
+6. **Confirmation**: an instance enters the map once ``min_views`` detections support it
+   and one of them had confidence ``min_conf`` or more (a spurious box in one frame never
+   does; a frame sent again by a robot at rest counts again, as it would for any mapper fed
+   that stream). Less confident detections still join instances and grow them, but found
+   none that the map shows: most boxes under 0.6 are a part of an object another instance
+   holds under another label (a chair's back as a monitor, a table's end as a bed).
 7. **Growth from the whole frame**: of the frame's segments (rule 2), a segment whose cells
    are at least ``grow`` held by one confirmed instance is that instance seen again, boxed or
    not (the detector missed it, or its box cut it short): its points in the instance's cells
@@ -107,7 +110,8 @@ class PerceivedConfig:
     overlap: float = 0.2  # share of a detection's cells an instance must hold to take it,
     same_overlap: float = 0.05  # or, if it carries the detection's label, this share (rule 4)
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
-    min_views: int = 2  # detections that confirm an instance (rule 6)
+    min_views: int = 2  # detections that confirm an instance (rule 6),
+    min_conf: float = 0.6  # one of them at least this confident (rule 6; 0: any the session passes)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
     depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
     absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
@@ -180,7 +184,11 @@ class PerceivedMapper(Mapper):
     @property
     def instances(self) -> int:
         """Instances in the map (confirmed, and not merged into another)."""
-        return sum(1 for i, p in enumerate(self.parent) if p == i and self.views[i] >= self.cfg.min_views)
+        return int((self._confirmed() & (self._roots()[:-1] == np.arange(len(self.parent)))).sum())
+
+    def _confirmed(self) -> np.ndarray:
+        """(I,) which instances are confirmed (rule 6)."""
+        return (np.array(self.views, np.int64) >= self.cfg.min_views) & (np.array(self.conf, np.float32) >= self.cfg.min_conf)
 
     def add(self, frame: Frame) -> None:
         self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)
@@ -271,7 +279,7 @@ class PerceivedMapper(Mapper):
         pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
         seg, cell_of = pairs // len(cells), pairs % len(cells)  # each pair's segment and index into cells
         root = self._roots()
-        confirmed = np.r_[np.array(self.views) >= self.cfg.min_views, False]  # index -1: no instance
+        confirmed = np.r_[self._confirmed(), False]  # index -1: no instance
         held = root[self.claimed.get(cells)][cell_of]  # looked up once per cell, not per pair
         held = np.where(confirmed[held], held, -1)
         beside = root[self.cells.get(cells)][cell_of]  # the instance seen in the cell or next to it
@@ -417,7 +425,7 @@ class PerceivedMapper(Mapper):
     def _publish(self, inst: int) -> None:
         """A confirmed instance's pending points join the map's end (rule 6), but for those
         in a wall's cells (rule 10: the wall may have been found since they were seen)."""
-        if self.views[inst] >= self.cfg.min_views and self.pending[inst]:
+        if self.views[inst] >= self.cfg.min_views and self.conf[inst] >= self.cfg.min_conf and self.pending[inst]:
             pts = np.concatenate(self.pending[inst])
             self.pending[inst] = []
             cell = self._plan_cells(pts[:, 0], pts[:, 1])
