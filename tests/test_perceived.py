@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -53,7 +55,7 @@ FRAME = """
 </body>
 """
 POSE = np.array([0.0, 1.6, -np.pi / 2], np.float32)  # looking down -y at both objects
-ONE = PerceivedConfig(min_views=1, min_conf=0.0)  # instances in the map from their first detection, any confidence
+ONE = PerceivedConfig(min_views=1, min_conf=0.0)  # instances in the map from the first detection, however sure
 
 
 @pytest.fixture(scope="module")
@@ -285,7 +287,7 @@ def test_a_boxs_wall_pixels_are_not_kept(scenes, tmp_path):
     inside[y1:y2, x1:x2] = True
     assert (inside & (label < 0) & (depth > 0)).sum() > (inside & (label == 0)).sum()  # more wall than chair
     kept = {}
-    for name, cfg in (("segments", ONE), ("no cut", PerceivedConfig(min_views=1, min_conf=0.0, edge_abs=10.0, inside=0.0))):
+    for name, cfg in (("segments", ONE), ("no cut", replace(ONE, edge_abs=10.0, inside=0.0))):
         m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
         m.fold(POSE, depth, loose, np.array([0]), np.array([0.9], np.float32))
         kept[name] = score(env.world, _as_map(tmp_path / name, env, m))
@@ -302,7 +304,7 @@ def test_a_wall_seen_through_a_thin_object_is_not_taken_for_it(scenes, tmp_path)
     assert 0.05 < frame_share < 0.2  # the bars hold too little of their box's pixels to be the object for sure
     kept = {}
     for name, behind in (("default", PerceivedConfig().behind), ("off", np.inf)):
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, min_conf=0.0, behind=behind))
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, behind=behind))
         m.fold(POSE, depth, boxes, np.array([0]), np.array([0.9], np.float32))
         kept[name] = m.semantic_map().points
     assert len(kept["default"]) == 0  # the wall behind the bars is background: the detection adds nothing
@@ -316,7 +318,7 @@ def test_a_wall_seen_above_every_object_is_cut_from_the_chair_against_it(scenes,
     obj, boxes = _tight(label)
     kept = {}
     for name, above in (("walls", PerceivedConfig().wall_above), ("off", np.inf)):
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, min_conf=0.0, wall_above=above))
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, wall_above=above))
         m.fold(POSE, depth, boxes, np.array([0]), np.array([0.9], np.float32))
         kept[name] = m.semantic_map().points
     assert len(kept["off"]) == 0  # one segment with the walls, running past the box: nothing
@@ -408,7 +410,7 @@ def test_two_instances_of_one_object_merge_when_a_view_spans_both(scenes):
     third = (desk[2] - desk[0]) / 3
     parts = np.array([[desk[0], desk[1], desk[0] + third, desk[3]], [desk[2] - third, desk[1], desk[2], desk[3]]],
                      np.float32)
-    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, min_conf=0.0, inside=0.0))  # a part
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0))  # a part
     # box's segment runs on past it, into the rest of the desk
     scorer = OnlineScorer(env.world, 0.05)
     for part in parts:
@@ -438,7 +440,7 @@ def test_an_instance_grows_into_its_object_from_frames_without_its_box(scenes, t
     env, depth, label, boxes, depth2, _ = _two_views(scenes)
     maps = {}
     for grow in (0.5, 0.0):
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, min_conf=0.0, grow=grow))
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, grow=grow))
         m.fold(POSE, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
         before = _log(env, m).ps[0]
         m.fold(NEAR, depth2, *NONE)
@@ -459,7 +461,7 @@ def test_growth_stops_at_the_wall_behind_and_the_object_beside(scenes, tmp_path,
     start = POSE + np.array([-1.0 if scene == "flush" else 0.0, 0.0, 0.0], np.float32)
     env, depth, label = _frame(scenes, scene, start)
     _, boxes = _tight(label)
-    m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, min_conf=0.0, inside=0.0))
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0))
     m.fold(start, depth, boxes[:1], np.array([0]), np.array([0.9], np.float32))
     boxed = score(env.world, _as_map(tmp_path / "boxed", env, m))
     for dx in (-0.2, -0.1, 0.1, 0.2):  # the robot sidesteps: each frame a new one, none with a box
@@ -493,7 +495,7 @@ def test_depth_between_detector_frames_grows_the_object_and_nothing_else(scenes,
     poses = [start + np.array([dx, -0.1, 0.0], np.float32) for dx in (-0.2, -0.1, 0.1, 0.2)]
     out = {}
     for every in (1, 0):
-        cfg = PerceivedConfig(min_views=1, min_conf=0.0, depth_every=every, inside=0.0 if scene == "flush" else 0.5)
+        cfg = replace(ONE, depth_every=every, inside=0.0 if scene == "flush" else 0.5)
         m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
         m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
         boxed = score(env.world, _as_map(tmp_path / f"boxed{every}", env, m))
@@ -527,7 +529,7 @@ def test_the_depth_between_two_detector_frames_is_folded_together(scenes, tmp_pa
     _, boxes = _tight(label)
     off = {}
     for read_each in (False, True):
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=PerceivedConfig(min_views=1, min_conf=0.0, inside=0.0, grow=0.01))
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0, grow=0.01))
         m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
         for k in range(20):
             m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
