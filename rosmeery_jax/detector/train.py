@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.detector import checkpoint
 from rosmeery_jax.detector.dataset import read
-from rosmeery_jax.detector.evaluate import evaluate, model_detections
+from rosmeery_jax.detector.evaluate import evaluate, model_detections, rows_to_xyxy
 from rosmeery_jax.detector.loss import YoloLoss
 from rosmeery_jax.detector.yolo import YOLOv5
 
@@ -63,12 +63,6 @@ class EMA:
                 v.copy_(msd[k])
 
 
-def _to_corners(r: np.ndarray, w: int, h: int) -> np.ndarray:
-    """YOLO rows (k, 5) -> (k, 4) pixel corners x1 y1 x2 y2."""
-    return np.stack([(r[:, 1] - r[:, 3] / 2) * w, (r[:, 2] - r[:, 4] / 2) * h,
-                     (r[:, 1] + r[:, 3] / 2) * w, (r[:, 2] + r[:, 4] / 2) * h], -1)
-
-
 def _to_rows(cls: np.ndarray, b: np.ndarray, w: int, h: int) -> np.ndarray:
     """Classes (k,) and pixel corners (k, 4) -> YOLO rows (k, 5)."""
     return np.stack([cls, (b[:, 0] + b[:, 2]) / 2 / w, (b[:, 1] + b[:, 3]) / 2 / h,
@@ -85,7 +79,7 @@ def mosaic(tiles: torch.Tensor, rows: list[np.ndarray]) -> tuple[torch.Tensor, n
     img = F.pad(img, (0, w - 2 * (w // 2), 0, h - 2 * (h // 2)), mode="replicate")
     out = []
     for q, r in enumerate(rows):
-        b = _to_corners(r, w, h) / 2 + np.array([q % 2 * (w // 2), q // 2 * (h // 2)] * 2)
+        b = rows_to_xyxy(r, h, w) / 2 + np.array([q % 2 * (w // 2), q // 2 * (h // 2)] * 2)
         keep = (b[:, 2] - b[:, 0] >= 2) & (b[:, 3] - b[:, 1] >= 2)
         out.append(_to_rows(r[keep, 0], b[keep], w, h))
     return img, np.concatenate(out) if out else np.zeros((0, 5), np.float32)
@@ -111,7 +105,7 @@ def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator, m
                                 mode="bilinear", align_corners=False)[0]
             if len(r):
                 sx, sy = w / int(cw), h / int(ch)
-                b = _to_corners(r, w, h)
+                b = rows_to_xyxy(r, h, w)
                 nb = np.stack([(b[:, 0] - x0i) * sx, (b[:, 1] - y0i) * sy, (b[:, 2] - x0i) * sx,
                                (b[:, 3] - y0i) * sy], -1)
                 area0 = (nb[:, 2] - nb[:, 0]) * (nb[:, 3] - nb[:, 1])
