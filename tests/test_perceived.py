@@ -20,6 +20,7 @@ from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
 from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _first_claims, _keys, _Rows, _Table
 from rosmeery_jax.sim.sensors import rgbd
+from rosmeery_jax.world.taxonomy import load_taxonomy
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
 
 # Apart: a chair (0.4 m cube) and a desk (0.6 m cube) 2 m apart; together: the same two
@@ -578,6 +579,29 @@ def test_a_small_instance_over_a_larger_one_of_its_label_merges_into_it(scenes, 
     assert (roots[part] == desk) == merged
     points, instance, labels, _ = m.semantic_map()
     assert len(points) == len(DESK) + 121 and set(labels[np.unique(instance)]) == {4, label}
+
+
+@pytest.mark.parametrize("under, over, where, merged", [
+    ("chair", "monitor", (0.3, 0.55), True),  # a chair's back boxed as a monitor: part of the chair, still a chair
+    ("chair", "monitor", (1.5, 1.75), False),  # beside the chair: a monitor of its own
+    ("desk", "monitor", (0.3, 0.55), False),  # over a desk, on which monitors stand: a monitor of its own
+    ("chair", "desk", (0.3, 0.55), False),  # a desk over a chair: the chair tucked under it
+])
+def test_a_thing_set_on_furniture_over_a_chair_is_a_part_of_it(scenes, under, over, where, merged):
+    """Nothing is set on seating (``bare``): an instance labelled as a thing set on furniture
+    (``placed``) mostly over a much larger chair's floor area is a part of it, and the chair
+    keeps its label."""
+    env, _ = scenes["apart"]
+    names = tuple(load_taxonomy().names)
+    m = PerceivedMapper(Camera.of(env.config.camera), names)
+    whole = _seen(m, DESK, names.index(under))
+    part = _seen(m, _patch(where, where, (0.9, 0.9)), names.index(over))
+    m.conf[part] = np.float32(0.95)  # surer than the chair's 0.9: still not its label
+    m._absorb()
+    assert (m._roots()[part] == whole) == merged and m.instances == (1 if merged else 2)
+    _, instance, labels, _ = m.semantic_map()
+    held = {names[i] for i in labels[np.unique(instance)]}
+    assert held == ({under} if merged else {under, over})
 
 
 @pytest.mark.parametrize("x1, merged", [(0.70, True), (0.75, False)])

@@ -67,8 +67,11 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    ``absorb_margin``) is a part of that one (a chair's seat and its back, cut apart at a
    depth discontinuity; a desk's top and the panel below it): it merges into it. An
    object's parts stand one above another; two objects of one label stand side by side,
-   and neither lies over the other's floor area. Instances are checked after each frame
-   whose points changed them, the smallest first.
+   and neither lies over the other's floor area. Nothing is set on seating (``bare``), so
+   an instance labelled as a thing set on furniture (``placed``: a monitor, a book) over a
+   chair's, couch's or bench's floor area is its part (a chair's back boxed as a monitor),
+   and the seat keeps its label; a desk over a chair is a chair tucked under it. Instances
+   are checked after each frame whose points changed them, the smallest first.
 10. **Walls**: nothing but walls stands higher than ``wall_above``, so a plan-view cell
    (``wall_cell``) in which any frame's depth point stood higher is a wall's, and the
    pixels of every later frame in it are dropped before rule 2 (with the pixels of the
@@ -118,6 +121,8 @@ class PerceivedConfig:
     absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
     absorb_margin: float = 0.1  # makes it part of that one (inf: off); m: the box widened by this;
     absorb_size: float = 0.5  # the smaller holds fewer points than this share of the larger's
+    bare: tuple[str, ...] = ("chair", "couch", "bench")  # rule 9: nothing is set on these, so one of the
+    placed: tuple[str, ...] = ("monitor", "tv", "laptop", "book", "vase")  # things set on furniture over one is its part
     wall_above: float = 2.2  # m: rule 10: a point higher than this is a wall's (inf: off);
     wall_cell: float = 0.1  # m: the plan-view cells of the walls
 
@@ -177,6 +182,8 @@ class PerceivedMapper(Mapper):
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self.walls = _Table()  # plan-view cell key -> 0 where a wall stands (rule 10)
+        names = np.array(categories, dtype=object)
+        self._bare, self._placed = np.flatnonzero(np.isin(names, cfg.bare)), np.flatnonzero(np.isin(names, cfg.placed))
         self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
         self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
@@ -412,11 +419,12 @@ class PerceivedMapper(Mapper):
         self.count.append(0)
         return len(self.parent) - 1
 
-    def _merge(self, j: int, into: int) -> None:
-        """Instance j becomes part of ``into``: its points, views and (if more confident) label."""
+    def _merge(self, j: int, into: int, relabel: bool = True) -> None:
+        """Instance j becomes part of ``into``: its points, views and (if more confident, and
+        ``relabel``) label."""
         self.parent[j] = into
         self.views[into] += self.views[j]
-        if self.conf[j] > self.conf[into]:
+        if relabel and self.conf[j] > self.conf[into]:
             self.label[into], self.conf[into] = self.label[j], self.conf[j]
         self.label[j], self.conf[j] = -1, np.float32(0.0)
         self.pending[into] += self.pending[j]
@@ -468,8 +476,9 @@ class PerceivedMapper(Mapper):
 
     def _absorb(self) -> None:
         """Rule 9: each confirmed instance mostly over the widened plan-view box of a much
-        larger one of its label merges into it (of several, the one it lies over most), the
-        smallest first; only pairs of which one changed since the last call are checked."""
+        larger one of its label, or a ``placed`` one over a ``bare`` one, merges into it (of
+        several, the one it lies over most; the larger keeps its label), the smallest first;
+        only pairs of which one changed since the last call are checked."""
         if not self._changed or self.cfg.absorb > 1:
             self._changed.clear()
             return
@@ -491,7 +500,8 @@ class PerceivedMapper(Mapper):
                 if share >= most and (best < 0 or share > most):
                     best, most = b, share
             if best >= 0:
-                self._merge(int(ids[a]), int(ids[best]))
+                part, whole = int(ids[a]), int(ids[best])
+                self._merge(part, whole, relabel=self.label[part] == self.label[whole])
                 pair[:, a] = pair[a] = False  # a is gone; best's box has grown
                 own[best] = self.box[ids[best]]
                 box[best] = own[best] + [[-self.cfg.absorb_margin], [self.cfg.absorb_margin]]
@@ -501,8 +511,9 @@ class PerceivedMapper(Mapper):
     def _part_pairs(self, changed: set[int]) -> tuple:
         """Rule 9's candidates: ids (K,) the confirmed labelled instances; box (K, 2, 2)
         their plan-view boxes; count (K,) their points; pair (K, K) whether a may be a part
-        of b: its box meets b's widened by ``absorb_margin``, same label, under
-        ``absorb_size`` of b's points, and one of the two among the ``changed`` instances."""
+        of b: its box meets b's widened by ``absorb_margin``, same label (or a's ``placed``
+        and b's ``bare``), under ``absorb_size`` of b's points, and one of the two among the
+        ``changed`` instances."""
         cfg, touched = self.cfg, np.zeros(len(self.parent), bool)
         touched[list(changed)] = True
         count, label = np.array(self.count), np.array(self.label)
@@ -511,7 +522,9 @@ class PerceivedMapper(Mapper):
         count, label, touched = count[ids], label[ids], touched[ids]
         m = cfg.absorb_margin
         meet = ((box[:, None, 0] <= box[None, :, 1] + m) & (box[:, None, 1] >= box[None, :, 0] - m)).all(-1)
-        pair = (meet & (label[:, None] == label[None]) & (count[:, None] < cfg.absorb_size * count[None])
+        on_seat = np.isin(label, self._placed)[:, None] & np.isin(label, self._bare)[None]
+        kin = (label[:, None] == label[None]) | on_seat
+        pair = (meet & kin & (count[:, None] < cfg.absorb_size * count[None])
                 & (touched[:, None] | touched[None]))
         return ids, box, count, pair
 
