@@ -240,6 +240,26 @@ def test_corrupt_or_mismatched_weights_give_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "bad.pt" in err
 
 
+def test_a_damaged_weights_archive_is_refused_before_any_unpickler_reads_it(tmp_path, monkeypatch):
+    """Three bytes before the first entry shifted every read of torch's zip reader, and its
+    unpickler then asked for about 20 GB; a flipped byte inside an entry fails its CRC.
+    Both are one error naming the file, and neither reaches torch.load."""
+    import zipfile
+
+    good = DEFAULT_WEIGHTS.read_bytes()
+    with zipfile.ZipFile(DEFAULT_WEIGHTS) as zf:
+        entry = zf.getinfo(next(n for n in zf.namelist() if n.endswith("data.pkl")))
+    flip = entry.header_offset + 30 + len(entry.filename) + len(entry.extra) + 100  # in data.pkl's bytes
+    shifted, flipped = tmp_path / "shifted.pt", tmp_path / "flipped.pt"
+    shifted.write_bytes(b"abc" + good)
+    flipped.write_bytes(good[:flip] + bytes([good[flip] ^ 0xFF]) + good[flip + 1:])
+    monkeypatch.setattr(torch, "load", lambda *a, **k: pytest.fail("torch.load reached"))
+    with pytest.raises(InputError, match=r"shifted\.pt: file: damaged zip archive \(data before its first entry\)"):
+        checkpoint.load(shifted)
+    with pytest.raises(InputError, match=r"flipped\.pt: .*data\.pkl: damaged entry \(CRC mismatch\)"):
+        checkpoint.load(flipped)
+
+
 def test_training_from_scratch_on_a_tiny_generated_dataset_reduces_the_loss(tmp_path):
     data, out = tmp_path / "data", tmp_path / "w.pt"
     assert main(["detector", "dataset", "--worlds", "small_office", "--per-world", "48", "--out", str(data),

@@ -8,11 +8,16 @@ Official checkpoints pickle whole model objects (classes from the YOLO-v5 reposi
 are read with an unpickler that never imports or runs their code: every class it names
 becomes an inert placeholder that only records its pickled attributes, and tensors are kept.
 The parameters are then gathered by walking ``_modules`` / ``_parameters`` / ``_buffers``.
+
+Before either unpickler runs, the archive must be intact (see :func:`check_archive`): a
+damaged length field would otherwise have it allocate whatever the damage says.
 """
 
 from __future__ import annotations
 
+import io
 import pickle
+import pickletools
 import zipfile
 from pathlib import Path
 
@@ -78,6 +83,29 @@ def _gather(obj, prefix: str, out: dict) -> None:
         _gather(child, f"{prefix}{k}.", out)
 
 
+def check_archive(path: Path) -> None:
+    """One clear error unless ``path`` is an intact zip archive: its first entry at byte 0
+    (torch reads entries at their recorded offsets, so data before it shifts every read),
+    every entry's CRC right, and every pickle in it well formed (no opcode claiming more
+    bytes than the pickle holds). A damaged file then fails here, not in an unpickler that
+    first allocates the gigabytes a damaged length asks for."""
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":
+            raise InputError(str(path), "file", "damaged zip archive (data before its first entry)")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+            if bad is not None:
+                raise InputError(str(path), bad, "damaged entry (CRC mismatch)")
+            for name in (n for n in zf.namelist() if n.endswith(".pkl")):
+                for _ in pickletools.genops(io.BytesIO(zf.read(name))):
+                    pass
+    except InputError:
+        raise
+    except Exception as err:  # noqa: BLE001 - any failure to read a damaged archive is bad input
+        raise InputError(str(path), "file", f"damaged zip archive ({type(err).__name__})") from None
+
+
 def read_official(path: str | Path) -> dict:
     """An official YOLO-v5 ``.pt``: ``{"state_dict", "names", "nc", "size"}`` without running
     pickled code. The size comes from the checkpoint's width multiple."""
@@ -87,6 +115,7 @@ def read_official(path: str | Path) -> dict:
         # ours: refused, so no path hands a file to an unrestricted unpickler.
         raise InputError(str(path), "file", "not a zip-format torch checkpoint (legacy or raw pickles are refused: "
                          "they can run code; re-save it with torch.save)")
+    check_archive(path)
     try:
         ckpt = torch.load(path, map_location="cpu", pickle_module=_pickle_module, weights_only=False)
     except Exception as err:  # noqa: BLE001 - any failure of a foreign file is bad input
@@ -115,6 +144,7 @@ def load(path: str | Path, device: str = "cpu"):
         raise InputError(str(path), "file", "not found")
     raw = None
     if zipfile.is_zipfile(path):
+        check_archive(path)
         try:  # torch's weights-only unpickler: tensors and plain containers, nothing else
             raw = torch.load(path, map_location="cpu", weights_only=True)
         except Exception:  # noqa: BLE001 - not our format: maybe an official pickled checkpoint
