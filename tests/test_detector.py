@@ -240,6 +240,21 @@ def test_corrupt_or_mismatched_weights_give_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "bad.pt" in err
 
 
+def test_saved_weights_load_back_the_same_and_name_no_temporary_file(tmp_path):
+    import zipfile
+
+    model = YOLOv5(3, "n", ["a", "b", "c"])
+    out = tmp_path / "mine.pt"
+    checkpoint.save(model, out, (128, 160), {"note": "x"})
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.pt"]  # the temporary file is gone
+    assert {n.split("/")[0] for n in zipfile.ZipFile(out).namelist()} == {"archive"}
+    back = checkpoint.load(out)
+    for k, v in model.state_dict().items():
+        want = v.half().float() if v.is_floating_point() else v
+        assert torch.equal(back.state_dict()[k], want), k
+    assert torch.load(out, weights_only=True)["meta"] == {"note": "x"}
+
+
 def test_a_damaged_weights_archive_is_refused_before_any_unpickler_reads_it(tmp_path, monkeypatch):
     """Three bytes before the first entry shifted every read of torch's zip reader, and its
     unpickler then asked for about 20 GB; a flipped byte inside an entry fails its CRC.

@@ -175,6 +175,6 @@ def load(path: str | Path, device: str = "cpu"):
 def save(model, path: str | Path, imgsz: tuple[int, int], meta: dict | None = None) -> None:
     """Our format, fp16 parameters (BatchNorm counters stay integer), written atomically."""
     sd = {k: v.detach().half() if v.is_floating_point() else v.detach() for k, v in model.state_dict().items()}
-    with atomic_path(path) as tmp:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # a file object: torch names the archive's folder
         torch.save({"format": FORMAT, "size": model.size, "names": list(model.names), "imgsz": list(imgsz),
-                    "meta": meta or {}, "state_dict": sd}, tmp)
+                    "meta": meta or {}, "state_dict": sd}, fh)  # "archive", not after the temporary file
