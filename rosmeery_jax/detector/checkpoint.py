@@ -106,16 +106,16 @@ def check_archive(path: Path) -> None:
         raise InputError(str(path), "file", f"damaged zip archive ({type(err).__name__})") from None
 
 
-def read_official(path: str | Path) -> dict:
+def _read_official(path: Path) -> dict:
     """An official YOLO-v5 ``.pt``: ``{"state_dict", "names", "nc", "size"}`` without running
-    pickled code. The size comes from the checkpoint's width multiple."""
+    pickled code. The size comes from the checkpoint's width multiple. Only :func:`load`
+    calls it, after :func:`check_archive` passed for a zip file."""
     path = Path(path)
     if not zipfile.is_zipfile(path):
         # Legacy (pre-zip) torch files start with pickles torch reads before any hook of
         # ours: refused, so no path hands a file to an unrestricted unpickler.
         raise InputError(str(path), "file", "not a zip-format torch checkpoint (legacy or raw pickles are refused: "
                          "they can run code; re-save it with torch.save)")
-    check_archive(path)
     try:
         ckpt = torch.load(path, map_location="cpu", pickle_module=_pickle_module, weights_only=False)
     except Exception as err:  # noqa: BLE001 - any failure of a foreign file is bad input
@@ -156,7 +156,7 @@ def load(path: str | Path, device: str = "cpu"):
         if not isinstance(info["state_dict"], dict):
             raise InputError(str(path), "state_dict", "missing")
     else:
-        info = read_official(path)
+        info = _read_official(path)
     try:
         model = YOLOv5(info["nc"], info["size"], info["names"])
     except ValueError as err:

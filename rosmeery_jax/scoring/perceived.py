@@ -121,8 +121,8 @@ class PerceivedConfig:
     absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
     absorb_margin: float = 0.1  # makes it part of that one (inf: off); m: the box widened by this;
     absorb_size: float = 0.5  # the smaller holds fewer points than this share of the larger's
-    bare: tuple[str, ...] = ("chair", "couch", "bench")  # rule 9: nothing is set on these, so one of the
-    placed: tuple[str, ...] = ("monitor", "tv", "laptop", "book", "vase")  # things set on furniture over one is its part
+    bare: tuple[str, ...] = ("chair", "couch", "bench")  # rule 9: nothing is set on these, so an instance
+    placed: tuple[str, ...] = ("monitor", "tv", "laptop", "book", "vase")  # of these over one of them is its part
     wall_above: float = 2.2  # m: rule 10: a point higher than this is a wall's (inf: off);
     wall_cell: float = 0.1  # m: the plan-view cells of the walls
 
