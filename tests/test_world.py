@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -126,6 +127,8 @@ BAD_INPUTS = {
                           {"thing": "chair"}), "geom"),
     "nan spawn": (room_xml('<body name="thing"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>',
                            {"thing": "chair"}, spawn=("nan", 0, 0)), "numeric 'rosmeery:spawn': [nan"),
+    "nan position": (room_xml('<body name="thing"><geom name="top" type="box" pos="1 1 nan" size="0.2 0.2 0.2"/></body>',
+                              {"thing": "chair"}), "geom 'top': position or size beyond"),
     "huge spawn": (room_xml('<body name="thing"><geom type="box" pos="1 1 0.2" size="0.2 0.2 0.2"/></body>',
                             {"thing": "chair"}, spawn=(1e30, 0, 0)), "must be finite numbers within"),
     "huge box": (room_xml('<body name="thing"><geom name="top" type="box" pos="1 1 0.2" size="1e30 0.2 0.2"/></body>',
@@ -141,15 +144,18 @@ BAD_INPUTS = {
 
 
 @pytest.mark.parametrize("case", sorted(BAD_INPUTS))
-def test_bad_world_gives_one_clear_line_naming_file_and_element(case, write_world, capsys, tmp_path):
+def test_bad_world_gives_one_clear_line_naming_file_and_element(case, write_world, capsys, tmp_path, monkeypatch):
     xml, expected = BAD_INPUTS[case]
     path = write_world(xml, name=case.replace(" ", "_"))
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(InputError) as err:
         load_world(path)
     assert str(path) in str(err.value) and expected in str(err.value) and "\n" not in str(err.value)
     assert main(["world", "show", str(path), "--out", str(tmp_path / "x.png")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and str(path) in lines[0] and expected in lines[0]
+    # MuJoCo's own warning handler (a NaN in the XML) would append to MUJOCO_LOG.TXT here
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists() and mujoco.get_mju_user_warning() is None
 
 
 def test_latin1_world_file_is_one_line(tmp_path):

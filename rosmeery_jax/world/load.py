@@ -16,6 +16,8 @@ Anything else is rejected with one line naming the file and the element.
 
 from __future__ import annotations
 
+import contextlib
+import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -173,10 +175,11 @@ def _load(path: Path, _mtime: int, config: WorldConfig, taxonomy_path: str | Non
         raise InputError(path, "file", f"not UTF-8 text (byte {err.start}): save the world as UTF-8") from None
     except OSError as err:
         raise InputError(path, "file", f"unreadable ({err.strerror or err})") from None
-    try:
-        model = mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as err:
-        raise InputError(path, "", "invalid MJCF: " + " ".join(str(err).split())) from None
+    with _mujoco_warnings(path):
+        try:
+            model = mujoco.MjModel.from_xml_path(str(path))
+        except ValueError as err:
+            raise InputError(path, "", "invalid MJCF: " + " ".join(str(err).split())) from None
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
 
@@ -194,6 +197,24 @@ def _load(path: Path, _mtime: int, config: WorldConfig, taxonomy_path: str | Non
         if isinstance(arr, np.ndarray):
             arr.flags.writeable = False
     return World(path.stem, title, path, config, taxonomy, model, scene, truth, free, spawn)
+
+
+@contextlib.contextmanager
+def _mujoco_warnings(path: Path):
+    """MuJoCo's warnings while it reads ``path``, as Python warnings naming the file, but for
+    a NaN's (the checks after it name the element, in one error line). Left to itself
+    MuJoCo appends them to MUJOCO_LOG.TXT in the working directory, a file the user never
+    asked for."""
+    caught: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(caught.append)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
+        for message in caught:
+            if "NaN" not in message:
+                warnings.warn(f"{path}: MuJoCo: {message.strip()}", stacklevel=3)
 
 
 def _arrays(nt) -> list:
