@@ -374,14 +374,31 @@ def test_a_wall_found_later_takes_its_points_out_of_the_map(scenes):
 
 def test_an_instance_enters_the_map_on_its_second_detection(scenes):
     env, depth, label, boxes, depth2, boxes2 = _two_views(scenes)
-    m = PerceivedMapper(Camera.of(env.config.camera))  # the default: two views confirm
-    m.fold(POSE, depth, boxes[:1], np.array([0]), np.array([0.9], np.float32))
+    m = PerceivedMapper(Camera.of(env.config.camera))  # the default: two views confirm (under alone_conf)
+    m.fold(POSE, depth, boxes[:1], np.array([0]), np.array([0.65], np.float32))
     assert m.instances == 0 and len(m.semantic_map().points) == 0
-    m.fold(NEAR, depth2, boxes2[:1], np.array([0]), np.array([0.9], np.float32))
+    m.fold(NEAR, depth2, boxes2[:1], np.array([0]), np.array([0.65], np.float32))
     first = m.semantic_map()
     assert m.instances == 1 and len(first.points) > 0 and set(first.instance) == {0}
     log = _log(env, m)
     assert log.ps[0] > 0 and log.ps[1] == 0
+
+
+def test_one_very_confident_detection_brings_an_instance_in_alone(scenes):
+    """Rule 6's ``alone_conf``: one box at 0.8 (default 0.7) confirms its instance with the
+    points of that view; at 0.65 it does not, nor at 0.8 with the rule off."""
+    env, depth, label, boxes, depth2, boxes2 = _two_views(scenes)
+    cam = Camera.of(env.config.camera)
+    for cfg, conf, entered in ((PerceivedConfig(), 0.8, True), (PerceivedConfig(), 0.65, False),
+                               (PerceivedConfig(alone_conf=np.inf), 0.8, False)):
+        m = PerceivedMapper(cam, cfg=cfg)
+        m.fold(POSE, depth, boxes[:1], np.array([0]), np.array([conf], np.float32))
+        assert m.instances == int(entered) and (len(m.semantic_map().points) > 0) == entered
+    one = PerceivedMapper(cam, cfg=ONE)  # every detection confirms: the same points
+    one.fold(POSE, depth, boxes[:1], np.array([0]), np.array([0.8], np.float32))
+    sure = PerceivedMapper(cam)
+    sure.fold(POSE, depth, boxes[:1], np.array([0]), np.array([0.8], np.float32))
+    np.testing.assert_array_equal(np.sort(sure.semantic_map().points, 0), np.sort(one.semantic_map().points, 0))
 
 
 def test_an_instance_needs_one_confident_detection_to_enter_the_map(scenes):

@@ -44,9 +44,10 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    frame are two objects).
 5. **Label**: an instance holds the label of its most confident detection so far.
 6. **Confirmation**: an instance enters the map once ``min_views`` detections support it
-   and one of them had confidence ``min_conf`` or more (a spurious box in one frame never
-   does; a frame sent again by a robot at rest counts again, as it would for any mapper fed
-   that stream). Less confident detections still join instances and grow them, but found
+   and one of them had confidence ``min_conf`` or more, or once one detection had
+   ``alone_conf`` or more (a robot passing an object once, fast, may box it only once; a
+   less confident box in one frame never enters; a frame sent again by a robot at rest
+   counts again, as it would for any mapper fed that stream). Less confident detections still join instances and grow them, but found
    none that the map shows: in recorded runs, most instances only ever boxed under 0.6
    were a part of an object another instance holds under another label (a chair's back
    as a monitor, a table's end as a bed).
@@ -115,7 +116,8 @@ class PerceivedConfig:
     same_overlap: float = 0.05  # or, if it carries the detection's label, this share (rule 4)
     min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
     min_views: int = 2  # detections that confirm an instance (rule 6),
-    min_conf: float = 0.6  # one of them at least this confident (rule 6; 0: any the session passes)
+    min_conf: float = 0.6  # one of them at least this confident (rule 6; 0: any the session passes),
+    alone_conf: float = 0.7  # or one detection this confident (rule 6; inf: never one alone)
     grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
     depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
     absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
@@ -197,7 +199,8 @@ class PerceivedMapper(Mapper):
     def _confirmed(self) -> np.ndarray:
         """(I,) which instances are confirmed (rule 6)."""
         views, conf = np.array(self.views, np.int64), np.array(self.conf, np.float32)
-        return (views >= self.cfg.min_views) & (conf >= self.cfg.min_conf)
+        cfg = self.cfg
+        return (views >= cfg.min_views) & (conf >= cfg.min_conf) | (views >= 1) & (conf >= cfg.alone_conf)
 
     def add(self, frame: Frame) -> None:
         self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)
