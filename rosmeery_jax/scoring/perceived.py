@@ -43,14 +43,14 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    (they come most confident first) is no candidate, and is not merged (two boxes in one
    frame are two objects).
 5. **Label**: an instance holds the label of its most confident detection so far.
-6. **Confirmation**: an instance enters the map once ``min_views`` detections support it
-   and one of them had confidence ``min_conf`` or more, or once one detection had
-   ``alone_conf`` or more (a robot passing an object once, fast, may box it only once; a
-   less confident box in one frame never enters; a frame sent again by a robot at rest
-   counts again, as it would for any mapper fed that stream). Less confident detections still join instances and grow them, but found
-   none that the map shows: in recorded runs, most instances only ever boxed under 0.6
-   were a part of an object another instance holds under another label (a chair's back
-   as a monitor, a table's end as a bed).
+6. **Confirmation**: an instance enters the map once ``min_views`` detections support it and
+   one of them had confidence ``min_conf`` or more, or once one detection had ``alone_conf``
+   or more (a robot passing an object once, fast, may box it only once; a less confident box
+   in one frame never enters; a frame sent again by a robot at rest counts again, as it
+   would for any mapper fed that stream). Less confident detections still join instances and
+   grow them, but found none that the map shows: in recorded runs, most instances only ever
+   boxed under 0.6 were a part of an object another instance holds under another label (a
+   chair's back as a monitor, a table's end as a bed).
 7. **Growth from the whole frame**: of the frame's segments (rule 2), a segment whose cells
    are at least ``grow`` held by one confirmed instance is that instance seen again, boxed or
    not (the detector missed it, or its box cut it short): its points in the instance's cells
