@@ -199,8 +199,8 @@ class PerceivedMapper(Mapper):
     def _confirmed(self) -> np.ndarray:
         """(I,) which instances are confirmed (rule 6)."""
         views, conf = np.array(self.views, np.int64), np.array(self.conf, np.float32)
-        cfg = self.cfg
-        return (views >= cfg.min_views) & (conf >= cfg.min_conf) | (views >= 1) & (conf >= cfg.alone_conf)
+        cfg = self.cfg  # an instance's confidence is that of a detection it took, so alone_conf implies a view
+        return (views >= cfg.min_views) & (conf >= cfg.min_conf) | (conf >= cfg.alone_conf)
 
     def add(self, frame: Frame) -> None:
         self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)

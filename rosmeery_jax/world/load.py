@@ -117,7 +117,8 @@ class World:
     @property
     def spec(self) -> mujoco.MjSpec:
         """A fresh, editable MjSpec of this world's file."""
-        return mujoco.MjSpec.from_file(str(self.path))
+        with _mujoco_warnings(self.path):
+            return mujoco.MjSpec.from_file(str(self.path))
 
     def summary(self) -> dict:
         t = self.truth
