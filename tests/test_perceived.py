@@ -547,7 +547,8 @@ def test_the_depth_between_two_detector_frames_is_folded_together(scenes, tmp_pa
     _, boxes = _tight(label)
     off = {}
     for read_each in (False, True):
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0, grow=0.01))
+        cfg = replace(ONE, inside=0.0, grow=0.01, grow_margin=np.inf)
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
         m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
         for k in range(20):
             m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
@@ -555,6 +556,29 @@ def test_the_depth_between_two_detector_frames_is_folded_together(scenes, tmp_pa
                 m.semantic_map()
         off[read_each] = score(env.world, _as_map(tmp_path / str(read_each), env, m)).off_object
     assert off[False] == 0.0 and off[True] > 0.05
+
+
+def test_growth_stays_within_reach_of_what_the_detections_took(scenes, tmp_path):
+    """Rule 7's margin: the same creeping chair (read after each depth frame, a share of
+    1 %) takes walls beyond its box with no margin; with a margin of 5 cm every point of
+    its instance lies within 5 cm of the 3D box of the points its one detection took, and
+    it holds fewer points off the chair."""
+    start = POSE + np.array([-1.0, 0.0, 0.0], np.float32)
+    env, depth, label = _frame(scenes, "flush", start)
+    _, boxes = _tight(label)
+    out = {}
+    for margin in (np.inf, 0.05):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0, grow=0.01, grow_margin=margin))
+        m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
+        took = m.extent[0].copy()
+        for k in range(20):
+            m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
+            m.semantic_map()
+        points = m.semantic_map().points
+        reach = np.maximum(took[0] - points, points - took[1]).max(-1)  # how far outside the box, per point
+        out[margin] = reach.max(), score(env.world, _as_map(tmp_path / str(margin), env, m)).off_object
+    assert out[np.inf][0] > 0.1 and out[np.inf][1] > 0.05  # without a margin it creeps along the walls
+    assert out[0.05][0] <= 0.05 + 1e-6 and out[0.05][1] < out[np.inf][1]
 
 
 def _patch(x: tuple, y: tuple, z: tuple) -> np.ndarray:

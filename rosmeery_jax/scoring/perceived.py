@@ -55,7 +55,10 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    are at least ``grow`` held by one confirmed instance is that instance seen again, boxed or
    not (the detector missed it, or its box cut it short): its points in the instance's cells
    or next to them join it. The rest of the segment (a wall it touches, a neighbour) stays
-   out, so an instance grows by at most one cell per frame.
+   out, so an instance grows by at most one cell per frame. Nor does it grow further than
+   ``grow_margin`` from the 3D box of the points its detections took: detections say
+   where the object is, and the frames between them fill in its surface, but do not carry
+   it along a wall or a row of furniture it touches, a cell a frame over hundreds of frames.
 8. **Depth between detector frames**: rule 7 also runs on the depth camera of every step
    between detector frames (10 a second, 64 x 48; :meth:`Mapper.add_depth`), on all of
    them at once, when the map is next read or the next detector frame comes: judged
@@ -118,7 +121,8 @@ class PerceivedConfig:
     min_views: int = 2  # detections that confirm an instance (rule 6),
     min_conf: float = 0.6  # one of them at least this confident (rule 6; 0: any the session passes),
     alone_conf: float = 0.7  # or one detection this confident (rule 6; inf: never one alone)
-    grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off)
+    grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off),
+    grow_margin: float = 0.3  # m: within its detections' points' 3D box widened by this (rule 7; inf: anywhere)
     depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
     absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
     absorb_margin: float = 0.1  # makes it part of that one (inf: off); m: the box widened by this;
@@ -182,6 +186,7 @@ class PerceivedMapper(Mapper):
         self.held = _Table()  # plan-view cell key -> 0 where the map holds a point (rule 10)
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
+        self.extent: list[np.ndarray] = []  # per instance: its detections' points' 3D box (2, 3) (rule 7)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self.walls = _Table()  # plan-view cell key -> 0 where a wall stands (rule 10)
         names = np.array(categories, dtype=object)
@@ -249,6 +254,7 @@ class PerceivedMapper(Mapper):
             inst = self._associate(cells, int(k), taken)
             taken.add(inst)
             self._claim(np.array([inst]), keys, pts, cells)
+            self.extent[inst] = _union(self.extent[inst], np.stack([pts.min(0), pts.max(0)]))
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
             self.views[inst] += 1
@@ -304,10 +310,20 @@ class PerceivedMapper(Mapper):
         seg_rank[segs] = np.argsort(order)[which]
         rank = seg_rank[seg]  # per pair: the rank of the instance its segment grows, if it is beside it
         rank = np.where((rank >= 0) & (beside == ids[order][np.maximum(rank, 0)]), rank, -1)[pair_ix]
-        take = rank >= 0
+        take = np.flatnonzero(rank >= 0)
+        take = take[self._within_reach(ids[order][rank[take]], cloud, take)]
         x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
         self._claim(ids[order], _keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take],
                     rank[take], rank[take])
+
+    def _within_reach(self, inst: np.ndarray, cloud: _Cloud, at: np.ndarray) -> np.ndarray:
+        """Rule 7: (k,) which of the cloud's points ``at`` (k,) lie within ``grow_margin`` of
+        the 3D box of the points that the detections of instance ``inst`` (k,) took."""
+        if not np.isfinite(self.cfg.grow_margin):
+            return np.ones(len(at), bool)
+        box = np.array(self.extent)[inst] + [[-self.cfg.grow_margin], [self.cfg.grow_margin]]  # (k, 2, 3)
+        xyz = np.stack([cloud.x[at], cloud.y[at], cloud.z[at]], -1)
+        return ((xyz >= box[:, 0]) & (xyz <= box[:, 1])).all(-1)
 
     def _roots(self) -> np.ndarray:
         """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to -1."""
@@ -420,6 +436,7 @@ class PerceivedMapper(Mapper):
         self.conf.append(np.float32(0.0))
         self.box.append(np.array([[np.inf, np.inf], [-np.inf, -np.inf]]))
         self.count.append(0)
+        self.extent.append(np.array([[np.inf] * 3, [-np.inf] * 3]))
         return len(self.parent) - 1
 
     def _merge(self, j: int, into: int, relabel: bool = True) -> None:
@@ -432,6 +449,7 @@ class PerceivedMapper(Mapper):
         self.label[j], self.conf[j] = -1, np.float32(0.0)
         self.pending[into] += self.pending[j]
         self.pending[j] = []
+        self.extent[into] = _union(self.extent[into], self.extent[j])
         self._extend(into, self.box[j], self.count[j])
         self._publish(into)
 
@@ -630,6 +648,11 @@ class _Sorted(NamedTuple):
         order = np.argsort(keys)
         at = np.searchsorted(self.keys, keys[order])
         return _Sorted(np.insert(self.keys, at, keys[order]), np.insert(self.insts, at, insts[order]))
+
+
+def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The box (2, D) holding boxes a and b (2, D) (lower corner, upper corner)."""
+    return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
 
 
 def _keys(xyz: tuple, size: float) -> np.ndarray:
