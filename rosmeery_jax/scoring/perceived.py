@@ -490,8 +490,7 @@ class PerceivedMapper(Mapper):
     def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
         """Instance ``inst``'s points in the map now include ``count`` more within plan-view ``box`` (2, 2)."""
         if count:
-            own = self.box[inst]
-            self.box[inst] = np.stack([np.minimum(own[0], box[0]), np.maximum(own[1], box[1])])
+            self.box[inst] = _union(self.box[inst], box)
             self.count[inst] += count
             self._changed.add(inst)
 
