@@ -89,8 +89,15 @@ def test_int8_detections_match_torchs_within_the_stated_tolerance(cache, frames,
 def test_the_export_is_cached_by_content_and_shape_and_quantised_the_same_twice(cache, tmp_path):
     first = runtime.cached_export(DEFAULT_WEIGHTS, 32, 128, 160, int8=True)
     assert runtime.cached_export(DEFAULT_WEIGHTS, 32, 128, 160, int8=True) == first  # reused
+    digest = first.name.split("-v")[0]
+    old = runtime.EXPORT_VERSION - 1
+    stale = [first.with_name(f"{digest}-v{old}-b32-128x160{end}") for end in (".onnx", ".int8.onnx")]
+    foreign = first.with_name(f"{'0' * len(digest)}-v{old}-b32-128x160.onnx")  # other weights'
+    for path in stale + [foreign]:
+        path.write_bytes(b"old")
     other = runtime.cached_export(DEFAULT_WEIGHTS, 8, 128, 160)
     assert other != first.with_suffix("").with_suffix(".onnx") and other.is_file()
+    assert not any(path.exists() for path in stale) and foreign.exists() and first.is_file()  # an earlier version's go
     again = runtime.quantise(first.with_suffix("").with_suffix(".onnx"), tmp_path / "again.onnx",
                              runtime.calibration_frames(128, 160))
     assert again.read_bytes() == first.read_bytes()  # calibration and quantisation are deterministic

@@ -8,14 +8,15 @@ the runtimes differ only in the network's arithmetic (docs/detector.md gives the
 speed and the mAP of each).
 
 The ONNX graph is exported from the weights by ``torch.onnx.export`` at one fixed input shape
-(the session's batch and padded frame), never downloaded: ``rosmeery detector export``
-writes it where asked, and a session builds it on first use into
+(the session's batch and padded frame), never downloaded: ``rosmeery detector export`` writes
+it where asked, and a session builds it on first use into
 ``$XDG_CACHE_HOME/rosmeery-jax/detector/`` (``~/.cache/...``), named by the weights' content,
-so other weights or another shape never reuse it. The int8 graph is ONNX Runtime's static
-quantisation of it (QDQ, int8 weights per channel, uint8 activations), its activation ranges
-calibrated on frames rendered from procedural worlds (never the paper worlds the detector
-is scored in): each range holds 99.99 % of the calibration's values, so a rare outlier does
-not widen the int8 step of all the others.
+so other weights or another shape never reuse it; building one removes the graphs of the same
+weights that an earlier :data:`EXPORT_VERSION` left there. The int8 graph is ONNX Runtime's
+static quantisation of it (QDQ, int8 weights per channel, uint8 activations), its activation
+ranges calibrated on frames rendered from procedural worlds (never the paper worlds the
+detector is scored in): each range holds 99.99 % of the calibration's values, so a rare outlier
+does not widen the int8 step of all the others.
 """
 
 from __future__ import annotations
@@ -103,6 +104,9 @@ def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool
         from rosmeery_jax.detector import checkpoint  # imports torch
 
         export(checkpoint.load(weights), path, batch, height, width)
+        for stale in base.glob(f"{digest}-v*.onnx"):  # these weights' graphs of an earlier version: never read again
+            if not stale.name.startswith(f"{digest}-v{EXPORT_VERSION}-"):
+                stale.unlink(missing_ok=True)
     if not int8:
         return path
     quantised = path.with_suffix(".int8.onnx")
