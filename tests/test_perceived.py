@@ -536,46 +536,46 @@ def test_depth_between_detector_frames_grows_the_object_and_nothing_else(scenes,
     assert len(clouds) == 1
 
 
+def _creeping_chair(scenes, read_each: bool, margin: float = np.inf):
+    """The chair standing flush with the walls (one depth segment with them), boxed in
+    part, then 20 depth frames beside it at a share of 1 % (rule 7's ``grow``), the map
+    read after each or not: (env, mapper, its map's points after the detection alone)."""
+    start = POSE + np.array([-1.0, 0.0, 0.0], np.float32)
+    env, depth, label = _frame(scenes, "flush", start)
+    _, boxes = _tight(label)
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0, grow=0.01, grow_margin=margin))
+    m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
+    boxed = m.semantic_map().points
+    for k in range(20):
+        m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
+        if read_each:
+            m.semantic_map()
+    return env, m, boxed
+
+
 def test_the_depth_between_two_detector_frames_is_folded_together(scenes, tmp_path):
     """Rule 8 judges the depth frames between two detector frames together, against the map
     as it stood before them, so an instance grows by at most a cell beyond it per decision:
     at a share of 1 %, 20 depth frames beside a chair standing flush with the walls (one
     depth segment with them) take none of the walls folded together, and creep into them,
-    a cell a frame, when the map is read after each."""
-    start = POSE + np.array([-1.0, 0.0, 0.0], np.float32)
-    env, depth, label = _frame(scenes, "flush", start)
-    _, boxes = _tight(label)
+    a cell a frame, when the map is read after each (rule 7's margin off)."""
     off = {}
     for read_each in (False, True):
-        cfg = replace(ONE, inside=0.0, grow=0.01, grow_margin=np.inf)
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
-        m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
-        for k in range(20):
-            m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
-            if read_each:
-                m.semantic_map()
+        env, m, _ = _creeping_chair(scenes, read_each)
         off[read_each] = score(env.world, _as_map(tmp_path / str(read_each), env, m)).off_object
     assert off[False] == 0.0 and off[True] > 0.05
 
 
 def test_growth_stays_within_reach_of_what_the_detections_took(scenes, tmp_path):
-    """Rule 7's margin: the same creeping chair (read after each depth frame, a share of
-    1 %) takes walls beyond its box with no margin; with a margin of 5 cm every point of
-    its instance lies within 5 cm of the 3D box of the points its one detection took, and
-    it holds fewer points off the chair."""
-    start = POSE + np.array([-1.0, 0.0, 0.0], np.float32)
-    env, depth, label = _frame(scenes, "flush", start)
-    _, boxes = _tight(label)
+    """Rule 7's margin: the same creeping chair (read after each depth frame) takes walls
+    beyond its box with no margin; with a margin of 5 cm every point of its instance lies
+    within 5 cm of the 3D box of the points its one detection took, and it holds fewer
+    points off the chair."""
     out = {}
     for margin in (np.inf, 0.05):
-        m = PerceivedMapper(Camera.of(env.config.camera), cfg=replace(ONE, inside=0.0, grow=0.01, grow_margin=margin))
-        m.fold(start, depth, _part(boxes[0], 0.7), np.array([0]), np.array([0.9], np.float32))
-        took = m.extent[0].copy()
-        for k in range(20):
-            m.add_depth(_sweep(env, start + np.array([0.05 * (k % 5) - 0.1, -0.02 * k, 0.0], np.float32), k + 1))
-            m.semantic_map()
+        env, m, boxed = _creeping_chair(scenes, True, margin)
         points = m.semantic_map().points
-        reach = np.maximum(took[0] - points, points - took[1]).max(-1)  # how far outside the box, per point
+        reach = np.maximum(boxed.min(0) - points, points - boxed.max(0)).max(-1)  # how far outside the box, per point
         out[margin] = reach.max(), score(env.world, _as_map(tmp_path / str(margin), env, m)).off_object
     assert out[np.inf][0] > 0.1 and out[np.inf][1] > 0.05  # without a margin it creeps along the walls
     assert out[0.05][0] <= 0.05 + 1e-6 and out[0.05][1] < out[np.inf][1]
