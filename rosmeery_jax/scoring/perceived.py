@@ -321,7 +321,7 @@ class PerceivedMapper(Mapper):
         the 3D box of the points that the detections of instance ``inst`` (k,) took."""
         if not np.isfinite(self.cfg.grow_margin):
             return np.ones(len(at), bool)
-        box = np.array(self.extent)[inst] + [[-self.cfg.grow_margin], [self.cfg.grow_margin]]  # (k, 2, 3)
+        box = _widened(np.array(self.extent)[inst], self.cfg.grow_margin)  # (k, 2, 3)
         xyz = np.stack([cloud.x[at], cloud.y[at], cloud.z[at]], -1)
         return ((xyz >= box[:, 0]) & (xyz <= box[:, 1])).all(-1)
 
@@ -504,7 +504,7 @@ class PerceivedMapper(Mapper):
             return
         changed, self._changed = self._changed, set()
         ids, own, count, pair = self._part_pairs(changed)
-        box = own + [[-self.cfg.absorb_margin], [self.cfg.absorb_margin]]  # each widened
+        box = _widened(own, self.cfg.absorb_margin)
         root = None  # each map point's instance, read once if a partial overlap needs the points
         order = np.argsort(count, kind="stable")
         for a in order[pair.any(1)[order]].tolist():
@@ -524,7 +524,7 @@ class PerceivedMapper(Mapper):
                 self._merge(part, whole, relabel=self.label[part] == self.label[whole])
                 pair[:, a] = pair[a] = False  # a is gone; best's box has grown
                 own[best] = self.box[ids[best]]
-                box[best] = own[best] + [[-self.cfg.absorb_margin], [self.cfg.absorb_margin]]
+                box[best] = _widened(own[best], self.cfg.absorb_margin)
                 if root is not None:
                     root[root == ids[a]] = ids[best]
 
@@ -652,6 +652,11 @@ class _Sorted(NamedTuple):
 def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The box (2, D) holding boxes a and b (2, D) (lower corner, upper corner)."""
     return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
+
+
+def _widened(box: np.ndarray, margin: float) -> np.ndarray:
+    """Boxes (..., 2, D) (lower corner, upper corner) grown by ``margin`` on every side."""
+    return box + np.array([[-margin], [margin]])
 
 
 def _keys(xyz: tuple, size: float) -> np.ndarray:
