@@ -55,6 +55,18 @@ FRAME = """
   <geom type="box" pos="0 0.4 1.04" size="0.5 0.01 0.01"/><geom type="box" pos="0 0.4 0.06" size="0.5 0.01 0.01"/>
 </body>
 """
+# Parts: a "chair" of a low front block and a tall back 0.25 m behind its front face, a
+# depth step between them (two depth segments of one object).
+PARTS = """
+<body name="chair">
+  <geom type="box" pos="0 0.05 0.2" size="0.2 0.05 0.2"/><geom type="box" pos="0 -0.2 0.45" size="0.2 0.05 0.45"/>
+</body>
+"""
+# Beside: a chair and a smaller chair 0.15 m to its right, 0.1 m further back.
+BESIDE = """
+<body name="chair"><geom type="box" pos="-0.25 0 0.2" size="0.2 0.2 0.2"/></body>
+<body name="small_chair"><geom type="box" pos="0.2 0 0.1" size="0.1 0.1 0.1"/></body>
+"""
 POSE = np.array([0.0, 1.6, -np.pi / 2], np.float32)  # looking down -y at both objects
 ONE = PerceivedConfig(min_views=1, min_conf=0.0)  # instances in the map from the first detection, however sure
 
@@ -65,9 +77,10 @@ def scenes(tmp_path_factory):
     out = {}
     for name, bodies, height in (("apart", APART, 2), ("together", TOGETHER, 2), ("by_wall", BY_WALL, 2),
                                  ("off_grid", OFF_GRID, 2), ("flush", FLUSH, 2), ("frame", FRAME, 2),
-                                 ("flush_tall", FLUSH, 3)):
+                                 ("flush_tall", FLUSH, 3), ("parts", PARTS, 2), ("beside", BESIDE, 2)):
         path = tmp_path_factory.mktemp(name) / "room.xml"
-        cats = {"chair": "chair", "desk": "desk"} if "desk" in bodies else {"chair": "chair"}
+        cats = {"chair": "chair", "desk": "desk", "small_chair": "chair"}
+        cats = {b: c for b, c in cats.items() if f'name="{b}"' in bodies}
         path.write_text(room_xml(bodies, cats, spawn=(0.0, 1.0, 0.0), height=height))
         env = make(str(path), camera__hfov=float(np.deg2rad(90)))
         render = jax.jit(lambda pose, env=env: rgbd(env.rays, env.config.camera, pose)[1:])
@@ -277,6 +290,39 @@ def test_two_touching_objects_with_overlapping_boxes_stay_two_instances(scenes, 
     sample = tie(env.world, m.semantic_map().points, 0.05)
     owner = np.asarray(env.world.truth.samples.object)[sample]
     assert (owner == m.semantic_map().instance).all()  # every point lies on its own instance's object
+
+
+def test_a_boxs_segments_just_behind_its_object_are_its_parts(scenes, tmp_path):
+    """The object's back, cut off by a depth step, joins its front: rule 2's parts."""
+    env, depth, label = _frame(scenes, "parts")
+    _, boxes = _tight(label)
+    maps = {}
+    for name, cfg in (("parts", ONE), ("front only", replace(ONE, part_share=np.inf))):
+        m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
+        m.fold(POSE, depth, boxes, np.array([0]), np.array([0.9], np.float32))
+        maps[name] = m.semantic_map().points, score(env.world, _as_map(tmp_path / name, env, m))
+    (parts, kept), (front, alone) = maps["parts"], maps["front only"]
+    assert front[:, 2].max() < 0.45 < parts[:, 2].max()  # the back stands above the front block
+    assert kept.off_object == alone.off_object == 0.0 and list(kept.matched) == list(alone.matched) == [0]
+    assert kept.log.ps[0] > 1.5 * alone.log.ps[0]
+
+
+def test_a_neighbour_inside_the_box_gives_points_but_never_merges(scenes, tmp_path):
+    """A box over a chair also holds a smaller chair beside it, just behind: the box's points
+    include the small chair's (a part, by depth), but the box joins the instance its own
+    object's segment leads to, so the two instances stay two."""
+    env, depth, label = _frame(scenes, "beside")
+    obj, boxes = _tight(label)
+    assert list(obj) == [0, 1]
+    m = PerceivedMapper(Camera.of(env.config.camera), cfg=ONE)
+    m.fold(POSE, depth, boxes[1:], np.array([0]), np.array([0.9], np.float32))  # the small chair alone
+    both = np.concatenate([boxes[:, :2].min(0), boxes[:, 2:].max(0)])[None]  # a loose box, both chairs
+    m.fold(POSE, depth, both, np.array([0]), np.array([0.9], np.float32))
+    sc = score(env.world, _as_map(tmp_path, env, m))
+    assert m.instances == 2 and sorted(sc.matched) == [0, 1] and sc.unmatched == 0
+    state = m.semantic_map()
+    owner = np.asarray(env.world.truth.samples.object)[tie(env.world, state.points, 0.05)]
+    assert (owner >= 0).all() and len(np.unique(state.instance[owner == 0])) == 1  # each chair in one instance
 
 
 def test_a_boxs_wall_pixels_are_not_kept(scenes, tmp_path):

@@ -20,11 +20,16 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    is background running on past it (a wall, a large piece of furniture behind, a
    neighbour in front). The nearest of the other segments that holds at least
    ``min_share`` of the box's pixels is the object; if none does, the detection adds no
-   points. The rest is dropped. If one of those segments
-   holding at least ``front_share`` of the box stands more than ``behind`` nearer than the
-   object's, the object is that thing in front, too thin a share of its box to be told
-   from what shows through it (a chair's back and legs), and the segment behind is a wall
-   seen past it: the detection adds no points.
+   points. If one of those segments holding at least ``front_share`` of the box stands
+   more than ``behind`` nearer than the object's, the object is that thing in front, too
+   thin a share of its box to be told from what shows through it (a chair's back and
+   legs), and the segment behind is a wall seen past it: the detection adds no points.
+   Those holding at least ``part_share`` of the box whose nearest point stands at most
+   ``part_behind`` behind the object's are its parts, cut off by a depth step (a chair's
+   seat and back, a shelf's boards and back panel, a desk's top and the panel below), and
+   join it; the rest is dropped. A neighbour standing beside the object may pass that
+   test too, so rule 4 associates the detection by the cells of the object's own segment
+   only.
 3. **Voxels**: the segment's points are binned into ``voxel`` cubes; a voxel belongs to the
    first instance that claimed it and keeps its first point (a point on the surface, so it
    ties to a sample like any mapper's point). Voxels are half the surface samples' spacing:
@@ -33,11 +38,12 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
 4. **Association**: coarse cells (``cell``: two views of one surface rarely hit the same
    5 cm voxels) record the first instance seen in them or in a neighbouring cell (so a
    view of another face of the object still meets it). The instance holding the most of
-   the detection's cells takes it if it holds at least ``overlap`` of them, or
-   ``same_overlap`` if it carries the detection's label (of several such instances, one
-   carrying the label first); otherwise the detection starts a new instance. Its unclaimed
-   voxels join that instance. The other instances that carry the detection's label and hold
-   ``same_overlap`` of its cells are merged into it (one object split by earlier views: a
+   the cells of the detection's object segment (rule 2: not its parts) takes it if it
+   holds at least ``overlap`` of them, or ``same_overlap`` if it carries the detection's
+   label (of several such instances, one carrying the label first); otherwise the
+   detection starts a new instance. Its unclaimed voxels join that instance. The other
+   instances that carry the detection's label and hold ``same_overlap`` of those cells
+   are merged into it (one object split by earlier views: a
    long desk seen a part at a time, each part's box reaching a little into the last). One
    detection per instance per frame: an instance an earlier detection of the frame joined
    (they come most confident first) is no candidate, and is not merged (two boxes in one
@@ -114,6 +120,8 @@ class PerceivedConfig:
     inside: float = 0.5  # of the segments with at least this share of their pixels in the box
     front_share: float = 0.05  # a segment with this share of the box, standing more than
     behind: float = 0.5  # m nearer than the object's, shows the latter to be background (inf: off)
+    part_share: float = 0.02  # rule 2: segments with this share of a box's pixels standing at most
+    part_behind: float = 0.3  # m behind the object's nearest point are its parts (part_share inf: none)
     cell: float = 0.05  # m: the association's coarse cells (rule 4)
     overlap: float = 0.2  # share of a detection's cells an instance must hold to take it,
     same_overlap: float = 0.05  # or, if it carries the detection's label, this share (rule 4)
@@ -147,9 +155,20 @@ class _Cloud(NamedTuple):
     size: np.ndarray
 
 
+class _Boxed(NamedTuple):
+    """One box's points in a frame (rules 1-3): keys (V,) their voxels' keys, ascending; cells
+    (C,) their coarse cells' keys; points (V, 3) the first point in each voxel; core (K,) the
+    coarse cells of the object's own depth segment, by which rule 4 associates the box."""
+
+    keys: np.ndarray
+    cells: np.ndarray
+    points: np.ndarray
+    core: np.ndarray
+
+
 class _Seen(NamedTuple):
-    """The latest frame (pose, depth, boxes), its cloud and each box's (voxel keys, cell keys,
-    points), kept while the frame repeats."""
+    """The latest frame (pose, depth, boxes), its cloud and each box's points (:class:`_Boxed`),
+    kept while the frame repeats."""
 
     pose: np.ndarray
     depth: np.ndarray
@@ -248,12 +267,13 @@ class PerceivedMapper(Mapper):
         keep = np.asarray(label) >= 0
         boxes, label, conf = np.asarray(boxes)[keep], np.asarray(label)[keep], np.asarray(conf)[keep]
         taken: set[int] = set()  # the instances this frame's detections joined so far
-        for (keys, cells, pts), k, c in zip(self._frame_voxels(pose, depth, boxes), label, conf):
-            if len(keys) < max(self.cfg.min_voxels, 1):
+        for boxed, k, c in zip(self._frame_voxels(pose, depth, boxes), label, conf):
+            pts = boxed.points
+            if len(pts) < max(self.cfg.min_voxels, 1):
                 continue
-            inst = self._associate(cells, int(k), taken)
+            inst = self._associate(boxed.core, int(k), taken)
             taken.add(inst)
-            self._claim(np.array([inst]), keys, pts, cells)
+            self._claim(np.array([inst]), boxed.keys, pts, boxed.cells)
             self.extent[inst] = _union(self.extent[inst], np.stack([pts.min(0), pts.max(0)]))
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
@@ -332,8 +352,8 @@ class PerceivedMapper(Mapper):
             root = root[root]
         return np.r_[root, -1]
 
-    def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list:
-        """Each box's (voxel keys, cell keys, points) in this frame (rules 1-3), kept with the
+    def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list[_Boxed]:
+        """Each box's points in this frame (rules 1-3), kept with the
         frame's cloud while the frame repeats: a robot at rest sends the same pose, depth and
         boxes after every decision."""
         last = self._last
@@ -383,25 +403,35 @@ class PerceivedMapper(Mapper):
         """(k,) the plan-view cell keys (``wall_cell``) of points at x, y (k,) (rule 10)."""
         return _keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
 
-    def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> tuple:
+    def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> _Boxed:
         """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
         of their pixels in the box, the nearest holding ``min_share`` of the box's points,
-        unless one holding ``front_share`` stands ``behind`` nearer."""
+        unless one holding ``front_share`` stands ``behind`` nearer; with its parts, those
+        holding ``part_share`` at most ``part_behind`` behind it."""
         cfg, n = self.cfg, int(mine.sum())
         part = cloud.part[mine]
         size = np.bincount(part, minlength=len(cloud.size))  # each segment's pixels in the box
         inside = (size > 0) & (size >= cfg.inside * cloud.size)
         fit = inside & (size >= cfg.min_share * n)
         if not fit.any():
-            return self._voxels(cloud, mine & False)
-        seen = np.flatnonzero(inside & (size >= min(cfg.front_share, cfg.min_share) * n))  # the fit, and thin things
-        depth = cloud.depth[mine]
-        # a segment's nearest point: how near it stands
-        near = np.array([depth[part == s].min() for s in seen.tolist()])
-        fits = fit[seen]
-        if near[fits].min() > near.min() + cfg.behind:  # a thin thing in front: the fit is what shows through it
-            return self._voxels(cloud, mine & False)
-        return self._voxels(cloud, mine & (cloud.part == seen[fits][int(np.argmin(near[fits]))]))
+            return self._boxed(cloud, mine & False)
+        near = np.full(len(cloud.size), np.inf, cloud.depth.dtype)  # a segment's nearest point in the box: how near it stands
+        np.minimum.at(near, part, cloud.depth[mine])
+        front = inside & (size >= min(cfg.front_share, cfg.min_share) * n)  # the fit, and thin things
+        obj = int(np.flatnonzero(fit)[np.argmin(near[fit])])
+        if near[obj] > near[front].min() + cfg.behind:  # a thin thing in front: the fit is what shows through it
+            return self._boxed(cloud, mine & False)
+        parts = inside & (size >= cfg.part_share * n) & (near >= near[obj]) & (near <= near[obj] + cfg.part_behind)
+        parts[obj] = True
+        return self._boxed(cloud, mine & parts[cloud.part], mine & (cloud.part == obj))
+
+    def _boxed(self, cloud: _Cloud, take: np.ndarray, core: np.ndarray | None = None) -> _Boxed:
+        """A box's points: the cloud's points ``take`` (k,), of which ``core`` (k,) (all if
+        None) are the object's own segment."""
+        keys, cells, points = self._voxels(cloud, take)
+        if core is None or np.array_equal(core, take):
+            return _Boxed(keys, cells, points, cells)
+        return _Boxed(keys, cells, points, self._voxels(cloud, core)[1])
 
     def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
@@ -412,7 +442,8 @@ class PerceivedMapper(Mapper):
         return keys, cells, np.stack([x[first], y[first], z[first]], -1)
 
     def _associate(self, cells: np.ndarray, label: int, taken: set[int]) -> int:
-        """The instance a detection joins, from the instances seen in its cells (rule 4):
+        """The instance a detection joins, from the instances seen in ``cells``, those of its
+        object's segment (rule 4):
         of those holding ``overlap`` of them and not ``taken`` by another detection of the
         frame, the one holding most among those of the detection's label, else among all;
         the others of that label merge into it."""
