@@ -105,6 +105,11 @@ def _log(env, m):
     return OnlineScorer(env.world, 0.05).score(m.semantic_map()).log
 
 
+def _spanning(boxes: np.ndarray) -> np.ndarray:
+    """(1, 4) the one box spanning ``boxes`` (D, 4)."""
+    return np.concatenate([boxes[:, :2].min(0), boxes[:, 2:].max(0)])[None]
+
+
 def _tight(label):
     b = visible_boxes(label, 40)  # rows object, x1, y1, x2, y2, pixels
     return b[:, 0], b[:, 1:5].astype(np.float32)
@@ -197,7 +202,7 @@ def test_one_box_over_two_touching_objects_merges_them_and_loses_the_smaller(sce
     env, depth, label = _frame(scenes, "together")
     obj, boxes = _tight(label)
     assert list(obj) == [0, 1]
-    union = np.concatenate([boxes[:, :2].min(0), boxes[:, 2:].max(0)])[None]
+    union = _spanning(boxes)
     merged = PerceivedMapper(Camera.of(env.config.camera), cfg=ONE)
     merged.fold(POSE, depth, union, np.array([4]), np.array([0.9], np.float32))
     separate = PerceivedMapper(Camera.of(env.config.camera), cfg=ONE)
@@ -316,7 +321,7 @@ def test_a_neighbour_inside_the_box_gives_points_but_never_merges(scenes, tmp_pa
     assert list(obj) == [0, 1]
     m = PerceivedMapper(Camera.of(env.config.camera), cfg=ONE)
     m.fold(POSE, depth, boxes[1:], np.array([0]), np.array([0.9], np.float32))  # the small chair alone
-    both = np.concatenate([boxes[:, :2].min(0), boxes[:, 2:].max(0)])[None]  # a loose box, both chairs
+    both = _spanning(boxes)  # a loose box, both chairs
     m.fold(POSE, depth, both, np.array([0]), np.array([0.9], np.float32))
     sc = score(env.world, _as_map(tmp_path, env, m))
     assert m.instances == 2 and sorted(sc.matched) == [0, 1] and sc.unmatched == 0

@@ -430,15 +430,19 @@ class PerceivedMapper(Mapper):
         keys, cells, points = self._voxels(cloud, take)
         if core is None or np.array_equal(core, take):
             return _Boxed(keys, cells, points, cells)
-        return _Boxed(keys, cells, points, self._voxels(cloud, core)[1])
+        return _Boxed(keys, cells, points, self._cells(cloud, core))
 
     def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
         cell keys, and the first of the points in each voxel, (V, 3) (rule 3)."""
         x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
         keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
-        cells = keys if self.cfg.cell == self.cfg.voxel else np.unique(_keys((x, y, z), self.cfg.cell))
+        cells = keys if self.cfg.cell == self.cfg.voxel else self._cells(cloud, take)
         return keys, cells, np.stack([x[first], y[first], z[first]], -1)
+
+    def _cells(self, cloud: _Cloud, take: np.ndarray) -> np.ndarray:
+        """The distinct coarse cell keys (C,) ascending of the cloud's points ``take`` (k,) (rule 4)."""
+        return np.unique(_keys((cloud.x[take], cloud.y[take], cloud.z[take]), self.cfg.cell))
 
     def _associate(self, cells: np.ndarray, label: int, taken: set[int]) -> int:
         """The instance a detection joins, from the instances seen in ``cells``, those of its
