@@ -3,6 +3,7 @@ teleop page and weights, and the installed package finds them away from the repo
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import zipfile
@@ -32,3 +33,59 @@ def test_a_built_wheel_installed_outside_the_repo_finds_its_worlds(tmp_path):
                          env={"PYTHONPATH": str(site), "PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu"})
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-2:] == ["kitchen,laboratory,small_office,large_office", "35"]
+
+
+def _closure(requirements: list[str]) -> set[str]:
+    """The distributions a plain install of ``requirements`` brings: them and, installed here,
+    what each declares in turn (extras and markers of other platforms left out)."""
+    from importlib import metadata
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    seen: set[str] = set()
+    todo = list(requirements)
+    while todo:
+        req = Requirement(todo.pop())
+        name = canonicalize_name(req.name)
+        if name in seen or (req.marker and not req.marker.evaluate({"extra": ""})):
+            continue
+        seen.add(name)
+        try:
+            todo += metadata.requires(name) or []
+        except metadata.PackageNotFoundError:  # not installed here: nothing of it can be imported either
+            pass
+    return seen
+
+
+# A plain install seen from this environment: a module of a distribution outside ``argv[1]``
+# cannot be imported (as if not installed); packages that only try such an import go on.
+_PLAIN_INSTALL = """
+import importlib.abc, json, sys
+from importlib import metadata
+from packaging.utils import canonicalize_name
+allowed, dists = set(json.loads(sys.argv[1])), metadata.packages_distributions()
+class Undeclared(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        top = name.split(".")[0]
+        if dists.get(top) and not {canonicalize_name(d) for d in dists[top]} & allowed:
+            raise ModuleNotFoundError(f"No module named {top!r}", name=top)
+sys.meta_path.insert(0, Undeclared())
+import rosmeery_jax.apps, rosmeery_jax.session, rosmeery_jax.gym
+print("gymnax" in sys.modules and "mujoco" in sys.modules)
+"""
+
+
+def test_what_rosmeery_run_imports_is_declared():
+    """`pip install .` gets what pyproject declares and what that declares in turn, not what
+    the test extras bring along: what `rosmeery run` imports (the command line, sessions, the
+    gym and RL environments) imports with nothing else installed (gymnax 0.0.9 imports six,
+    which only a test extra's dependency had brought)."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = _closure(project["dependencies"] + project["optional-dependencies"]["detector"]) | {"rosmeery-jax"}
+    out = subprocess.run([sys.executable, "-c", _PLAIN_INSTALL, json.dumps(sorted(declared))], capture_output=True,
+                         text=True, cwd=ROOT, env={"PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu"})
+    assert out.returncode == 0, out.stderr.strip().splitlines()[-1]
+    assert out.stdout.split()[-1] == "True"  # the import reached the heavy parts
