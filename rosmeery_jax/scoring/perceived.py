@@ -422,15 +422,14 @@ class PerceivedMapper(Mapper):
             return self._boxed(cloud, mine & False)
         parts = inside & (size >= cfg.part_share * n) & (near >= near[obj]) & (near <= near[obj] + cfg.part_behind)
         parts[obj] = True
-        return self._boxed(cloud, mine & parts[cloud.part], mine & (cloud.part == obj))
+        core = mine & (cloud.part == obj) if parts.sum() > 1 else None  # None: the object's segment alone
+        return self._boxed(cloud, mine & parts[cloud.part], core)
 
     def _boxed(self, cloud: _Cloud, take: np.ndarray, core: np.ndarray | None = None) -> _Boxed:
         """A box's points: the cloud's points ``take`` (k,), of which ``core`` (k,) (all if
         None) are the object's own segment."""
         keys, cells, points = self._voxels(cloud, take)
-        if core is None or np.array_equal(core, take):
-            return _Boxed(keys, cells, points, cells)
-        return _Boxed(keys, cells, points, self._cells(cloud, core))
+        return _Boxed(keys, cells, points, cells if core is None else self._cells(cloud, core))
 
     def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
