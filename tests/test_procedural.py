@@ -121,6 +121,7 @@ def test_procedural_names_load_everywhere_and_ranges_expand():
     ("procedural:office:1:objects=400", "objects"), ("procedural:office:1:clutter=2", "clutter"),
     ("procedural:office:1:tuck=-0.1", "tuck"), ("procedural:office:1:tuck=x", "tuck"),
     ("procedural:office:1:turn=200", "turn"), ("procedural:office:1:islands=1.5", "islands"),
+    ("procedural:office:1:spare=-1", "spare"),
 ])
 def test_bad_procedural_names_are_one_clear_error(name, where):
     with pytest.raises(InputError) as err:
@@ -179,6 +180,24 @@ def test_islands_set_desks_end_to_end_in_free_standing_rows_with_a_chair_and_mon
     screens = [it for it in layout.items if it.piece.category == "monitor"]
     assert all(any(s.z == d.top and s.rect.within(d.rect) for d in desks) for s in screens)
     assert load_world("procedural:lab:2:islands=1").truth.num_objects == len(layout.items)
+
+
+def test_spare_chairs_stand_alone_with_their_backs_to_a_wall():
+    plain, spare = generate(GenOptions("kitchen", 5)), generate(GenOptions("kitchen", 5, spare=1.0))
+    assert spare.options.name == "procedural_kitchen_5_s1" and "--spare 1" in spare.xml()
+    assert "--spare" not in plain.xml()
+    tables = [it.rect for it in spare.items if it.piece.category in ("desk", "dining table")]
+    alone = [it for it in spare.items if it.piece.category == "chair"
+             and not any(it.rect.overlaps(t.grow(20)) for t in tables)]
+    assert not [it for it in plain.items if it.piece.category == "chair"
+                and not any(it.rect.overlaps(t.grow(20)) for t in
+                            (i.rect for i in plain.items if i.piece.category in ("desk", "dining table")))]
+    assert len(alone) >= 2
+    for it in alone:  # its back (+y, -x, -y, +x for k = 0..3) within a few cm of its room's wall
+        x0, y0, x1, y1 = spare.rooms[it.room][1]
+        gap = (y1 - it.rect.y1, it.rect.x0 - x0, it.rect.y0 - y0, x1 - it.rect.x1)[it.k]
+        assert 0 <= gap <= 10, (it.rect, it.k, gap)
+    assert load_world("procedural:kitchen:5:spare=1").truth.num_objects == len(spare.items)
 
 
 def test_more_objects_than_fit_names_what_could_not_be_placed():

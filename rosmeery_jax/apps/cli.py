@@ -65,7 +65,8 @@ def _cmd_worlds(args) -> int:
 
 
 def _gen_options(args, seed: int) -> GenOptions:
-    return GenOptions(args.kind, seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands)
+    return GenOptions(args.kind, seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands,
+                      args.spare)
 
 
 def _cmd_worlds_generate(args) -> int:
@@ -438,6 +439,8 @@ def _worlds_parser(sub, d: SessionConfig) -> None:
                    help="chairs at desks and tables turned by up to DEG degrees either way (0)")
     s.add_argument("--islands", type=float, default=0.0, metavar="X",
                    help="share of desk groups set as free-standing rows of desks (0)")
+    s.add_argument("--spare", type=float, default=0.0, metavar="X",
+                   help="share of clutter objects that are a spare chair against a wall (0)")
     s.add_argument("--out", required=True, metavar="DIR")
     s.add_argument("--check", action="store_true", help="also load every world with the loader's validation")
     s.set_defaults(func=_cmd_worlds_generate)
