@@ -765,21 +765,23 @@ def _check(size, rooms, cuts, doors, items) -> tuple[int, int, float] | None:
 
 
 _NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")  # options after the seed, ":"-separated
+# the options a name may carry, each with the placeholder its value has in the name's form
+_NAME_OPTIONS = {"rooms": "R", "objects": "K", "clutter": "X", "tuck": "X", "turn": "D", "islands": "X", "spare": "X"}
+NAME_FORM = "procedural:KIND:SEED" + "".join(f"[:{k}={v}]" for k, v in _NAME_OPTIONS.items())
 
 
 def parse_name(text: str) -> GenOptions:
-    """``procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X][:tuck=X][:turn=D][:islands=X][:spare=X]`` as options
-    (InputError if bad)."""
+    """A name of the form :data:`NAME_FORM` as options (InputError if bad)."""
     m = _NAME.match(text)
     if not m:
-        raise InputError(text, "", "a procedural world is named "
-                         "procedural:KIND:SEED[:rooms=R][:objects=K][:clutter=X][:tuck=X][:turn=D][:islands=X][:spare=X]")
+        raise InputError(text, "", f"a procedural world is named {NAME_FORM}")
     kind, seed, extra = m.groups()
     opts: dict = {}
     for item in filter(None, (extra or "").split(":")):
         key, _, value = item.partition("=")
-        if key not in ("rooms", "objects", "clutter", "tuck", "turn", "islands", "spare"):
-            raise InputError(text, key, "unknown option (rooms, objects, clutter, tuck, turn, islands or spare)")
+        if key not in _NAME_OPTIONS:
+            *most, last = _NAME_OPTIONS
+            raise InputError(text, key, f"unknown option ({', '.join(most)} or {last})")
         if key in opts:
             raise InputError(text, key, "given twice")
         try:
