@@ -182,16 +182,19 @@ def test_islands_set_desks_end_to_end_in_free_standing_rows_with_a_chair_and_mon
     assert load_world("procedural:lab:2:islands=1").truth.num_objects == len(layout.items)
 
 
+def _lone_chairs(layout) -> list:
+    """The chairs standing 20 cm or more from every desk and table."""
+    tables = [it.rect for it in layout.items if it.piece.category in ("desk", "dining table")]
+    return [it for it in layout.items if it.piece.category == "chair"
+            and not any(it.rect.overlaps(t.grow(20)) for t in tables)]
+
+
 def test_spare_chairs_stand_alone_with_their_backs_to_a_wall():
     plain, spare = generate(GenOptions("kitchen", 5)), generate(GenOptions("kitchen", 5, spare=1.0))
     assert spare.options.name == "procedural_kitchen_5_s1" and "--spare 1" in spare.xml()
     assert "--spare" not in plain.xml()
-    tables = [it.rect for it in spare.items if it.piece.category in ("desk", "dining table")]
-    alone = [it for it in spare.items if it.piece.category == "chair"
-             and not any(it.rect.overlaps(t.grow(20)) for t in tables)]
-    assert not [it for it in plain.items if it.piece.category == "chair"
-                and not any(it.rect.overlaps(t.grow(20)) for t in
-                            (i.rect for i in plain.items if i.piece.category in ("desk", "dining table")))]
+    alone = _lone_chairs(spare)
+    assert not _lone_chairs(plain)
     assert len(alone) >= 2
     for it in alone:  # its back (+y, -x, -y, +x for k = 0..3) within a few cm of its room's wall
         x0, y0, x1, y1 = spare.rooms[it.room][1]
