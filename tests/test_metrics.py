@@ -306,6 +306,34 @@ def test_bad_pose_file_is_one_line_naming_file_and_field(tmp_path, capsys, text,
     assert not (tmp_path / "o").exists()
 
 
+def test_replay_takes_one_run_of_a_session_trajectory_file(tmp_path, capsys):
+    from rosmeery_jax.scoring.pose_replay import read_poses
+    from rosmeery_jax.world import load_world
+
+    office, kitchen = load_world("small_office"), load_world("kitchen")
+    (ox, oy, _), (kx, ky, _) = office.spawn, kitchen.spawn
+    rows = [("small_office", "random", 0, 0.0, ox, oy, 0.0), ("small_office", "random", 0, 1.0, ox, oy, 1.0),
+            ("small_office", "my.py:Mine", 1, 0.0, ox + 0.5, oy, 0.5), ("small_office", "my.py:Mine", 1, 1.0, ox, oy, 2.0),
+            ("kitchen", "frontier", 0, 0.0, kx, ky, 3.0)]
+    path = tmp_path / "trajectories.csv"
+    pd.DataFrame(rows, columns=["world", "policy", "seed", "time_s", "x", "y", "yaw"]).to_csv(path, index=False)
+    t, poses = read_poses(path, office, ("my.py:Mine", 1))  # a policy name holding a colon
+    assert t.tolist() == [0.0, 1.0] and poses.tolist() == [[ox + 0.5, oy, 0.5], [ox, oy, 2.0]]
+    t, poses = read_poses(path, kitchen)  # the world's only run: no --run needed
+    assert t.tolist() == [0.0] and poses.tolist() == [[kx, ky, 3.0]]
+    plain = tmp_path / "poses.csv"
+    plain.write_text(f"t,x,y,yaw\n0,{ox},{oy},0\n")
+    for poses_file, run, field in ((path, None, "run: holds 2 runs (random:0, my.py:Mine:1)"),
+                                   (path, "random:7", "run: no run random:7"), (path, "random", "--run"),
+                                   (plain, "random:0", "columns: no world")):
+        extra = [] if run is None else ["--run", run]
+        assert main(["replay", "--world", "small_office", "--poses", str(poses_file), "--out", str(tmp_path / "o"),
+                     *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and field in err
+        assert not (tmp_path / "o").exists()
+
+
 def test_compare_sessions_finals_aucs_and_noise_flags(tmp_path):
     """scripts/compare_sessions.py on two hand-made folders: 2 seeds, curves over 0..2 s."""
     import importlib.util

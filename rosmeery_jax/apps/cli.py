@@ -146,9 +146,19 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _policy_seed(run: str | None) -> tuple[str, int] | None:
+    """``--run POLICY:SEED`` as (policy, seed); None when not given."""
+    if run is None:
+        return None
+    policy, _, seed = run.rpartition(":")
+    if not policy or not seed.isdigit():
+        raise InputError("command line", "--run", f"{run!r} is not POLICY:SEED (as random:0)")
+    return policy, int(seed)
+
+
 def _cmd_replay(args) -> int:
     out = require_new(args.out)
-    times, poses = read_poses(args.poses, load_world(args.world))
+    times, poses = read_poses(args.poses, load_world(args.world), _policy_seed(args.run))
     names = metrics.resolve(args.metrics.split(",")) if args.metrics else metrics.DEFAULT_METRICS
     env = make(args.world)
     run = replay(env, times, poses)
@@ -480,7 +490,10 @@ def _bench_parser(sub, d: SessionConfig) -> None:
 def _replay_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("replay", help="score a recorded trajectory (CSV of t, x, y, yaw) without physics")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
-    p.add_argument("--poses", required=True, metavar="FILE.csv")
+    p.add_argument("--poses", required=True, metavar="FILE.csv",
+                   help="t, x, y, yaw; or a session's trajectories.csv (with --run)")
+    p.add_argument("--run", metavar="POLICY:SEED",
+                   help="the run of a session's trajectories.csv to replay (needed when the world has several)")
     p.add_argument("--out", default="out/replay", metavar="DIR")
     p.add_argument("--metrics", metavar="NAME,...", help="active metrics (default: all built-in)")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")

@@ -1,6 +1,8 @@
 """Replay a recorded trajectory: place the robot at each pose (no physics) and score it.
 
-Input: a CSV with columns t, x, y, yaw (seconds, metres, radians; t strictly increasing).
+Input: a CSV with columns t, x, y, yaw (seconds, metres, radians; t strictly increasing),
+or a session's ``trajectories.csv`` (world, policy, seed, time_s, x, y, yaw), of which one
+run is replayed: the world's rows of the ``run`` (policy, seed) asked for.
 At every pose the depth camera renders a frame, coverage and labels update (detector off:
 ground-truth labels of observed objects), and the per-object log is recorded; the metric
 curves follow from the logs. The whole trajectory runs as one jitted ``lax.scan``.
@@ -23,12 +25,15 @@ from rosmeery_jax.scoring import metrics
 from rosmeery_jax.sim.sensors import depth_seg
 
 POSE_COLUMNS = ("t", "x", "y", "yaw")
+SESSION_COLUMNS = ("world", "policy", "seed", "time_s")  # a session's trajectories.csv holds these too
 MAX_COORD = 1e6  # larger coordinates are corrupt (and would overflow float32)
 
 
-def read_poses(path: str | Path, world=None) -> tuple[np.ndarray, np.ndarray]:
+def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(times (T,), poses (T, 3)) from a CSV; one-line InputError naming the file and field.
-    With ``world``, every pose must lie on its floor plan's grid."""
+    With ``world``, every pose must lie on its floor plan's grid. From a session's
+    trajectories, the rows of ``world`` and ``run`` = (policy, seed) (``run`` may be left
+    out when the file holds one run of the world)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(str(path), "file", "not found")
@@ -36,6 +41,11 @@ def read_poses(path: str | Path, world=None) -> tuple[np.ndarray, np.ndarray]:
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
         raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0]})") from None
+    if set(SESSION_COLUMNS) <= set(df.columns):
+        df = session_run(df, path, world, run)
+    elif run is not None:
+        raise InputError(str(path), "columns", f"no {', '.join(SESSION_COLUMNS)}: not a session's trajectories, "
+                         "so there is no run to pick")
     missing = [c for c in POSE_COLUMNS if c not in df.columns]
     if missing:
         raise InputError(str(path), "columns", f"missing {', '.join(missing)} (need {', '.join(POSE_COLUMNS)})")
@@ -64,6 +74,30 @@ def read_poses(path: str | Path, world=None) -> tuple[np.ndarray, np.ndarray]:
             raise InputError(str(path), f"row {k + 2}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) lies "
                              f"outside the world {world.name!r}")
     return t, poses
+
+
+def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None) -> pd.DataFrame:
+    """The rows of one run of a session's trajectories (world, policy, seed, time_s, ...),
+    as columns t, x, y, yaw. ``world`` picks the world (required when the file holds
+    several); ``run`` = (policy, seed), required when the world has several runs."""
+    if world is not None:
+        df = df[df["world"].astype(str) == world.name]
+        if not len(df):
+            raise InputError(str(path), "world", f"no run in the world {world.name!r}")
+    elif df["world"].nunique() > 1:
+        raise InputError(str(path), "world", "holds several worlds: name the world")
+    runs = df[["policy", "seed"]].drop_duplicates().astype(str).agg(":".join, axis=1).tolist()
+    if run is not None:
+        df = df[(df["policy"].astype(str) == run[0]) & (df["seed"].astype(str) == str(run[1]))]
+        if not len(df):
+            raise InputError(str(path), "run", f"no run {run[0]}:{run[1]} (it holds {_listed(runs)})")
+    elif len(runs) > 1:
+        raise InputError(str(path), "run", f"holds {len(runs)} runs ({_listed(runs)}): pick one as POLICY:SEED")
+    return df.rename(columns={"time_s": "t"})[list(POSE_COLUMNS)].reset_index(drop=True)
+
+
+def _listed(runs: list[str], most: int = 6) -> str:
+    return ", ".join(runs[:most]) + (f", ... ({len(runs) - most} more)" if len(runs) > most else "")
 
 
 class Replay(NamedTuple):
