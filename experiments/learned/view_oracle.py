@@ -82,3 +82,21 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
         legs = (jnp.linalg.norm(first[:, None, :2] - state.pose[:2], axis=-1)
                 + jnp.linalg.norm(second[None, :, :2] - first[:, None, :2], axis=-1))
         return self.choose(state, ps, first, jnp.max(both / (legs + 1.0), -1))
+
+
+class ViewOracleORI(ViewOracle):
+    """Scored by ORI itself: each newly observed sample counts 1 / its object's sample count,
+    so every object weighs the same, as in ORI (paper Eq. 3); ``view_oracle`` counts samples,
+    so large objects weigh more."""
+    name = "view_oracle_ori"
+
+    def gain(self, state, pose):
+        """The ORI this view would add, times N: sum over newly observed samples of 1 / ps_G."""
+        sk = self.env.sk
+        weight = 1.0 / jnp.maximum(sk.ps_G[jnp.clip(sk.table.object, 0, sk.table.num_objects - 1)], 1.0)
+        return jnp.sum(jnp.where(newly_observed(self.env, state, pose), weight, 0.0))
+
+
+class ViewOracleORIPerMetre(ViewOracleORI):
+    name = "view_oracle_ori_pm"
+    per_metre = True
