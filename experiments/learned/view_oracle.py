@@ -3,7 +3,8 @@ takes, among the kept target and 32 targets of random's draw, the one from which
 would newly observe the most ground-truth surface samples (``view_oracle``), or the most per
 metre of travel plus one (``view_oracle_pm``). It decides when learned does. Two more test
 how far more search (``view_oracle_pm_wide``) and a view after the next
-(``view_oracle_2step``) take it. They read the ground truth, so they are measures, not
+(``view_oracle_2step``) take it. The ``view_oracle_ori`` family scores a view by the ORI it
+would add rather than by samples. They read the ground truth, so they are measures, not
 explorers."""
 
 import jax
@@ -100,3 +101,10 @@ class ViewOracleORI(ViewOracle):
 class ViewOracleORIPerMetre(ViewOracleORI):
     name = "view_oracle_ori_pm"
     per_metre = True
+
+
+class ViewOracleORIWide(ViewOracleORIPerMetre):
+    """``view_oracle_ori_pm`` with more search, as ``view_oracle_pm_wide``."""
+    name = "view_oracle_ori_pm_wide"
+    draws = 96
+    decide_every = 10
