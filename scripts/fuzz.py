@@ -74,6 +74,7 @@ def main() -> int:
                ("session configs (TOML)", fz.load_session_config, texts(fz.SEED_CONFIG), "session.toml"),
                ("recordings (JSONL)", fz.load_recording, texts(fz.recording_text()), "rec.jsonl"),
                ("pose files (CSV)", fz.load_poses, texts(fz.SEED_POSES), "poses.csv"),
+               ("session trajectories (CSV)", fz.load_trajectories, texts(fz.SEED_TRAJECTORIES), "trajectories.csv"),
                ("maps (PLY)", fz.load_map_ply, texts(fz.SEED_MAP_PLY), "map.ply"),
                ("maps (JSON)", fz.load_map_json, texts(fz.SEED_MAP_JSON), "map.json"),
                ("transforms (JSON)", fz.load_transform, texts(fz.SEED_TRANSFORM), "transform.json"),

@@ -20,6 +20,8 @@ SEED_WORLD = room_xml(CHAIR, {"thing": "chair"}, spawn=(-1.0, -1.0, 0.0))
 SEED_CONFIG = ('worlds = ["small_office"]\npolicies = ["random"]\nseeds = 2\nduration = 4.0\n'
                'detector = "off"\nmetrics = ["ori", "opi"]\n[env]\ncamera__cull = 64\n')
 SEED_POSES = "t,x,y,yaw\n0,0,0,0\n0.5,0.2,0.1,0.3\n1.0,0.4,0.2,0.6\n"
+SEED_TRAJECTORIES = ("world,policy,seed,time_s,x,y,yaw\nroom,random,0,0.0,0,0,0\nroom,random,0,1.0,0.2,0.1,0.3\n"
+                     "room,frontier,1,0.0,0,0,0\nroom,frontier,1,1.0,-0.4,0.2,0.6\n")
 SEED_MAP_PLY = ("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
                 "property int instance\nproperty int label\nproperty float confidence\nend_header\n"
                 "0.5 0.5 0.3 0 3 0.9\n0.6 0.5 0.3 0 3 0.8\n-1.0 0.2 0.4 1 -1 0.5\n1.2 -0.4 0.7 2 5 1.0\n")
@@ -106,6 +108,13 @@ def load_poses(path: Path):
     from rosmeery_jax.scoring.pose_replay import read_poses
 
     return read_poses(path)
+
+
+def load_trajectories(path: Path):
+    """One run of a session's trajectories, as ``rosmeery replay --run random:0`` picks it."""
+    from rosmeery_jax.scoring.pose_replay import read_poses
+
+    return read_poses(path, run=("random", 0))
 
 
 def load_weights(path: Path):

@@ -53,6 +53,12 @@ def test_mutated_pose_files(tmp_path, text):
     fz.check_one(fz.load_poses, _write(tmp_path, "poses.csv", text))
 
 
+@fuzz(60)
+@given(st.one_of(fz.edits().map(lambda e: fz.mutate(fz.SEED_TRAJECTORIES, e)), fz.number_swaps(fz.SEED_TRAJECTORIES)))
+def test_mutated_session_trajectories(tmp_path, text):
+    fz.check_one(fz.load_trajectories, _write(tmp_path, "trajectories.csv", text))
+
+
 @fuzz(40)
 @given(st.binary(max_size=256), st.integers(0, 2**20), st.integers(0, 64))
 def test_corrupted_weight_files(tmp_path, junk, where, cut):

@@ -78,22 +78,29 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
 
 def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None) -> pd.DataFrame:
     """The rows of one run of a session's trajectories (world, policy, seed, time_s, ...),
-    as columns t, x, y, yaw. ``world`` picks the world (required when the file holds
+    time_s renamed t. ``world`` picks the world (required when the file holds
     several); ``run`` = (policy, seed), required when the world has several runs."""
+    seed = pd.to_numeric(df["seed"], errors="coerce").to_numpy(float)
+    bad = np.flatnonzero(~(np.isfinite(seed) & (seed >= 0) & (seed < 2**31) & (seed == np.round(seed))))
+    if len(bad):
+        raise InputError(str(path), f"row {bad[0] + 2}, column seed", f"{df['seed'].iloc[bad[0]]!r} is not a seed "
+                         f"(a whole number from 0 to {2**31 - 1})")
+    df = df.assign(seed=seed.astype(np.int64), policy=df["policy"].fillna("").astype(str),
+                   world=df["world"].fillna("").astype(str))
     if world is not None:
-        df = df[df["world"].astype(str) == world.name]
+        df = df[df["world"] == world.name]
         if not len(df):
             raise InputError(str(path), "world", f"no run in the world {world.name!r}")
     elif df["world"].nunique() > 1:
         raise InputError(str(path), "world", "holds several worlds: name the world")
-    runs = df[["policy", "seed"]].drop_duplicates().astype(str).agg(":".join, axis=1).tolist()
+    runs = list(dict.fromkeys(f"{p}:{k}" for p, k in zip(df["policy"], df["seed"])))
     if run is not None:
-        df = df[(df["policy"].astype(str) == run[0]) & (df["seed"].astype(str) == str(run[1]))]
+        df = df[(df["policy"] == run[0]) & (df["seed"] == run[1])]
         if not len(df):
             raise InputError(str(path), "run", f"no run {run[0]}:{run[1]} (it holds {_listed(runs)})")
     elif len(runs) > 1:
         raise InputError(str(path), "run", f"holds {len(runs)} runs ({_listed(runs)}): pick one as POLICY:SEED")
-    return df.rename(columns={"time_s": "t"})[list(POSE_COLUMNS)].reset_index(drop=True)
+    return df.rename(columns={"time_s": "t"}).reset_index(drop=True)  # x, y, yaw checked by the caller
 
 
 def _listed(runs: list[str], most: int = 6) -> str:
