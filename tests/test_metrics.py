@@ -307,6 +307,7 @@ def test_bad_pose_file_is_one_line_naming_file_and_field(tmp_path, capsys, text,
 
 
 def test_replay_takes_one_run_of_a_session_trajectory_file(tmp_path, capsys):
+    from rosmeery_jax.core.errors import InputError
     from rosmeery_jax.scoring.pose_replay import read_poses
     from rosmeery_jax.world import load_world
 
@@ -321,6 +322,10 @@ def test_replay_takes_one_run_of_a_session_trajectory_file(tmp_path, capsys):
     assert t.tolist() == [0.0, 1.0] and poses.tolist() == [[ox + 0.5, oy, 0.5], [ox, oy, 2.0]]
     t, poses = read_poses(path, kitchen)  # the world's only run: no --run needed
     assert t.tolist() == [0.0] and poses.tolist() == [[kx, ky, 3.0]]
+    rows[3] = ("small_office", "my.py:Mine", 1, 0.0, ox, oy, 2.0)  # time stands still on the file's 5th line
+    pd.DataFrame(rows, columns=["world", "policy", "seed", "time_s", "x", "y", "yaw"]).to_csv(path, index=False)
+    with pytest.raises(InputError, match=r"row 5, column time_s: times must strictly increase"):
+        read_poses(path, office, ("my.py:Mine", 1))
     plain = tmp_path / "poses.csv"
     plain.write_text(f"t,x,y,yaw\n0,{ox},{oy},0\n")
     for poses_file, run, field in ((path, None, "run: holds 2 runs (random:0, my.py:Mine:1)"),

@@ -41,45 +41,49 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
         df = pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
         raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0]})") from None
-    if set(SESSION_COLUMNS) <= set(df.columns):
+    df.index = pd.RangeIndex(len(df))  # row k is the file's line k + 2 (a ragged file may have set an index)
+    session = set(SESSION_COLUMNS) <= set(df.columns)
+    if session:
         df = session_run(df, path, world, run)
     elif run is not None:
         raise InputError(str(path), "columns", f"no {', '.join(SESSION_COLUMNS)}: not a session's trajectories, "
                          "so there is no run to pick")
-    missing = [c for c in POSE_COLUMNS if c not in df.columns]
+    col = dict(zip(POSE_COLUMNS, ("time_s" if session else "t", "x", "y", "yaw")))  # as the file names them
+    missing = [col[c] for c in POSE_COLUMNS if col[c] not in df.columns]
     if missing:
-        raise InputError(str(path), "columns", f"missing {', '.join(missing)} (need {', '.join(POSE_COLUMNS)})")
+        raise InputError(str(path), "columns", f"missing {', '.join(missing)} (need {', '.join(col.values())})")
     if len(df) == 0:
         raise InputError(str(path), "rows", "no poses")
+    row = lambda k: int(df.index[k]) + 2  # noqa: E731  (the file's line: the header is line 1)
     for c in POSE_COLUMNS:
-        values = pd.to_numeric(df[c], errors="coerce")
+        values = pd.to_numeric(df[col[c]], errors="coerce")
         v = values.to_numpy(float)
         bad = np.flatnonzero(~(np.isfinite(v) & ((np.abs(v) <= MAX_COORD) | (c == "t"))))
         if len(bad):
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}",
-                             f"{df[c].iloc[bad[0]]!r} is not a finite number" + ("" if c == "t" else
-                                                                                 f" within {MAX_COORD:g}"))
-        df[c] = values
-    t = df["t"].to_numpy(float)
+            raise InputError(str(path), f"row {row(bad[0])}, column {col[c]}",
+                             f"{df[col[c]].iloc[bad[0]]!r} is not a finite number" + ("" if c == "t" else
+                                                                                      f" within {MAX_COORD:g}"))
+        df[col[c]] = values
+    t = df[col["t"]].to_numpy(float)
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
-        raise InputError(str(path), f"row {back[0] + 3}, column t", "times must strictly increase")
+        raise InputError(str(path), f"row {row(back[0] + 1)}, column {col['t']}", "times must strictly increase")
     if t[0] < 0:
-        raise InputError(str(path), "row 2, column t", f"{t[0]:g} s: times start at 0 or later")
+        raise InputError(str(path), f"row {row(0)}, column {col['t']}", f"{t[0]:g} s: times start at 0 or later")
     poses = df[["x", "y", "yaw"]].to_numpy(np.float32)
     if world is not None:
         outside = [k for k, xy in enumerate(poses[:, :2]) if not world.free_space.contains(xy)]
         if outside:
             k = outside[0]
-            raise InputError(str(path), f"row {k + 2}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) lies "
+            raise InputError(str(path), f"row {row(k)}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) lies "
                              f"outside the world {world.name!r}")
     return t, poses
 
 
 def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None) -> pd.DataFrame:
-    """The rows of one run of a session's trajectories (world, policy, seed, time_s, ...),
-    time_s renamed t. ``world`` picks the world (required when the file holds
-    several); ``run`` = (policy, seed), required when the world has several runs."""
+    """The rows of one run of a session's trajectories (world, policy, seed, time_s, ...).
+    ``world`` picks the world (required when the file holds several); ``run`` = (policy,
+    seed), required when the world has several runs."""
     seed = pd.to_numeric(df["seed"], errors="coerce").to_numpy(float)
     bad = np.flatnonzero(~(np.isfinite(seed) & (seed >= 0) & (seed < 2**31) & (seed == np.round(seed))))
     if len(bad):
@@ -100,7 +104,7 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
             raise InputError(str(path), "run", f"no run {run[0]}:{run[1]} (it holds {_listed(runs)})")
     elif len(runs) > 1:
         raise InputError(str(path), "run", f"holds {len(runs)} runs ({_listed(runs)}): pick one as POLICY:SEED")
-    return df.rename(columns={"time_s": "t"}).reset_index(drop=True)  # x, y, yaw checked by the caller
+    return df  # its index: the rows' places in the file (for the caller's messages)
 
 
 def _listed(runs: list[str], most: int = 6) -> str:
