@@ -100,20 +100,27 @@ def test_results_do_not_depend_on_chunk_s(room, tmp_path):
     a = _run(tmp_path / "a", room, "frontier", 2, "--detector", "off", "--chunk-s", "20")
     b = _run(tmp_path / "b", room, "frontier", 2, "--detector", "off", "--chunk-s", "3")
     pd.testing.assert_frame_equal(a.sort_values(KEY).reset_index(drop=True), b.sort_values(KEY).reset_index(drop=True))
-    # Rows every 0.5 s: the engine logs every 5 steps instead of 10. The whole seconds are
+    # Rows every step: the engine logs every step instead of every 10. The whole seconds are
     # the same experiment (trajectories bitwise; metric values up to float32 rounding of a
     # mean over objects computed over a different number of rows).
-    toml = tmp_path / "half.toml"
-    toml.write_text("sample_s = 0.5\n")
+    toml = tmp_path / "every_step.toml"
+    toml.write_text("sample_s = 0.1\n")
     c = _run(tmp_path / "c", room, "frontier", 2, "--detector", "off", "--config", str(toml))
-    assert sorted(set(c.time_s))[:3] == [0.0, 0.5, 1.0]
+    assert sorted(set(c.time_s))[:3] == [0.0, 0.1, 0.2]
     whole = c[np.isclose(c.time_s % 1.0, 0.0)].sort_values(KEY).reset_index(drop=True)
     ref = a.sort_values(KEY).reset_index(drop=True)
     assert len(whole) == len(ref) and (whole[KEY[:-1]] == ref[KEY[:-1]]).all().all()
     assert np.abs(whole.value.to_numpy() - ref.value.to_numpy()).max() < 1e-6
     ta, tc = (pd.read_csv(d / "runs" / "room__frontier.trajectory.csv") for d in (tmp_path / "a", tmp_path / "c"))
-    tc = tc[np.isclose(tc.time_s % 1.0, 0.0)].reset_index(drop=True)
-    assert np.array_equal(ta[["x", "y", "yaw"]].to_numpy(), tc[["x", "y", "yaw"]].to_numpy())
+    assert np.array_equal(ta[["x", "y", "yaw"]].to_numpy(),
+                          tc[np.isclose(tc.time_s % 1.0, 0.0)][["x", "y", "yaw"]].to_numpy())
+    # Every step's pose replayed (`rosmeery replay --run`) gives the session's ORI curve, bitwise.
+    assert main(["replay", "--world", room, "--poses", str(tmp_path / "c" / "trajectories.csv"), "--run",
+                 "frontier:1", "--metrics", "ori", "--out", str(tmp_path / "replayed")]) == 0
+    replayed = pd.read_csv(tmp_path / "replayed" / "metrics.csv")
+    session = c[(c.seed == 1) & (c.metric == "ori") & (c.mapper == "oracle")].sort_values("time_s")
+    np.testing.assert_allclose(replayed.time_s.to_numpy(), session.time_s.to_numpy(), atol=1e-6)  # files round
+    assert np.array_equal(replayed.value.to_numpy(), session.value.to_numpy())
 
 
 def test_padding_is_inert_and_worlds_stack():
