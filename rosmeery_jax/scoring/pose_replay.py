@@ -35,13 +35,7 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
     trajectories, the rows of ``world`` and ``run`` = (policy, seed) (``run`` may be left
     out when the file holds one run of the world)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(str(path), "file", "not found")
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
-        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0]})") from None
-    df.index = pd.RangeIndex(len(df))  # row k is the file's line k + 2 (a ragged file may have set an index)
+    df = _read_csv(path)
     session = set(SESSION_COLUMNS) <= set(df.columns)
     if session:
         df = session_run(df, path, world, run)
@@ -54,30 +48,47 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
         raise InputError(str(path), "columns", f"missing {', '.join(missing)} (need {', '.join(col.values())})")
     if len(df) == 0:
         raise InputError(str(path), "rows", "no poses")
-    row = lambda k: int(df.index[k]) + 2  # noqa: E731  (the file's line: the header is line 1)
-    for c in POSE_COLUMNS:
-        values = pd.to_numeric(df[col[c]], errors="coerce")
-        v = values.to_numpy(float)
-        bad = np.flatnonzero(~(np.isfinite(v) & ((np.abs(v) <= MAX_COORD) | (c == "t"))))
-        if len(bad):
-            raise InputError(str(path), f"row {row(bad[0])}, column {col[c]}",
-                             f"{df[col[c]].iloc[bad[0]]!r} is not a finite number" + ("" if c == "t" else
-                                                                                      f" within {MAX_COORD:g}"))
-        df[col[c]] = values
-    t = df[col["t"]].to_numpy(float)
+    t, x, y, yaw = (_finite(df, path, col[c], c == "t") for c in POSE_COLUMNS)
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
-        raise InputError(str(path), f"row {row(back[0] + 1)}, column {col['t']}", "times must strictly increase")
+        raise InputError(str(path), f"row {_line(df, back[0] + 1)}, column {col['t']}", "times must strictly increase")
     if t[0] < 0:
-        raise InputError(str(path), f"row {row(0)}, column {col['t']}", f"{t[0]:g} s: times start at 0 or later")
-    poses = df[["x", "y", "yaw"]].to_numpy(np.float32)
+        raise InputError(str(path), f"row {_line(df, 0)}, column {col['t']}", f"{t[0]:g} s: times start at 0 or later")
+    poses = np.stack([x, y, yaw], -1).astype(np.float32)
     if world is not None:
         outside = [k for k, xy in enumerate(poses[:, :2]) if not world.free_space.contains(xy)]
         if outside:
             k = outside[0]
-            raise InputError(str(path), f"row {row(k)}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) lies "
-                             f"outside the world {world.name!r}")
+            raise InputError(str(path), f"row {_line(df, k)}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) "
+                             f"lies outside the world {world.name!r}")
     return t, poses
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    """The file's table, row k being the file's line k + 2 (the header is line 1)."""
+    if not path.is_file():
+        raise InputError(str(path), "file", "not found")
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0]})") from None
+    df.index = pd.RangeIndex(len(df))  # a ragged file may have made its first fields an index
+    return df
+
+
+def _line(df: pd.DataFrame, k: int) -> int:
+    """The file's line of the k-th row left in ``df``."""
+    return int(df.index[k]) + 2
+
+
+def _finite(df: pd.DataFrame, path: Path, name: str, unbounded: bool) -> np.ndarray:
+    """Column ``name`` as float64, every value finite (and within MAX_COORD unless ``unbounded``)."""
+    v = pd.to_numeric(df[name], errors="coerce").to_numpy(float)
+    bad = np.flatnonzero(~(np.isfinite(v) & ((np.abs(v) <= MAX_COORD) | unbounded)))
+    if len(bad):
+        raise InputError(str(path), f"row {_line(df, bad[0])}, column {name}", f"{df[name].iloc[bad[0]]!r} is not a "
+                         "finite number" + ("" if unbounded else f" within {MAX_COORD:g}"))
+    return v
 
 
 def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None) -> pd.DataFrame:
@@ -87,7 +98,7 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
     seed = pd.to_numeric(df["seed"], errors="coerce").to_numpy(float)
     bad = np.flatnonzero(~(np.isfinite(seed) & (seed >= 0) & (seed < 2**31) & (seed == np.round(seed))))
     if len(bad):
-        raise InputError(str(path), f"row {bad[0] + 2}, column seed", f"{df['seed'].iloc[bad[0]]!r} is not a seed "
+        raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{df['seed'].iloc[bad[0]]!r} is not a seed "
                          f"(a whole number from 0 to {2**31 - 1})")
     df = df.assign(seed=seed.astype(np.int64), policy=df["policy"].fillna("").astype(str),
                    world=df["world"].fillna("").astype(str))
