@@ -85,11 +85,10 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
         return self.choose(state, ps, first, jnp.max(both / (legs + 1.0), -1))
 
 
-class ViewOracleORI(ViewOracle):
-    """Scored by ORI itself: each newly observed sample counts 1 / its object's sample count,
-    so every object weighs the same, as in ORI (paper Eq. 3); ``view_oracle`` counts samples,
-    so large objects weigh more."""
-    name = "view_oracle_ori"
+class ByORI:
+    """Scored by ORI itself (mixed in before a view oracle): each newly observed sample counts
+    1 / its object's sample count, so every object weighs the same, as in ORI (paper Eq. 3);
+    ``view_oracle`` counts samples, so large objects weigh more."""
 
     def gain(self, state, pose):
         """The ORI this view would add, times N: sum over newly observed samples of 1 / ps_G."""
@@ -98,13 +97,13 @@ class ViewOracleORI(ViewOracle):
         return jnp.sum(jnp.where(newly_observed(self.env, state, pose), weight, 0.0))
 
 
-class ViewOracleORIPerMetre(ViewOracleORI):
+class ViewOracleORI(ByORI, ViewOracle):
+    name = "view_oracle_ori"
+
+
+class ViewOracleORIPerMetre(ByORI, ViewOraclePerMetre):
     name = "view_oracle_ori_pm"
-    per_metre = True
 
 
-class ViewOracleORIWide(ViewOracleORIPerMetre):
-    """``view_oracle_ori_pm`` with more search, as ``view_oracle_pm_wide``."""
+class ViewOracleORIWide(ByORI, ViewOracleWide):
     name = "view_oracle_ori_pm_wide"
-    draws = 96
-    decide_every = 10
