@@ -282,3 +282,17 @@ def test_every_link_and_picture_of_the_docs_resolves():
               for target in re.findall(r"\]\(([^)#\s]+)", page.read_text(encoding="utf-8"))
               if "://" not in target and not (page.parent / target).exists()]
     assert len(pages) > 10 and not broken, broken
+
+
+def test_output_closed_by_its_reader_is_one_line_not_a_write_error(monkeypatch, capsys):
+    class ClosedPipe:  # stdout after `| head` has read its lines and left
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert main(["worlds"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == "rosmeery: stopped: the program reading its output closed it"

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import socket
 import sys
 import time
@@ -656,6 +657,17 @@ def _plot_parser(sub, d: SessionConfig) -> None:
     p.set_defaults(func=_cmd_plot)
 
 
+RESUMABLE = " (finished runs are kept: the same command with --resume continues)"
+
+
+def _stdout_to_devnull() -> None:
+    """Point the closed standard output at /dev/null, so Python's last flush fails no more."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # not a real file (a captured stream)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -666,9 +678,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rosmeery: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("rosmeery: interrupted" + (" (finished runs are kept: the same command with --resume continues)"
-                                         if args.command == "run" else ""), file=sys.stderr)
+        print("rosmeery: interrupted" + (RESUMABLE if args.command == "run" else ""), file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the program reading the output left (`| head`): no write failed of ours
+        _stdout_to_devnull()
+        print("rosmeery: stopped: the program reading its output closed it" + (RESUMABLE if args.command == "run"
+                                                                              else ""), file=sys.stderr)
+        return 1
     except OSError as err:  # a full disk, a folder that cannot be written: atomic writes left no part file
         where = err.filename or "a file"
         print(f"rosmeery: error: {where}: cannot write ({err.strerror or err})", file=sys.stderr)
