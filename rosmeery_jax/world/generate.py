@@ -764,7 +764,7 @@ def _check(size, rooms, cuts, doors, items) -> tuple[int, int, float] | None:
 
 
 _NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")  # options after the seed, ":"-separated
-# options a procedural name takes, with the placeholder each one's value has in NAME_FORM
+# the options a procedural name takes, each with the letter NAME_FORM shows for its value
 _NAME_OPTIONS = {"rooms": "R", "objects": "K", "clutter": "X", "tuck": "X", "turn": "D", "islands": "X", "spare": "X"}
 NAME_FORM = "procedural:KIND:SEED" + "".join(f"[:{k}={v}]" for k, v in _NAME_OPTIONS.items())
 
