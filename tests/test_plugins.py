@@ -3,6 +3,7 @@ package.module:Name, run like the built-ins; a broken plugin is one line naming 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import jax
@@ -83,7 +84,8 @@ def test_plugins_run_like_builtins_in_one_session(tmp_path, capsys):
     """One session: frontier, a plugin equal to it (bitwise the same curves: the same
     decisions in the one batch), the example explorer (it drives), a plugin metric, and
     mappers: perceived, a plugin equal to it (bitwise the same curves), the numpy example and
-    one that reads the depth of every step (what it is sent: :func:`_check_sweeps`)."""
+    one that reads the depth of every step (what it is sent: :func:`_check_sweeps`), with two
+    detector frames per decision (``detect_every`` 5)."""
     plugin = tmp_path / "mine.py"
     plugin.write_text(SAME_AS_FRONTIER + SAME_AS_PERCEIVED)
     records = tmp_path / "records"
@@ -93,16 +95,18 @@ def test_plugins_run_like_builtins_in_one_session(tmp_path, capsys):
     example = f"{ROOT / 'examples' / 'farthest_free_policy.py'}:FarthestFree"
     metric = f"{ROOT / 'examples' / 'metric_plugin.py'}:labelled_share"
     mapper = f"{ROOT / 'examples' / 'numpy_mapper.py'}:VoxelMapper"
-    out = tmp_path / "o"
+    out, toml = tmp_path / "o", tmp_path / "frames.toml"
+    toml.write_text("detect_every = 5\n")
     assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier,{example}", "--metrics",
                  f"ori,opi,{metric}", "--mapper", f"oracle,perceived,{plugin}:MyPerceived,{mapper},{sweeper}:Sweeper",
-                 "--out", str(out)]) == 0
+                 "--config", str(toml), "--out", str(out)]) == 0
     assert "mappers (fed and scored)" in capsys.readouterr().out
     df = pd.read_csv(out / "metrics.csv")
     assert set(df.policy) == {"frontier", "my_frontier", "farthest_free"}
     assert set(df.metric) == {"ori", "opi", "labelled_share"}
     assert set(df.mapper) == {"oracle", "perceived", "my_perceived", "voxel_numpy", "sweeper"}
-    _check_sweeps(records, 6)
+    _check_sweeps(records, 6, 5)
+    assert json.loads((out / "timing.json").read_text())["frames"] == 6 * 12  # 6 robots, 2 a second
     _same(df, "policy", "frontier", "my_frontier")
     _same(df, "mapper", "perceived", "my_perceived")
     own = df[(df.mapper == "voxel_numpy") & (df.metric == "ori")]
@@ -150,20 +154,22 @@ class Sweeper(Mapper):
 '''
 
 
-def _check_sweeps(records, runs: int) -> None:
-    """Each robot's Sweeper got the depth of every step between detector frames, in time
-    order with them, each the depth camera's image at its pose (no return: 0)."""
+def _check_sweeps(records, runs: int, every: int) -> None:
+    """Each robot's Sweeper got a detector frame every ``every`` steps and the depth of every
+    step between them, in time order, each the depth camera's image at its pose (no return: 0)."""
     sent = [np.load(f) for f in sorted(records.glob("*.npz"))]
     assert len(sent) == runs  # one per robot (the check before the session sends no depth)
     env = make("small_office")
-    expect = [(1, 10 * k + j, (10 * k + j) / 10) for k in range(6) for j in range(1, 10)]
-    expect = sorted(expect + [(0, k, k + 1.0) for k in range(5)], key=lambda e: (e[2], -e[0]))  # the last map
-    # (at 6 s) holds the frames taken before 6 s and the depth of every step before the last
+    periods = 60 // every  # 6 s of 0.1 s steps
+    expect = [(1, every * k + j, (every * k + j) / 10) for k in range(periods) for j in range(1, every)]
+    expect = sorted(expect + [(0, k, (k + 1) * every / 10) for k in range(periods - 1)],
+                    key=lambda e: (e[2], -e[0]))  # the last map (at 6 s) holds the frames taken
+    # before 6 s and the depth of every step before the last
     look = jax.jit(env.look)
     for run in sent:
         np.testing.assert_allclose(run["sent"], expect, atol=1e-9)
-        assert run["depth"].shape == (54, 48, 64)
-        for k in (0, 20, 53):
+        assert run["depth"].shape == (periods * (every - 1), 48, 64)
+        for k in (0, 20, len(run["depth"]) - 1):
             depth = np.asarray(look(jnp.asarray(run["pose"][k], jnp.float32))[0])
             np.testing.assert_allclose(run["depth"][k], np.where(depth < 8.0, depth, 0.0), atol=1e-4)
     assert max(np.ptp(run["pose"][:, :2], axis=0).max() for run in sent) > 0.1  # the robots drove

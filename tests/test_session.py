@@ -14,6 +14,7 @@ from rosmeery_jax.scoring import results
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
+from rosmeery_jax.session.config import SessionConfig, frames_before, log_every
 
 # Detector off: the YOLO session has its own test (test_detector); this setting is also
 # test_hardening's, so a program one compiles the other can load from the persistent cache.
@@ -64,6 +65,15 @@ def test_existing_results_are_refused_without_resume_and_resume_skips_finished_r
     # A resume with a different setting is refused, naming the field.
     assert main(["run", *_ARGS[:-3], "--duration", "8", "--quiet", "--out", str(session_dir), "--resume"]) == 2
     assert "duration" in capsys.readouterr().err
+    # A folder begun before a setting existed resumes at that setting's default, and only there.
+    record = json.loads((session_dir / "config.json").read_text())
+    del record["session"]["detect_every"]
+    (session_dir / "config.json").write_text(json.dumps(record))
+    assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(session_dir), "--resume"]) == 0
+    toml = session_dir.parent / "frames.toml"
+    toml.write_text("detect_every = 5\n")
+    assert main(["run", *_ARGS, "--config", str(toml), "--out", str(session_dir), "--resume"]) == 2
+    assert "detect_every" in capsys.readouterr().err
 
 
 def test_plot_command_redraws(session_dir, capsys):
@@ -81,6 +91,8 @@ def test_plot_command_redraws(session_dir, capsys):
     ("detector = 'magic'\n", "detector"),
     ("metrics = ['ori', 'nope']\n", "metrics"),
     ("seeds = [\n", "file"),
+    ("detect_every = 3\n", "detect_every"),  # not a divisor of decide_every (10)
+    ("detect_every = -1\n", "detect_every"),
 ])
 def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, toml, field):
     path = tmp_path / "session.toml"
@@ -177,3 +189,14 @@ def test_an_exported_map_evaluates_to_the_sessions_own_scores(session_dir, tmp_p
     for metric in ("ori", "opi", "opi_strict"):
         assert ours[metric] == pytest.approx(final[metric], abs=1e-6), metric
     assert ours["ori"] > 0  # the robot saw something: the equality is not 0 == 0
+
+
+def test_detector_frames_count_from_the_step_after_them_at_any_frame_period():
+    """Frames are taken at the end of each frame period (a decision by default) and count
+    from the step after: the rows of the engine's log and the frames each sample counts."""
+    steps = np.array([0, 1, 5, 6, 10, 11, 20])
+    default, fives = SessionConfig(), SessionConfig(detect_every=5)
+    assert frames_before(default, steps).tolist() == [0, 0, 0, 0, 0, 1, 1]
+    assert frames_before(fives, steps).tolist() == [0, 0, 0, 1, 1, 2, 3]
+    assert log_every(default) == 10 and log_every(fives) == 5 and log_every(SessionConfig(detect_every=2)) == 2
+    assert log_every(SessionConfig(detect_every=10)) == 10  # the default frame period, named

@@ -38,8 +38,8 @@ CAMERA_BYTES_PER_PIXEL = 64  # depth, labels and the ray kernel's per-pixel work
 SWEEP_BYTES_PER_PIXEL = 12  # a step's depth held for a mapper: float32, on device, on the host, as sent
 FRAME_BYTES_PER_PIXEL = 16  # a detector frame held for the worker: RGB, labels, depth, with copies
 # Settings that change results: resume refuses a change to any of them.
-RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detector_period_s", "sample_s",
-                 "metrics", "env", "mappers", "detector_runtime")
+RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
+                 "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime")
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,8 @@ class SessionConfig:
     detector_runtime: str = runtimes.DEFAULT  # where YOLO's network runs: torch, onnxruntime, openvino
     metrics: tuple[str, ...] = metrics.DEFAULT_METRICS
     decide_every: int = 10  # control steps between policy decisions (10 = 1 s)
+    detect_every: int = 0  # control steps between detector frames, a divisor of decide_every
+    # (0: one frame per decision, at its end); more frames feed the labels and mappers, not the policy's pace
     chunk_s: float = 30.0  # simulated seconds per jitted call without a detector (progress
     # granularity only: results do not depend on it)
     detector_period_s: float = 10.0  # labels from the frames of one period reach the robot's
@@ -139,6 +141,9 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
     for name in ("seeds", "decide_every"):
         if getattr(cfg, name) < 1:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
+    if cfg.detect_every < 0 or cfg.decide_every % max(cfg.detect_every, 1):
+        raise InputError(source, "detect_every", f"{cfg.detect_every!r} must be 0 (one frame per decision) or a "
+                         f"divisor of decide_every ({cfg.decide_every})")
     if cfg.devices < 0:
         raise InputError(source, "devices", f"{cfg.devices!r} must be a whole number >= 0 (0: every device)")
     for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):
@@ -238,8 +243,8 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     batch = float(per_policy * len(cfg.policies))
     need_host = batch * steps * max(w.truth.num_objects for w in worlds) * LOG_BYTES_PER_OBJECT_STEP
     cam = cfg.env_config.camera  # every step's depth and labels, and a chunk's detector frames
-    frames = per_call(cfg, decisions(cfg)) if cfg.detector != "off" else 0
-    swept = frames * cfg.decide_every if any(m != "oracle" for m in cfg.mappers) else 0  # steps' depth, for mappers
+    frames = per_call(cfg, decisions(cfg)) * cfg.decide_every // frame_steps(cfg) if cfg.detector != "off" else 0
+    swept = frames * frame_steps(cfg) if any(m != "oracle" for m in cfg.mappers) else 0  # steps' depth, for mappers
     need_device = batch * (DEVICE_BYTES_PER_ENV + cam.width * cam.height * (CAMERA_BYTES_PER_PIXEL
                                                                              + SWEEP_BYTES_PER_PIXEL * swept)
                            + FRAME_BYTES_PER_PIXEL * frames * cam.rgb_width * cam.rgb_height)
@@ -315,11 +320,16 @@ def per_call(cfg: SessionConfig, total: int) -> int:
     return max(d for d in range(1, min(want, total) + 1) if total % d == 0)
 
 
+def frame_steps(cfg: SessionConfig) -> int:
+    """Control steps between detector frames."""
+    return cfg.detect_every or cfg.decide_every
+
+
 def log_every(cfg: SessionConfig) -> int:
     """Steps between the engine's per-object logs: a divisor of ``sample_s`` in steps (the
-    rows metrics.csv keeps) and of ``decide_every`` (the chunk function logs within each
-    decision's steps)."""
-    return math.gcd(sample_steps(cfg), cfg.decide_every)
+    rows metrics.csv keeps) and of the frame period (the chunk function logs within each
+    frame's steps; it divides ``decide_every``)."""
+    return math.gcd(sample_steps(cfg), frame_steps(cfg))
 
 
 def sample_steps(cfg: SessionConfig) -> int:
@@ -341,6 +351,6 @@ def sampled_rows(cfg: SessionConfig) -> np.ndarray:
 
 
 def frames_before(cfg: SessionConfig, steps: np.ndarray) -> np.ndarray:
-    """Detector frames that count at each step (a frame taken at a decision's last step
+    """Detector frames that count at each step (a frame taken at its period's last step
     counts from the step after it, as labels do)."""
-    return np.maximum(np.asarray(steps) - 1, 0) // cfg.decide_every
+    return np.maximum(np.asarray(steps) - 1, 0) // frame_steps(cfg)

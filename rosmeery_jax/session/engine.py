@@ -25,11 +25,11 @@ fuses a partitioned program differently, so a robot's numbers changed with N.
 **The detector overlaps the simulation.** Chunk k's frames are detected in a worker thread
 while chunk k + 1 simulates. The robot's knowledge receives the detections on a fixed
 simulated-time schedule, part of the experiment: the frames of detector period p (one RGB
-frame per decision) are folded in at the start of period p + 2, so a label reaches the
-policy one to two periods after its frame, whatever the chunking. The metrics' label
-fields are rebuilt afterwards without that lag: a frame counts from the step after it, so
-the run's last frame never counts, and the final labels (objects table, exported maps)
-are those of the last logged step.
+frame per decision by default, or one every ``detect_every`` steps) are folded in at the
+start of period p + 2, so a label reaches the policy one to two periods after its frame,
+whatever the chunking. The metrics' label fields are rebuilt afterwards without that lag:
+a frame counts from the step after it, so the run's last frame never counts, and the final
+labels (objects table, exported maps) are those of the last logged step.
 
 Shapes: B envs in a group (a multiple of BLOCK), T steps, N objects (padded), F frames per
 chunk, D detections per frame.
@@ -258,9 +258,11 @@ def reset_fn(group: Group):
 
 class Plan(NamedTuple):
     """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
-    ``decide_every`` control steps per decision, a log row every ``log_every`` steps (a
-    divisor of ``decide_every``); ``mappers``: the mapper entries fed every detector frame
-    per env (needs detectors), their maps scored after each frame count in ``score_at``."""
+    ``decide_every`` control steps per decision, a detector frame every ``detect_every``
+    steps (a divisor of ``decide_every``; 0: one per decision, at its end), a log row every
+    ``log_every`` steps (a divisor of the frame period); ``mappers``: the mapper entries fed
+    every detector frame per env (needs detectors), their maps scored after each frame count
+    in ``score_at``."""
 
     total: int
     per_call: int
@@ -269,6 +271,22 @@ class Plan(NamedTuple):
     mappers: tuple[str, ...] = ()
     score_at: frozenset = frozenset()
     digest: bool = False  # a digest of each env's state after every chunk (session.digest)
+    detect_every: int = 0
+
+    @property
+    def frame_steps(self) -> int:
+        """Control steps per detector frame."""
+        return self.detect_every or self.decide_every
+
+    @property
+    def frames_per(self) -> int:
+        """Detector frames per decision."""
+        return self.decide_every // self.frame_steps
+
+    @property
+    def frames_per_call(self) -> int:
+        """Detector frames per jitted call."""
+        return self.per_call * self.frames_per
 
     @property
     def perceive(self) -> bool:
@@ -282,8 +300,8 @@ class Plan(NamedTuple):
 
     @property
     def spans(self) -> int:
-        """Logged spans per decision."""
-        return self.decide_every // self.log_every
+        """Logged spans per detector frame period."""
+        return self.frame_steps // self.log_every
 
 
 def _mapper_cls(spec: str) -> type:
@@ -292,10 +310,10 @@ def _mapper_cls(spec: str) -> type:
 
 
 class Frames(NamedTuple):
-    """The frame after each decision, per env: rgb (F, Hr, Wr, 3) uint8, labels (F, Hr, Wr)
-    int16, depth (F, Hr, Wr) float32 (None unless a mapper runs); and sweep (F,
-    decide_every, h, w) float32, the depth camera after every step of the decision (None
-    unless a mapper reads it)."""
+    """The detector frames, one every ``frame_steps`` control steps, per env: rgb (F, Hr,
+    Wr, 3) uint8, labels (F, Hr, Wr) int16, depth (F, Hr, Wr) float32 (None unless a mapper
+    runs); and sweep (F, frame_steps, h, w) float32, the depth camera after every step of
+    the frame's period (None unless a mapper reads it)."""
 
     rgb: jax.Array
     labels: jax.Array
@@ -305,7 +323,8 @@ class Frames(NamedTuple):
 
 class Chunk(NamedTuple):
     """One call of the chunk function, per env: the state, policy states and key after it,
-    logs (per_call * spans, N), track (per_call * decide_every, ...), frames or None."""
+    logs (per_call * decide_every / log_every, N), track (per_call * decide_every, ...),
+    frames (per_call * frames_per, ...) or None."""
 
     state: Any
     pstates: tuple
@@ -320,8 +339,9 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
     (F, D) into the knowledge, then ``plan.per_call`` decisions (:func:`_decision`).
     Returns a :class:`Chunk`; frames only with ``capture``, their depth only with
     ``plan.perceive``."""
-    if plan.decide_every % plan.log_every:
-        raise ValueError(f"log_every {plan.log_every} must divide decide_every {plan.decide_every}")
+    if plan.decide_every % plan.frame_steps or plan.frame_steps % plan.log_every:
+        raise ValueError(f"log_every {plan.log_every} must divide the frame period {plan.frame_steps}, and the "
+                         f"frame period decide_every {plan.decide_every}")
 
     def one(stacked, block, state, pstates, key, pending):
         env, policies = _in_world(group, stacked, block)
@@ -330,9 +350,8 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
         decide = _decision(env, policies, block[0], plan, capture)
         (state, pstates, key), ((logs, track), frames) = jax.lax.scan(decide, (state, pstates, key), None,
                                                                       length=plan.per_call)
-        logs = jax.tree.map(lambda a: a.reshape(plan.per_call * plan.spans, *a.shape[2:]), logs)
-        track = jax.tree.map(lambda a: a.reshape(plan.per_call * plan.decide_every, *a.shape[3:]), track)
-        return Chunk(state, pstates, key, logs, track, frames)
+        flat = lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])  # noqa: E731 (decision, within it)
+        return Chunk(state, pstates, key, *jax.tree.map(flat, (logs, track, frames)))
 
     return blocked(one, group.devices)
 
@@ -340,7 +359,8 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
 def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool):
     """The scan body of one decision: block policy ``q`` decides (``lax.switch``, so only
     its own decision runs), then ``decide_every`` env steps, logged every ``log_every``;
-    with ``capture``, the frame after them."""
+    with ``capture``, a frame after every ``frame_steps`` of them. Returns logs
+    (decide_every / log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
     per_step = policies[0].per_step
     sweep = plan.sweep
 
@@ -367,15 +387,26 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
             s, track = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
             return s, (env.log(s), track)
 
-        actions = jax.tree.map(lambda a: a.reshape(plan.spans, plan.log_every, *a.shape[1:]), action) \
-            if per_step else None
-        s, (logs, (track, depths)) = jax.lax.scan(span, s, actions, length=plan.spans)
-        frame = None
-        if capture:
-            img, dep, lab = env.camera_rgbd(s)
-            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
-                           depths.reshape(plan.decide_every, *depths.shape[2:]) if sweep else None)
-        return (s, pss, k), ((logs, track), frame)
+        def period(s, a):  # frame_steps steps, then the detector frame
+            s, (logs, (track, depths)) = jax.lax.scan(span, s, a, length=plan.spans)
+            frame = None
+            if capture:
+                img, dep, lab = env.camera_rgbd(s)
+                frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
+                               depths.reshape(plan.frame_steps, *depths.shape[2:]) if sweep else None)
+            return s, ((logs, track), frame)
+
+        shape = (plan.frames_per, plan.spans, plan.log_every)
+        actions = jax.tree.map(lambda a: a.reshape(*shape, *a.shape[1:]), action) if per_step else None
+        if plan.frames_per == 1:  # one frame per decision: no loop around the period
+            s, out = period(s, jax.tree.map(lambda a: a[0], actions))
+            out = jax.tree.map(lambda a: a[None], out)
+        else:
+            s, out = jax.lax.scan(period, s, actions, length=plan.frames_per)
+        (logs, track), frames = out  # (frames_per, spans, ...), frames (frames_per, ...)
+        logs = jax.tree.map(lambda a: a.reshape(plan.frames_per * plan.spans, *a.shape[2:]), logs)
+        track = jax.tree.map(lambda a: a.reshape(plan.decide_every, *a.shape[3:]), track)
+        return (s, pss, k), ((logs, track), frames)
 
     return decide
 
@@ -465,7 +496,8 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     if group.devices > 1:  # placed once: every call's arguments are then where they belong
         whole, split = shardings(group.devices)
         data, blocks = jax.device_put(data, whole), jax.device_put(blocks, split)
-    empty = tuple(jnp.asarray(a) for a in _no_detections(group.size, plan.per_call if capture else 1)[:3])
+    pending = plan.frames_per_call if capture else 1
+    empty = tuple(jnp.asarray(a) for a in _no_detections(group.size, pending)[:3])
     xla_before = dict(CompileClock._counts)
     ready = _prepare(detectors, group.config.camera) if capture else None
     with clock:
@@ -603,14 +635,14 @@ class _Detection:
             t0 = time.perf_counter()
             if self.ready is not None:
                 self.ready.result()  # the networks built while the session compiled (errors raise here)
-            dets = _detect(self.group, self.detectors, frames, c * plan.per_call)
+            dets = _detect(self.group, self.detectors, frames, c * plan.frames_per_call)
             logs = self._relabel(c, logs, dets)
             t1 = time.perf_counter()
             if self.mappers:
-                self._feed(c * plan.per_call, track.pose, frames, dets)
+                self._feed(c * plan.frames_per_call, track.pose, frames, dets)
             self.timing["detector_s"] += t1 - t0  # this thread alone writes them; read after close()
             self.timing["mapper_s"] += time.perf_counter() - t1
-            self.timing["frames"] += int(self.group.real.sum()) * plan.per_call
+            self.timing["frames"] += int(self.group.real.sum()) * plan.frames_per_call
         self.bar.update(plan.per_call * plan.decide_every * self.group.env.dt)
         done_steps = int(self.group.real.sum()) * (c + 1) * plan.per_call * plan.decide_every
         self.bar.set_postfix_str(f"{done_steps / (time.perf_counter() - self.started):,.0f} env-steps/s")
@@ -619,7 +651,7 @@ class _Detection:
     def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
         """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
         detections to its mappers, scoring their maps at the planned counts. A frame is taken
-        at its decision's last step and counts from the step after it, as labels do
+        at its period's last step and counts from the step after it, as labels do
         (``frames_before``): the map with k frames is scored just before frame k is added,
         after the depth of the steps before it (for mappers that read it)."""
         rgb, depth = np.asarray(frames.rgb), np.asarray(frames.depth)
@@ -628,7 +660,7 @@ class _Detection:
             sweep = np.asarray(frames.sweep)
             sweep = np.where(sweep < self.group.config.camera.max_range, sweep, 0)
         _, label, conf, box = dets
-        every, dt = self.plan.decide_every, self.group.env.dt
+        every, dt = self.plan.frame_steps, self.group.env.dt
         for r, mappers in enumerate(self.mappers):
             if mappers is None:
                 continue
@@ -648,8 +680,8 @@ class _Detection:
                     online.mapper.add(frame)
 
     def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, cameras: np.ndarray, sweep: np.ndarray) -> None:
-        """Send ``mappers`` the depth of one decision's steps after step ``before``: poses
-        (decide_every, 3), their camera poses (decide_every, 4, 4), sweep (decide_every, h, w)
+        """Send ``mappers`` the depth of one frame period's steps after step ``before``: poses
+        (frame_steps, 3), their camera poses (frame_steps, 4, 4), sweep (frame_steps, h, w)
         (0: no return); the last step is the detector frame's."""
         dt = self.group.env.dt
         for j in range(len(sweep) - 1):
@@ -666,7 +698,7 @@ class _Detection:
             obj[:, -1] = -1
         self.labels, per_frame = self.attach(self.data, self.blocks, self.labels,
                                              *(jnp.asarray(d) for d in (obj, *dets[1:3])))
-        return _relabel(logs, per_frame, self.plan.decide_every, self.plan.log_every)
+        return _relabel(logs, per_frame, self.plan.frame_steps, self.plan.log_every)
 
 
 def _collect(group: Group, start: Start, state, data, blocks, track0, done: list[Finished], worker: _Detection,
@@ -778,13 +810,13 @@ def _detect(group: Group, detectors: dict, frames: Frames, first_frame: int):
     return obj, label, conf, box
 
 
-def _relabel(logs: ObjectLog, per_frame, decide_every: int, log_every: int = 1) -> ObjectLog:
+def _relabel(logs: ObjectLog, per_frame, frame_steps: int, log_every: int = 1) -> ObjectLog:
     """Rewrite the chunk's label fields (B, n, N), one row after every ``log_every``-th
-    step, from the step after each frame on: a frame taken at the end of decision f counts
-    from decision f + 1 (before the chunk's first frame, the labels the previous chunk
-    ended with)."""
+    step, from the step after each frame on: a frame taken at the end of frame period f
+    (``frame_steps`` steps) counts from period f + 1 (before the chunk's first frame, the
+    labels the previous chunk ended with)."""
     step = (np.arange(logs.ps.shape[1]) + 1) * log_every - 1  # each row's step in the chunk, from 0
-    frame_of_step = step // decide_every - 1
+    frame_of_step = step // frame_steps - 1
     take = frame_of_step >= 0
     updates = {}
     for name, values in zip(LABEL_FIELDS, per_frame):

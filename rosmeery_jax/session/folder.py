@@ -79,7 +79,8 @@ def check_out(cfg: SessionConfig, resume: bool) -> Claim:
     saved = Path(cfg.out) / RECORD
     if not isinstance(old.get("session"), dict) or not isinstance(old.get("inputs"), dict):
         raise InputError(str(saved), "file", "not a session config: cannot resume from it")
-    require_same(saved, old["session"], record["session"], RESULT_FIELDS)
+    defaults = json.loads(json.dumps(asdict(SessionConfig())))  # a setting added since the folder began: its default
+    require_same(saved, {**defaults, **old["session"]}, record["session"], RESULT_FIELDS)
     for key in ("worlds", "policies"):
         dropped = [x for x in old["session"].get(key) or [] if x not in record["session"][key]]
         if dropped:

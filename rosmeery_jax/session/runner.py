@@ -108,7 +108,7 @@ class Session:
             steps = sampled_rows(cfg) * log_every(cfg)
             plan = engine.Plan(total, per_call(cfg, total), cfg.decide_every, log_every(cfg),
                                tuple(m for m in cfg.mappers if m != "oracle"),
-                               frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
+                               frozenset(frames_before(cfg, steps).tolist()), cfg.digest, cfg.detect_every)
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}
