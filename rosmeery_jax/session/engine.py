@@ -258,25 +258,19 @@ def reset_fn(group: Group):
 
 class Plan(NamedTuple):
     """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
-    ``decide_every`` control steps per decision, a detector frame every ``detect_every``
-    steps (a divisor of ``decide_every``; 0: one per decision, at its end), a log row every
-    ``log_every`` steps (a divisor of the frame period); ``mappers``: the mapper entries fed
-    every detector frame per env (needs detectors), their maps scored after each frame count
-    in ``score_at``."""
+    ``decide_every`` control steps per decision, a detector frame every ``frame_steps``
+    steps (a divisor of ``decide_every``), a log row every ``log_every`` steps (a divisor of
+    ``frame_steps``); ``mappers``: the mapper entries fed every detector frame per env
+    (needs detectors), their maps scored after each frame count in ``score_at``."""
 
     total: int
     per_call: int
     decide_every: int
+    frame_steps: int
     log_every: int = 1
     mappers: tuple[str, ...] = ()
     score_at: frozenset = frozenset()
     digest: bool = False  # a digest of each env's state after every chunk (session.digest)
-    detect_every: int = 0
-
-    @property
-    def frame_steps(self) -> int:
-        """Control steps per detector frame."""
-        return self.detect_every or self.decide_every
 
     @property
     def frames_per(self) -> int:

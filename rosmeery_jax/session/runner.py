@@ -33,7 +33,8 @@ from rosmeery_jax.detector.detections import make_detector
 from rosmeery_jax.gym import AGENT
 from rosmeery_jax.session import cluster, engine
 from rosmeery_jax.session.agents import run_agent
-from rosmeery_jax.session.config import SessionConfig, decisions, frames_before, log_every, per_call, sampled_rows
+from rosmeery_jax.session.config import (SessionConfig, decisions, frame_steps, frames_before, log_every, per_call,
+                                         sampled_rows)
 from rosmeery_jax.session.folder import check_out, versions
 from rosmeery_jax.session.outputs import RunResult, merge, run_name, sum_timing, write_run
 
@@ -106,9 +107,9 @@ class Session:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
             steps = sampled_rows(cfg) * log_every(cfg)
-            plan = engine.Plan(total, per_call(cfg, total), cfg.decide_every, log_every(cfg),
+            plan = engine.Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
                                tuple(m for m in cfg.mappers if m != "oracle"),
-                               frozenset(frames_before(cfg, steps).tolist()), cfg.digest, cfg.detect_every)
+                               frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}
