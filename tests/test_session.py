@@ -67,13 +67,14 @@ def test_existing_results_are_refused_without_resume_and_resume_skips_finished_r
     assert "duration" in capsys.readouterr().err
     # A folder begun before a setting existed resumes at that setting's default, and only there.
     record = json.loads((session_dir / "config.json").read_text())
-    del record["session"]["detect_every"]
+    del record["session"]["detect_every"], record["session"]["sample_s"]
     (session_dir / "config.json").write_text(json.dumps(record))
     assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(session_dir), "--resume"]) == 0
-    toml = session_dir.parent / "frames.toml"
-    toml.write_text("detect_every = 5\n")
+    toml = session_dir.parent / "rows.toml"
+    toml.write_text("sample_s = 2.0\n")
     assert main(["run", *_ARGS, "--config", str(toml), "--out", str(session_dir), "--resume"]) == 2
-    assert "detect_every" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "sample_s" in err and "was 1.0, now 2.0" in err
 
 
 def test_plot_command_redraws(session_dir, capsys):
@@ -93,6 +94,7 @@ def test_plot_command_redraws(session_dir, capsys):
     ("seeds = [\n", "file"),
     ("detect_every = 3\n", "detect_every"),  # not a divisor of decide_every (10)
     ("detect_every = -1\n", "detect_every"),
+    ("detect_every = 5\ndetector = 'off'\n", "detect_every"),  # frames for no detector
 ])
 def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, toml, field):
     path = tmp_path / "session.toml"

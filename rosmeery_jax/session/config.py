@@ -158,6 +158,9 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
         twice = next((v for v in values if values.count(v) > 1), None)
         if twice is not None:
             raise InputError(source, name, f"{twice!r} appears twice")
+    if cfg.detect_every and cfg.detector == "off":
+        raise InputError(source, "detect_every", f"{cfg.detect_every!r} sets the detector's frames: use --detector "
+                         "yolo or oracle")
     fed = next((m for m in cfg.mappers if m != "oracle"), None)
     if fed and cfg.detector == "off":
         raise InputError(source, "mappers", f"{fed!r} builds its map from detector frames: use --detector yolo "
