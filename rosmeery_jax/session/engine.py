@@ -368,6 +368,36 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
         s = env.step(s, a if per_step else action)
         return s, (Track.of(s), s.depth if sweep else None)
 
+    def span(s, a, action):  # log_every steps, then the log: the per-object log took 7 % of a
+        # paper session's step when taken every step, and metrics are written every sample_s
+        s, track = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
+        return s, (env.log(s), track)
+
+    def period(s, a, action):  # frame_steps steps, then the detector frame
+        s, (logs, (track, depths)) = jax.lax.scan(lambda s, a: span(s, a, action), s, a, length=plan.spans)
+        frame = None
+        if capture:
+            img, dep, lab = env.camera_rgbd(s)
+            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
+                           depths.reshape(plan.frame_steps, *depths.shape[2:]) if sweep else None)
+        return s, ((logs, track), frame)
+
+    def steps(s, action):
+        """The decision's steps, ``frames_per`` periods of them: logs (decide_every /
+        log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
+        shape = (plan.frames_per, plan.spans, plan.log_every)
+        actions = jax.tree.map(lambda a: a.reshape(*shape, *a.shape[1:]), action) if per_step else None
+        if plan.frames_per == 1:  # the default, one frame per decision: no scan of one around the
+            # period, which XLA is free to compile differently
+            s, out = period(s, jax.tree.map(lambda a: a[0], actions), action)
+            out = jax.tree.map(lambda a: a[None], out)
+        else:
+            s, out = jax.lax.scan(lambda s, a: period(s, a, action), s, actions, length=plan.frames_per)
+        (logs, track), frames = out  # (frames_per, spans, ...), frames (frames_per, ...)
+        logs = jax.tree.map(lambda a: a.reshape(plan.frames_per * plan.spans, *a.shape[2:]), logs)
+        track = jax.tree.map(lambda a: a.reshape(plan.decide_every, *a.shape[3:]), track)
+        return s, ((logs, track), frames)
+
     def decide(carry, _):
         s, pss, k = carry
         k, sub = jax.random.split(k)
@@ -375,32 +405,8 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
             action, pss = branch(0)(s, pss, sub)
         else:
             action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
-
-        def span(s, a):  # log_every steps, then the log: the per-object log took 7 % of a
-            # paper session's step when taken every step, and metrics are written every sample_s
-            s, track = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
-            return s, (env.log(s), track)
-
-        def period(s, a):  # frame_steps steps, then the detector frame
-            s, (logs, (track, depths)) = jax.lax.scan(span, s, a, length=plan.spans)
-            frame = None
-            if capture:
-                img, dep, lab = env.camera_rgbd(s)
-                frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
-                               depths.reshape(plan.frame_steps, *depths.shape[2:]) if sweep else None)
-            return s, ((logs, track), frame)
-
-        shape = (plan.frames_per, plan.spans, plan.log_every)
-        actions = jax.tree.map(lambda a: a.reshape(*shape, *a.shape[1:]), action) if per_step else None
-        if plan.frames_per == 1:  # one frame per decision: no loop around the period
-            s, out = period(s, jax.tree.map(lambda a: a[0], actions))
-            out = jax.tree.map(lambda a: a[None], out)
-        else:
-            s, out = jax.lax.scan(period, s, actions, length=plan.frames_per)
-        (logs, track), frames = out  # (frames_per, spans, ...), frames (frames_per, ...)
-        logs = jax.tree.map(lambda a: a.reshape(plan.frames_per * plan.spans, *a.shape[2:]), logs)
-        track = jax.tree.map(lambda a: a.reshape(plan.decide_every, *a.shape[3:]), track)
-        return (s, pss, k), ((logs, track), frames)
+        s, out = steps(s, action)
+        return (s, pss, k), out
 
     return decide
 
