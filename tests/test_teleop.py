@@ -84,6 +84,16 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _hold(page, key: str, until: str) -> None:
+    """Hold ``key`` until the page's state meets ``until`` (JavaScript over ``s``, the state,
+    and ``s0``, the state when the key went down): the robot's own progress, so a busy
+    machine, whose page may send the keys late, drives it as far as an idle one."""
+    page.evaluate("window.s0 = window.lastState")
+    page.keyboard.down(key)
+    page.wait_for_function(f"(s => {{ const s0 = window.s0; return {until}; }})(window.lastState)", timeout=120_000)
+    page.keyboard.up(key)
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium not installed (scripts/setup.sh --test installs it)")
 def test_drive_the_page_in_chromium_then_replay_the_recording(tmp_path):
     from playwright.sync_api import sync_playwright
@@ -107,10 +117,9 @@ def test_drive_the_page_in_chromium_then_replay_the_recording(tmp_path):
             page.wait_for_function("window.lastState && document.getElementById('map').naturalWidth > 0")
             start = page.evaluate("window.lastState")
             map0, rgb0 = page.locator("#map").screenshot(), page.locator("#rgb").screenshot()
-            for key, seconds in (("ArrowUp", 2.0), ("ArrowLeft", 1.2), ("ArrowUp", 1.5)):
-                page.keyboard.down(key)
-                page.wait_for_timeout(seconds * 1000)
-                page.keyboard.up(key)
+            _hold(page, "ArrowUp", "Math.hypot(s.pose[0] - s0.pose[0], s.pose[1] - s0.pose[1]) > 0.6")
+            _hold(page, "ArrowLeft", "Math.abs(s.pose[2] - s0.pose[2]) > 0.4")
+            _hold(page, "ArrowUp", "s.step >= s0.step + 10")
             page.wait_for_timeout(600)
             moved = page.evaluate("window.lastState")
             map1, rgb1 = page.locator("#map").screenshot(), page.locator("#rgb").screenshot()
