@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 
 import jax
 import numpy as np
@@ -14,7 +15,9 @@ from rosmeery_jax.scoring import results
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.session.config import SessionConfig, frames_before, log_every
+from rosmeery_jax.session.folder import check_out
 
 # Detector off: the YOLO session has its own test (test_detector); this setting is also
 # test_hardening's, so a program one compiles the other can load from the persistent cache.
@@ -65,16 +68,19 @@ def test_existing_results_are_refused_without_resume_and_resume_skips_finished_r
     # A resume with a different setting is refused, naming the field.
     assert main(["run", *_ARGS[:-3], "--duration", "8", "--quiet", "--out", str(session_dir), "--resume"]) == 2
     assert "duration" in capsys.readouterr().err
-    # A folder begun before a setting existed resumes at that setting's default, and only there.
-    record = json.loads((session_dir / "config.json").read_text())
-    del record["session"]["detect_every"], record["session"]["sample_s"]
-    (session_dir / "config.json").write_text(json.dumps(record))
-    assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(session_dir), "--resume"]) == 0
-    toml = session_dir.parent / "rows.toml"
-    toml.write_text("sample_s = 2.0\n")
-    assert main(["run", *_ARGS, "--config", str(toml), "--out", str(session_dir), "--resume"]) == 2
-    err = capsys.readouterr().err
-    assert "sample_s" in err and "was 1.0, now 2.0" in err
+
+
+def test_a_folder_begun_before_a_setting_existed_resumes_at_its_default_only(tmp_path):
+    cfg = SessionConfig(worlds=("small_office",), policies=("random",), detector="off", out=str(tmp_path / "o"))
+    record = check_out(cfg, resume=False).record
+    del record["session"]["detect_every"], record["session"]["sample_s"]  # as an older version wrote it
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "config.json").write_text(json.dumps(record))
+    assert not check_out(cfg, resume=True).fresh
+    with pytest.raises(InputError, match="sample_s.*was 1.0, now 2.0"):
+        check_out(replace(cfg, sample_s=2.0), resume=True)
+    with pytest.raises(InputError, match="detect_every.*was 0, now 5"):
+        check_out(replace(cfg, detect_every=5), resume=True)
 
 
 def test_plot_command_redraws(session_dir, capsys):
