@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 from pathlib import Path
@@ -25,6 +26,25 @@ if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] += (" --xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
                                 " --xla_cpu_parallel_codegen_split_count=1 --xla_cpu_use_fusion_emitters=false")
+
+
+# XLA's own optimisations back, for the few programs that run thousands of steps: there the
+# quick pipeline's slower code costs more than its faster compile saves (16 robots, 625
+# steps: compile 20 -> 31 s, run 85 -> 13 s; 2-core Xeon, 2026-11-28). Per compiled
+# function, as compiler options, so the rest of the process keeps the quick pipeline.
+OPTIMIZED = {"xla_backend_optimization_level": 3, "xla_llvm_disable_expensive_passes": False,
+             "xla_cpu_use_fusion_emitters": True}
+
+
+@contextlib.contextmanager
+def optimized():
+    """Functions compiled by ``rosmeery_jax.jit`` within get :data:`OPTIMIZED` too."""
+    from rosmeery_jax.core import xla
+
+    with pytest.MonkeyPatch.context() as mp:
+        for name, value in OPTIMIZED.items():
+            mp.setitem(xla.COMPILER_OPTIONS, name, value)
+        yield
 
 
 def suite_xla_flags() -> str:

@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
+from conftest import OPTIMIZED
 from rosmeery_jax.sim import occupancy
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.navigation import STATUS_NAMES
@@ -138,8 +139,9 @@ def _env(mode):
 
 
 @functools.lru_cache(maxsize=None)
-def _rollout(mode, steps):
-    """jit(vmap) rollout of ``steps`` steps: (keys (B,), actions (steps, B, A)) -> poses, final state."""
+def _rollout(mode, steps, optimized=False):
+    """jit(vmap) rollout of ``steps`` steps: (keys (B,), actions (steps, B, A)) -> poses, final
+    state; ``optimized``: compiled with XLA's optimisations (conftest.OPTIMIZED), for long runs."""
     env = _env(mode)
 
     def run(keys, actions):
@@ -151,7 +153,7 @@ def _rollout(mode, steps):
 
         return jax.lax.scan(body, s, actions)
 
-    return jax.jit(run)
+    return jax.jit(run, compiler_options=OPTIMIZED if optimized else None)
 
 
 def test_materialized_changes_no_value():
@@ -171,7 +173,7 @@ def test_robot_stays_out_of_solids_for_10000_random_steps():
     # Hold each random command for 1 s so robots build speed and really hit things.
     cmds = jax.random.uniform(jax.random.PRNGKey(1), (t // 10 + 1, b, 2), minval=lo, maxval=hi)
     actions = jnp.repeat(cmds, 10, axis=0)[:t]
-    final, poses = _rollout("velocity", t)(keys, actions)
+    final, poses = _rollout("velocity", t, optimized=True)(keys, actions)
     poses = np.asarray(poses)
     assert np.isfinite(poses).all()
     assert penetration(env.world, env.config.robot, poses).max() < 0.005

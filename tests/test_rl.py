@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import room_xml
+from conftest import optimized, room_xml
 from rosmeery_jax.rl import network, ppo
 from rosmeery_jax.rl.candidates import FEATURES, offer, window_means
 from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, flat_obs, score, split_obs
@@ -257,7 +257,8 @@ def trained(worlds, tmp_path_factory):
     """An uninterrupted run (its policy file serves the session test)."""
 
     out = tmp_path_factory.mktemp("train") / "whole"
-    ppo.train(_train_config(worlds), out, progress=False)
+    with optimized():  # 30 updates: XLA's optimisations repay their compile
+        ppo.train(_train_config(worlds), out, progress=False)
     return out
 
 
@@ -288,11 +289,12 @@ def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_pat
         return update(runner)
 
     monkeypatch.setattr(ppo, "make_update", _each_update(third_interrupted))
-    with pytest.raises(KeyboardInterrupt):
+    with optimized(), pytest.raises(KeyboardInterrupt):  # compiled as the uninterrupted run was
         ppo.train(_train_config(worlds), out, progress=False)
     assert len(ppo.read_curve(out)) == 2 and not (out / "policy.msgpack").exists()
     monkeypatch.setattr(ppo, "make_update", real)
-    ppo.train(_train_config(worlds), out, resume=True, progress=False)
+    with optimized():
+        ppo.train(_train_config(worlds), out, resume=True, progress=False)
     _, _, whole = network.load_policy(trained / "policy.msgpack")
     _, _, resumed = network.load_policy(out / "policy.msgpack")
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(resumed)):
