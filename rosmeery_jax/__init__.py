@@ -48,7 +48,7 @@ _API = {
     "POLICIES": ("rosmeery_jax.policies", "POLICIES"),
     "make_policy": ("rosmeery_jax.policies", "make_policy"),
     "ExplorationEnv": ("rosmeery_jax.rl.env", "ExplorationEnv"),
-    "RLConfig": ("rosmeery_jax.rl.env", "RLConfig"),
+    "RLConfig": ("rosmeery_jax.rl.task", "RLConfig"),
     "train": ("rosmeery_jax.rl.ppo", "train"),
     "load_train_config": ("rosmeery_jax.rl.ppo", "load_config"),
     "jit": ("rosmeery_jax.core.xla", "jit"),

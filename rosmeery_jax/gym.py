@@ -55,7 +55,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import EnvConfig, Track
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
-from rosmeery_jax.rl.env import REWARDS, score
+from rosmeery_jax.rl.task import REWARDS, score
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.evaluate import TOLERANCE
 from rosmeery_jax.scoring.mapper import MapState, OnlineScorer

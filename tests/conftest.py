@@ -28,7 +28,7 @@ if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
                                 " --xla_cpu_parallel_codegen_split_count=1 --xla_cpu_use_fusion_emitters=false")
 
 
-# XLA's own optimisations back, for the few programs that run thousands of steps: there the
+# XLA's own optimisations back, for the few programs that run thousands of robot-steps: there the
 # quick pipeline's slower code costs more than its faster compile saves (16 robots, 625
 # steps: compile 20 -> 31 s, run 85 -> 13 s; 2-core Xeon, 2026-11-28). Per compiled
 # function, as compiler options, so the rest of the process keeps the quick pipeline.

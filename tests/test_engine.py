@@ -3,6 +3,7 @@ depend on the batch, the padding or the chunking."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import jax
@@ -19,7 +20,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.env.world_data import NEVER, Sizes, stack
 
-from conftest import room_xml
+from conftest import optimized, room_xml
 
 BODIES = """
 <body name="table_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.72" size="0.5 0.3 0.03"/>
@@ -48,9 +49,13 @@ def room(tmp_path_factory):
     return str(path)
 
 
-def _run(out, worlds, policies, seeds, *extra) -> pd.DataFrame:
-    assert main(["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", "20",
-                 "--quiet", "--out", str(out), *extra]) == 0
+def _run(out, worlds, policies, seeds, *extra, fast_code: bool = False) -> pd.DataFrame:
+    """A 20 s session; ``fast_code``: compiled with XLA's optimisations (conftest.optimized),
+    which repay their compile for the larger batches."""
+    args = ["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", "20",
+            "--quiet", "--out", str(out), *extra]
+    with optimized() if fast_code else contextlib.nullcontext():
+        assert main(args) == 0
     return results.load(out)
 
 
@@ -68,8 +73,8 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, tmp_path)
     plugin = tmp_path / "one_view.py"
     plugin.write_text(ONE_VIEW)
     both = ("--detector", "oracle", "--mapper", f"oracle,{plugin}:OneView")
-    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both)
-    mixed = _run(tmp_path / "mixed", f"{room},small_office", "random,semantic_nbv", 3, *both)
+    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both, fast_code=True)
+    mixed = _run(tmp_path / "mixed", f"{room},small_office", "random,semantic_nbv", 3, *both, fast_code=True)
     for policy in ("random", "semantic_nbv"):
         a, b = _rows(alone, "room", policy, 2), _rows(mixed, "room", policy, 2)
         assert len(a) and len(a) == len(b)

@@ -71,15 +71,15 @@ class Undeclared(importlib.abc.MetaPathFinder):
         if dists.get(top) and not {canonicalize_name(d) for d in dists[top]} & allowed:
             raise ModuleNotFoundError(f"No module named {top!r}", name=top)
 sys.meta_path.insert(0, Undeclared())
-import rosmeery_jax.apps, rosmeery_jax.session, rosmeery_jax.gym
+import rosmeery_jax.apps.cli, rosmeery_jax.session, rosmeery_jax.gym, rosmeery_jax.rl.ppo
 print("gymnax" in sys.modules and "mujoco" in sys.modules)
 """
 
 
 def test_what_rosmeery_run_imports_is_declared():
     """`pip install .` gets what pyproject declares and what that declares in turn, not what
-    the test extras bring along: what `rosmeery run` imports (the command line, sessions, the
-    gym and RL environments) imports with nothing else installed (gymnax 0.0.9 imports six,
+    the test extras bring along: what `rosmeery run` and `rosmeery train` import (the command
+    line, sessions, the gym and RL environments, the trainer) imports with nothing else installed (gymnax 0.0.9 imports six,
     which only a test extra's dependency had brought)."""
     import tomllib
 

@@ -15,7 +15,8 @@ import pytest
 from conftest import optimized, room_xml
 from rosmeery_jax.rl import network, ppo
 from rosmeery_jax.rl.candidates import FEATURES, offer, window_means
-from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, flat_obs, score, split_obs
+from rosmeery_jax.rl.env import ExplorationEnv
+from rosmeery_jax.rl.task import RLConfig, flat_obs, score, split_obs
 
 BODIES_A = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 from rosmeery_jax.policies.learned import CANDIDATES, Choice, LearnedPolicy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy, facing
 from rosmeery_jax.rl.candidates import Offer, describe, driving, offer
-from rosmeery_jax.rl.env import flat_obs
+from rosmeery_jax.rl.task import flat_obs
 from rosmeery_jax.sim import grid
 
 

@@ -28,7 +28,6 @@ from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 from rosmeery_jax.env import make
-from rosmeery_jax.rl import ppo
 from rosmeery_jax.scoring import evaluate as map_eval
 from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
@@ -385,6 +384,8 @@ def _cmd_record(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    from rosmeery_jax.rl import ppo  # gymnax (1-2 s to import) only for the command that trains
+
     cfg = ppo.load_config(args.config)
     out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
     curve = ppo.read_curve(out)

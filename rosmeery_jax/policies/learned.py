@@ -28,7 +28,7 @@ import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.rl.candidates import driving, offer
-from rosmeery_jax.rl.env import flat_obs
+from rosmeery_jax.rl.task import flat_obs
 from rosmeery_jax.rl.network import ActorCritic, load_policy
 
 PREFIX = "learned:"

@@ -18,7 +18,7 @@ libraries (rejax) run on it unmodified.
   whichever comes first: a decision lasts as long as the drive, as a baseline's target
   does, so the robot never waits for the policy. In a batch the envs whose decision ended
   wait (their state is left as it is) until the longest one's ends.
-- **Observation**: one float32 vector ((K+1) * F + G,), :func:`split_obs` gives its parts:
+- **Observation**: one float32 vector ((K+1) * F + G,), :func:`.task.split_obs` gives its parts:
   the candidates' features (K+1, F) and the robot's (G,) (:mod:`.candidates`). Nothing in
   it is hidden ground truth. Episode time is left out, so a policy trained on short
   episodes runs unchanged in a session of any length.
@@ -33,8 +33,6 @@ S samples, N objects.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -42,56 +40,11 @@ import jax.numpy as jnp
 from flax import struct
 from gymnax.environments import environment, spaces
 
-from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Env, State
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import WorldBank
-from rosmeery_jax.rl.candidates import FEATURES, GLOBALS, Offer, driving, gave_up, offer
-from rosmeery_jax.sim import coverage
-
-REWARDS = ("ori", "cori", "coverage")
-MAX_CANDIDATES = 256  # K: more would not fit a batch's observations
-
-
-@dataclass(frozen=True)
-class RLConfig:
-    decide_every: int = 30  # at most this many control steps per decision (3 s)
-    episode_s: float = 120.0  # simulated seconds per episode
-    candidates: int = 16  # K: new candidate targets per decision (actions: K + 1, 0 keeps the target)
-    radius: float = 1.5  # m: half the side of the window a candidate's features describe
-    reward: str = "ori"
-    reward_scale: float = 10.0
-    fail_penalty: float = 0.05
-
-    @property
-    def actions(self) -> int:
-        return self.candidates + 1
-
-    @property
-    def obs_size(self) -> int:
-        return self.actions * len(FEATURES) + len(GLOBALS)
-
-    def horizon(self, dt: float) -> int:
-        """Control steps per episode."""
-        return max(1, int(round(self.episode_s / dt)))
-
-
-def check_rl(rl: RLConfig, source: str, prefix: str = "rl.") -> None:
-    """Every RL setting in range; one InputError naming ``source`` and the field."""
-    for name, top in (("candidates", MAX_CANDIDATES), ("decide_every", None)):
-        value = getattr(rl, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1 or (top and value > top):
-            raise InputError(source, prefix + name, f"{value!r} must be a whole number in [1, {top or 'inf'}]")
-    for name in ("episode_s", "radius"):
-        value = getattr(rl, name)
-        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-            raise InputError(source, prefix + name, f"{value!r} must be a finite number > 0")
-    for name in ("reward_scale", "fail_penalty"):
-        value = getattr(rl, name)
-        if not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise InputError(source, prefix + name, f"{value!r} must be a finite number")
-    if rl.reward not in REWARDS:
-        raise InputError(source, prefix + "reward", f"{rl.reward!r} is not one of {', '.join(REWARDS)}")
+from rosmeery_jax.rl.candidates import Offer, driving, gave_up, offer
+from rosmeery_jax.rl.task import REWARDS, RLConfig, flat_obs, score
 
 
 @struct.dataclass
@@ -101,25 +54,6 @@ class Params:
 
     worlds: wd.WorldData
     max_steps_in_episode: int = struct.field(pytree_node=False, default=1200)
-
-
-class Obs(NamedTuple):
-    """The observation's two parts (module docstring)."""
-
-    candidates: jax.Array  # (..., K+1, F) float32
-    robot: jax.Array  # (..., G) float32
-
-
-def flat_obs(o: Offer) -> jax.Array:
-    """(..., (K+1) * F + G) float32: an offer's observation as the env returns it."""
-    lead = o.globals.shape[:-1]
-    return jnp.concatenate([o.features.reshape(*lead, -1), o.globals], -1).astype(jnp.float32)
-
-
-def split_obs(obs: jax.Array) -> Obs:
-    """The parts of a flat observation (..., (K+1) * F + G)."""
-    lead, g, f = obs.shape[:-1], len(GLOBALS), len(FEATURES)
-    return Obs(obs[..., :-g].reshape(*lead, -1, f), obs[..., -g:])
 
 
 class RLState(NamedTuple):
@@ -200,18 +134,3 @@ class ExplorationEnv(environment.Environment):
         info = {"return": jnp.where(done, stepped.ret, 0.0), "score": jnp.where(done, new_score, 0.0),
                 "world": state.world, "steps": steps}
         return flat_obs(o), stepped, reward, done, info
-
-
-def score(env: Env, state: State, kind: str) -> jax.Array:
-    """The reward quantity (scalar float32) for one env: ORI or cORI over the world's real
-    objects (padding objects left out, as the metrics do), or the observed share of all
-    object samples."""
-    k = env.labelled_knowledge(state)
-    ps = coverage.per_object(k.seen, env.sk.table).astype(jnp.float32)
-    ps_G = env.sk.ps_G
-    real = ps_G < wd.NEVER
-    if kind == "coverage":
-        return jnp.sum(jnp.where(real, ps, 0.0)) / jnp.sum(jnp.where(real, ps_G, 0.0))
-    weighted = ps * k.conf_true if kind == "cori" else ps
-    errors = jnp.where(real, jnp.abs(ps_G - weighted) / ps_G, 0.0)
-    return 1.0 - jnp.minimum(1.0, jnp.sum(errors) / jnp.maximum(jnp.sum(real), 1))

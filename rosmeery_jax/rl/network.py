@@ -1,6 +1,6 @@
 """The learned explorer's network and its policy file.
 
-The network scores each candidate of the observation (:func:`~rosmeery_jax.rl.env.split_obs`)
+The network scores each candidate of the observation (:func:`~rosmeery_jax.rl.task.split_obs`)
 alone: its features, joined with the robot's, pass through two 64-unit dense layers shared
 by every candidate to one logit; a candidate not on offer gets a logit of -1e9. The value
 reads the mean of the offered candidates' hidden features and the robot's features (one
@@ -29,7 +29,7 @@ from flax import serialization
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.rl.candidates import FEATURES
-from rosmeery_jax.rl.env import RLConfig, check_rl, split_obs
+from rosmeery_jax.rl.task import RLConfig, check_rl, split_obs
 
 POLICY_FORMAT = "rosmeery-learned-2"  # 1: the goal-grid network, no longer read
 

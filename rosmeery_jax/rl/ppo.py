@@ -41,7 +41,8 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import memory_bytes
 from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
 from rosmeery_jax.env import EnvConfig, world_bank
-from rosmeery_jax.rl.env import ExplorationEnv, RLConfig, check_rl
+from rosmeery_jax.rl.env import ExplorationEnv
+from rosmeery_jax.rl.task import RLConfig, check_rl
 from rosmeery_jax.rl.network import ActorCritic, save_policy
 from rosmeery_jax.scoring.plots import learning_curve
 from rosmeery_jax.world.generate import expand_names
