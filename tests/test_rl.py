@@ -213,6 +213,17 @@ def test_bad_config_is_refused(worlds):
         ExplorationEnv(world_bank(worlds[:1]), replace(CFG, reward="speed"))
 
 
+def test_the_train_command_refuses_a_bad_config_in_one_line(tmp_path, capsys):
+    """`rosmeery train` (which imports the trainer, and gymnax with it, only when it runs)."""
+    from rosmeery_jax.apps.cli import main
+
+    toml, out = tmp_path / "ppo.toml", tmp_path / "o"
+    toml.write_text("[ppo]\nupdates = 0\n")
+    assert main(["train", "--config", str(toml), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{toml}: ppo.updates: 0 must be" in err[0] and not out.exists()
+
+
 # --- PPO ---------------------------------------------------------------------------------
 
 
