@@ -86,7 +86,6 @@ def split_obs(obs: jax.Array) -> Obs:
     return Obs(obs[..., :-g].reshape(*lead, -1, f), obs[..., -g:])
 
 
-
 def score(env: Env, state: State, kind: str) -> jax.Array:
     """The reward quantity (scalar float32) for one env: ORI or cORI over the world's real
     objects (padding objects left out, as the metrics do), or the observed share of all
