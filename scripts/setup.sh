@@ -32,11 +32,11 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     if [ -n "${PYTHONDONTWRITEBYTECODE:-}" ]; then
         # Python writes no bytecode here, so every process would compile again from source
         # the modules it imports (the command line: 17.6 s instead of 5.5 s on a 2-core
-        # Xeon): those of a session and of the tests compiled once, now (about 40 s;
-        # compileall writes bytecode whatever the variable says). Only a speed-up: a
-        # failure here stops nothing.
+        # Xeon): those of a session, of training and of the tests compiled once, now
+        # (about 40 s; compileall writes bytecode whatever the variable says). Only a
+        # speed-up: a failure here stops nothing.
         .venv/bin/python -c 'import os, sys, pytest, hypothesis, rosmeery_jax.apps.cli, rosmeery_jax.session.runner
-import rosmeery_jax.detector.yolo, rosmeery_jax.detector.runtime
+import rosmeery_jax.detector.yolo, rosmeery_jax.detector.runtime, rosmeery_jax.rl.ppo
 files = (getattr(m, "__file__", None) or "" for m in list(sys.modules.values()))
 print("\n".join(sorted(f for f in files if os.path.isabs(f) and f.endswith(".py"))))' |
             .venv/bin/python -m compileall -q -j 0 -i - >/dev/null 2>&1 || true

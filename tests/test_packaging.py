@@ -79,8 +79,8 @@ print("gymnax" in sys.modules and "mujoco" in sys.modules)
 def test_what_rosmeery_run_imports_is_declared():
     """`pip install .` gets what pyproject declares and what that declares in turn, not what
     the test extras bring along: what `rosmeery run` and `rosmeery train` import (the command
-    line, sessions, the gym and RL environments, the trainer) imports with nothing else installed (gymnax 0.0.9 imports six,
-    which only a test extra's dependency had brought)."""
+    line, sessions, the gym and RL environments, the trainer) imports with nothing else
+    installed (gymnax 0.0.9 imports six, which only a test extra's dependency had brought)."""
     import tomllib
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
