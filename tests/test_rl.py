@@ -209,8 +209,11 @@ def _gave_up(state):
 def test_bad_config_is_refused(worlds):
     from rosmeery_jax.env.world_bank import world_bank
 
-    with pytest.raises(ValueError, match="reward"):
-        ExplorationEnv(world_bank(worlds[:1]), replace(CFG, reward="speed"))
+    bank = world_bank(worlds[:1])
+    with pytest.raises(ValueError, match=r"^ExplorationEnv: config\.reward: 'speed' is not one of"):
+        ExplorationEnv(bank, replace(CFG, reward="speed"))
+    with pytest.raises(ValueError, match=r"^ExplorationEnv: config\.candidates: 0 must be a whole number"):
+        ExplorationEnv(bank, replace(CFG, candidates=0))
 
 
 def test_the_train_command_refuses_a_bad_config_in_one_line(tmp_path, capsys):

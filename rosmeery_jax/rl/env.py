@@ -44,7 +44,7 @@ from rosmeery_jax.env import Env, State
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import WorldBank
 from rosmeery_jax.rl.candidates import Offer, driving, gave_up, offer
-from rosmeery_jax.rl.task import REWARDS, RLConfig, flat_obs, score
+from rosmeery_jax.rl.task import RLConfig, check_rl, flat_obs, score
 
 
 @struct.dataclass
@@ -73,8 +73,7 @@ class ExplorationEnv(environment.Environment):
     vmap ``reset`` / ``step`` over keys for a batch."""
 
     def __init__(self, bank: WorldBank, config: RLConfig = RLConfig()):
-        if config.reward not in REWARDS:
-            raise ValueError(f"reward {config.reward!r} is not one of {', '.join(REWARDS)}")
+        check_rl(config, "ExplorationEnv", "config.")  # an InputError, a ValueError
         if bank.env.config.action_mode != "target":
             raise ValueError("the bank's env must use action_mode 'target' (the navigator drives)")
         self.bank, self.config = bank, config
