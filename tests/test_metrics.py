@@ -265,6 +265,15 @@ def replay_dir(tmp_path_factory):
     return d / "out"
 
 
+def test_metric_times_are_written_to_the_microsecond():
+    from rosmeery_jax.scoring.results import metric_frame
+
+    df = metric_frame({"ori": np.array([0.0, 0.25, 0.5, 0.5])}, np.arange(4) * 0.1, world="w", policy="p",
+                      detector="off", seed=0)
+    assert df.time_s.tolist() == [0.0, 0.1, 0.2, 0.3]  # 3 * 0.1 is 0.30000000000000004
+    assert "0.3,ori,0.5" in df.to_csv(index=False)
+
+
 def test_replay_writes_curves_with_a_user_metric(replay_dir):
     df = pd.read_csv(replay_dir / "metrics.csv")
     assert list(df.columns) == ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]

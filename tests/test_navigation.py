@@ -17,7 +17,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.policies.random_walk import RandomPolicy
 from rosmeery_jax.scoring import navigation
 from rosmeery_jax.sim import grid, occupancy
-from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STATUS_NAMES, STUCK
+from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STATUS_NAMES, STUCK, UNREACHABLE
 from rosmeery_jax.world import load_world
 
 # A kerb 0.15 m high across the robot's way: below the laser's plane (0.3 m), so the robot's
@@ -158,10 +158,12 @@ def test_account_by_hand():
     assert row["moving_s"] == 1.0 and row["recovering_s"] == 1.0 and row["stuck_s"] == 0.5
     assert row["idle_s"] == 0.5 and row["unreachable_s"] == 0.0 and row["timeout_s"] == 0.0
     # Driving yet within 0.1 m of one spot: the last moving step and the 10 recovering ones.
-    assert abs(row["longest_stuck_s"] - 1.1) < 1e-9
+    assert row["longest_stuck_s"] == 1.1
     assert row["still_s"] == 0.0  # 3 s: no whole 10 s window
     still = navigation.account(np.full(201, MOVING), np.zeros((201, 3)), 0.1)
-    assert still["still_s"] == 20.0 and abs(still["longest_stuck_s"] - 20.0) < 1e-9
+    assert still["still_s"] == 20.0 and still["longest_stuck_s"] == 20.0
+    three = navigation.account(np.array([IDLE] + [MOVING] * 3 + [UNREACHABLE] * 7), np.zeros((11, 3)), 0.1)
+    assert three["moving_s"] == 0.3 and three["unreachable_s"] == 0.7  # not 0.30000000000000004, 0.7000000000000001
 
 
 def test_session_names_a_cause_for_every_second(tmp_path, capsys):
