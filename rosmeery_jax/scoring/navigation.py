@@ -35,7 +35,7 @@ def account(status: np.ndarray, poses: np.ndarray, dt: float) -> dict[str, float
     Entry k >= 1 is the status the navigator reported for the control period ending at
     step k, so the causes' seconds sum to T * dt."""
     period = np.asarray(status[1:])
-    row = {f"{name}_s": seconds(np.isin(period, codes).sum(), dt) for name, codes in CAUSES.items()}
+    row = {f"{name}_s": _seconds(np.isin(period, codes).sum(), dt) for name, codes in CAUSES.items()}
     xy = np.asarray(poses[:, :2], np.float64)
     row["still_s"] = _still(xy, dt)
     row["longest_stuck_s"] = _longest_stuck(xy, np.isin(period, (MOVING, RECOVERING)), dt)
@@ -64,10 +64,10 @@ def _longest_stuck(xy: np.ndarray, driving: np.ndarray, dt: float) -> float:
         if anchor < 0 or (x[k] - x[anchor]) ** 2 + (y[k] - y[anchor]) ** 2 > STILL_M ** 2:
             anchor = k
         best = max(best, k - anchor + 1)
-    return seconds(best, dt)
+    return _seconds(best, dt)
 
 
-def seconds(steps, dt: float) -> float:
+def _seconds(steps, dt: float) -> float:
     """``steps`` control periods of ``dt`` in seconds, to the microsecond: 0.3 rather than
     3 * 0.1 = 0.30000000000000004 in the files."""
     return round(float(steps) * dt, 6)
