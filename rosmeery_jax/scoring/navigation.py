@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rosmeery_jax.scoring.results import seconds
 from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STUCK, TIMEOUT, UNREACHABLE
 
 CAUSES = {"moving": (MOVING,), "recovering": (RECOVERING,), "idle": (IDLE, REACHED), "stuck": (STUCK,),
@@ -35,7 +36,7 @@ def account(status: np.ndarray, poses: np.ndarray, dt: float) -> dict[str, float
     Entry k >= 1 is the status the navigator reported for the control period ending at
     step k, so the causes' seconds sum to T * dt."""
     period = np.asarray(status[1:])
-    row = {f"{name}_s": _seconds(np.isin(period, codes).sum(), dt) for name, codes in CAUSES.items()}
+    row = {f"{name}_s": float(seconds(np.isin(period, codes).sum() * dt)) for name, codes in CAUSES.items()}
     xy = np.asarray(poses[:, :2], np.float64)
     row["still_s"] = _still(xy, dt)
     row["longest_stuck_s"] = _longest_stuck(xy, np.isin(period, (MOVING, RECOVERING)), dt)
@@ -64,13 +65,7 @@ def _longest_stuck(xy: np.ndarray, driving: np.ndarray, dt: float) -> float:
         if anchor < 0 or (x[k] - x[anchor]) ** 2 + (y[k] - y[anchor]) ** 2 > STILL_M ** 2:
             anchor = k
         best = max(best, k - anchor + 1)
-    return _seconds(best, dt)
-
-
-def _seconds(steps, dt: float) -> float:
-    """``steps`` control periods of ``dt`` in seconds, to the microsecond: 0.3 rather than
-    3 * 0.1 = 0.30000000000000004 in the files."""
-    return round(float(steps) * dt, 6)
+    return float(seconds(best * dt))
 
 
 def frame(status: np.ndarray, poses: np.ndarray, dt: float, **tags) -> pd.DataFrame:

@@ -23,11 +23,16 @@ OBJECT_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "object", "ca
                   "label", "confidence", "P_G", "p"]
 
 
+def seconds(t):
+    """Times or durations in seconds (scalar or array) to the microsecond, as every results
+    file writes them: 0.3, not 3 * 0.1 = 0.30000000000000004."""
+    return np.round(np.asarray(t, float), 6)
+
+
 def metric_frame(curves: dict[str, np.ndarray], times: np.ndarray, *, world: str, policy: str,
                  detector: str, seed: int, mapper: str = "oracle") -> pd.DataFrame:
-    """Long table of curves {metric: (T,)} sampled at times (T,) seconds (to the
-    microsecond, as trajectories.csv: 0.3, not 3 * 0.1 = 0.30000000000000004)."""
-    times = np.round(np.asarray(times, float), 6)
+    """Long table of curves {metric: (T,)} sampled at times (T,) seconds (:func:`seconds`)."""
+    times = seconds(times)
     parts = [pd.DataFrame({"time_s": times, "metric": name, "value": np.asarray(c, float)}) for name, c in curves.items()]
     df = pd.concat(parts, ignore_index=True)
     df.insert(0, "seed", int(seed))

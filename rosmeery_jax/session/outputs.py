@@ -95,7 +95,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
                                                 policy=policy, detector=cfg.detector))
             _write_mapper_map(env, done.final, out / "maps" / f"{name}__seed{seed}__{label}", times[-1])
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
-                                   "time_s": np.round(times[keep], 6), "x": poses[seed, step[keep], 0],
+                                   "time_s": results.seconds(times[keep]), "x": poses[seed, step[keep], 0],
                                    "y": poses[seed, step[keep], 1], "yaw": poses[seed, step[keep], 2]}))
     runs = out / "runs"
     results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{name}.objects.csv")
