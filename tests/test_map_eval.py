@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -108,7 +109,8 @@ def test_a_wrong_label_keeps_ori_and_loses_cori_and_the_wrong_predicates(world, 
 
 @pytest.mark.parametrize("case, field", [
     ("garbage", "file"), ("no_instance", "vertex"), ("nan", "vertex x, y, z"),
-    ("label", "objects[0].label"), ("world", "frame.world"),
+    ("label", "objects[0].label"), ("world", "frame.world"), ("confidence", "vertex confidence"),
+    ("fraction", "vertex object_id"), ("ascii_nan", "vertex"),
 ])
 def test_bad_maps_are_one_line_naming_file_and_field_and_nothing_is_written(world, tmp_path, capsys, case, field):
     chair, _ = _parts(world)
@@ -126,8 +128,20 @@ def test_bad_maps_are_one_line_naming_file_and_field_and_nothing_is_written(worl
     elif case == "label":
         ply.with_suffix(".json").write_text(json.dumps({"frame": {"world": world.name},
                                                         "objects": [{"id": 0, "label": "spaceship"}]}))
+    elif case in ("confidence", "fraction"):  # a per-point confidence of 1.5; an instance id of 0.5
+        cloud = trimesh.Trimesh(vertices=chair, faces=np.zeros((0, 3), np.int64), process=False)
+        cloud.vertex_attributes["object_id"] = np.full(len(chair), 0.5 if case == "fraction" else 0.0, np.float32)
+        cloud.vertex_attributes["confidence"] = np.full(len(chair), 1.5 if case == "confidence" else 1.0, np.float32)
+        ply.write_bytes(trimesh.exchange.ply.export_ply(cloud, encoding="binary", include_attributes=True))
+    elif case == "ascii_nan":  # trimesh would cast it to the lowest int32, warning only
+        rows = "".join(f"{x} {y} {z} 0\n" for x, y, z in chair[:-1]) + "0 0 0 nan\n"
+        ply.write_text(f"ply\nformat ascii 1.0\nelement vertex {len(chair)}\nproperty float x\nproperty float y\n"
+                       f"property float z\nproperty int object_id\nend_header\n{rows}")
     out = tmp_path / "out"
-    assert main(["evaluate", "--world", str(world.path), "--map", str(ply), "--out", str(out)]) == 2
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["evaluate", "--world", str(world.path), "--map", str(ply), "--out", str(out)]) == 2
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]  # nothing printed but the line
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(ply.stem) in err and field in err
     assert not out.exists()
@@ -168,3 +182,10 @@ def test_alignment_recovers_a_known_transform_and_a_given_one_is_applied(tmp_pat
     assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--transform", str(tmp_path / "bad.json"),
                  "--out", str(tmp_path / "x")]) == 2
     assert "bad.json: transform: is not a rigid transform" in capsys.readouterr().err
+    (tmp_path / "huge.json").write_text(json.dumps({"transform": [[1e200, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                                  [0, 0, 0, 1]]}))
+    with warnings.catch_warnings(record=True) as caught:  # its R @ R.T would overflow
+        warnings.simplefilter("always")
+        assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--transform",
+                     str(tmp_path / "huge.json"), "--out", str(tmp_path / "x")]) == 2
+    assert not caught and "huge.json: transform: is not a rigid transform" in capsys.readouterr().err

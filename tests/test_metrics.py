@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import warnings
 from types import MappingProxyType
 
 import jax
@@ -272,6 +273,12 @@ def test_metric_times_are_written_to_the_microsecond():
                       detector="off", seed=0)
     assert df.time_s.tolist() == [0.0, 0.1, 0.2, 0.3]  # 3 * 0.1 is 0.30000000000000004
     assert "0.3,ori,0.5" in df.to_csv(index=False)
+    from rosmeery_jax.scoring.results import seconds
+
+    with warnings.catch_warnings():  # a map's time of 1e308 s: kept, not overflowed to inf
+        warnings.simplefilter("error")
+        assert seconds([1e308, 2.0 ** 60, 0.1 * 3]).tolist() == [1e308, 2.0 ** 60, 0.3]
+    assert isinstance(seconds(0.1 * 3), float) and seconds(0.1 * 3) == 0.3  # a scalar stays one (JSON)
 
 
 def test_replay_writes_curves_with_a_user_metric(replay_dir):

@@ -86,8 +86,9 @@ def read_transform(path: str | Path) -> np.ndarray:
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputError(path, "transform", f"must be a 4 x 4 matrix of finite numbers, got shape {T.shape}")
     R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or not np.isclose(np.linalg.det(R), 1.0, atol=1e-4) \
-            or not np.allclose(T[3], [0, 0, 0, 1]):
+    # A rotation's entries lie in [-1, 1]; larger ones would overflow R @ R.T.
+    if (np.abs(R).max() > 1.0 + 1e-4 or not np.allclose(R @ R.T, np.eye(3), atol=1e-4)
+            or not np.isclose(np.linalg.det(R), 1.0, atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1])):
         raise InputError(path, "transform", "is not a rigid transform (rotation and translation, last row 0 0 0 1)")
     return T
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -84,7 +85,7 @@ def read_map(ply: str | Path, taxonomy) -> SemanticMap:
     bad = ~np.isfinite(points).all(1)
     if bad.any():
         raise InputError(ply, "vertex x, y, z", f"{int(bad.sum())} points are not finite numbers (first: row {int(np.argmax(bad))})")
-    instance = vertex[field].astype(np.int64)
+    instance = _whole_numbers(ply, vertex, field)
     labels, conf = _point_labels(ply, vertex, instance, taxonomy)
     world, time_s, extra_labels, extra_conf = _read_meta(meta_path, taxonomy)
     labels.update(extra_labels)
@@ -94,10 +95,15 @@ def read_map(ply: str | Path, taxonomy) -> SemanticMap:
 
 def _vertices(ply: Path) -> np.ndarray:
     try:
-        mesh = trimesh.load(str(ply), file_type="ply", process=False)
+        with warnings.catch_warnings():  # trimesh casts an ASCII value its type cannot hold with a warning only
+            warnings.simplefilter("error", RuntimeWarning)
+            mesh = trimesh.load(str(ply), file_type="ply", process=False)
         vertex = mesh.metadata["_ply_raw"]["vertex"]["data"]
     except FileNotFoundError:
         raise InputError(ply, "file", "not found") from None
+    except RuntimeWarning:
+        raise InputError(ply, "vertex", "holds a value its property's type cannot (NaN, infinity or out of range "
+                         "in an integer property)") from None
     except Exception as err:  # trimesh raises many kinds on a malformed file
         raise InputError(ply, "file", f"not a readable PLY point cloud ({type(err).__name__}: {err})") from None
     if isinstance(vertex, dict):  # an ASCII PLY: trimesh gives one (n, 1) column per property
@@ -124,20 +130,39 @@ def _columns(ply: Path, columns: dict) -> np.ndarray:
         raise InputError(ply, "vertex", f"not a point cloud's vertex table ({err})") from None
 
 
+def _whole_numbers(ply: Path, vertex, name: str) -> np.ndarray:
+    """A per-point id field (instance, label) as int64 (P,); a float field must hold whole
+    numbers an int32 can."""
+    values = vertex[name]
+    if values.dtype.kind == "f":
+        bad = ~(np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 31))
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise InputError(ply, f"vertex {name}", f"{values[row]} (row {row}) is not a whole number")
+    return values.astype(np.int64)
+
+
 def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[dict, dict]:
     """Per instance: its points' most common label (taxonomy index) and highest confidence."""
     labels, conf = {}, {}
     names = vertex.dtype.names
+    point_label = _whole_numbers(ply, vertex, "label") if "label" in names else None
+    if "confidence" in names:
+        point_conf = vertex["confidence"].astype(np.float64)
+        bad = ~((point_conf >= 0.0) & (point_conf <= 1.0))  # NaN too
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise InputError(ply, "vertex confidence", f"{point_conf[row]} (row {row}) is not a number in [0, 1]")
     for i in np.unique(instance):
         mine = instance == i
         k = -1
-        if "label" in names:
-            vals, counts = np.unique(vertex["label"][mine].astype(np.int64), return_counts=True)
+        if point_label is not None:
+            vals, counts = np.unique(point_label[mine], return_counts=True)
             k = int(vals[np.argmax(counts)])
             if not -1 <= k < len(taxonomy.names):
                 raise InputError(ply, "vertex label", f"{k} is not a category index of the taxonomy (0..{len(taxonomy.names) - 1}, -1 none)")
         labels[int(i)] = taxonomy.names[k] if k >= 0 else None
-        conf[int(i)] = float(vertex["confidence"][mine].max()) if "confidence" in names else 1.0
+        conf[int(i)] = float(point_conf[mine].max()) if "confidence" in names else 1.0
     return labels, conf
 
 

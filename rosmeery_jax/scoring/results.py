@@ -26,7 +26,9 @@ OBJECT_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "object", "ca
 def seconds(t):
     """Times or durations in seconds (scalar or array) to the microsecond, as every results
     file writes them: 0.3, not 3 * 0.1 = 0.30000000000000004."""
-    return np.round(np.asarray(t, float), 6)
+    t = np.asarray(t, float)
+    whole = np.abs(t) >= 2.0 ** 52  # no fraction to round, and rounding them would overflow
+    return np.where(whole, t, np.round(np.where(whole, 0.0, t), 6))[()]
 
 
 def metric_frame(curves: dict[str, np.ndarray], times: np.ndarray, *, world: str, policy: str,
