@@ -310,7 +310,8 @@ def test_exported_semantic_map_opens_and_validates(replay_dir):
 @pytest.mark.parametrize("text, field", [
     ("t,x,y\n0,1,2\n", "columns"),
     ("t,x,y,yaw\n0,1,2,0\n0,1,2,0\n", "row 3, column t"),
-    ("t,x,y,yaw\n0,1,abc,0\n", "row 2, column y"),
+    ("t,x,y,yaw\n0,1,abc,0\n", "row 2, column y: 'abc' is not"),
+    ("t,x,y,yaw\n0,1,2,1e308\n", "row 2, column yaw: 1e+308 is not"),  # the number as written, not numpy's repr
     ("", "file"),
 ])
 def test_bad_pose_file_is_one_line_naming_file_and_field(tmp_path, capsys, text, field):
