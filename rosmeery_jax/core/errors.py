@@ -20,3 +20,9 @@ class InputError(ValueError):
         location = f"{self.source}: {where}" if where else self.source
         super().__init__(f"{location}: {problem}".replace("\n", " "))
 
+
+
+def shown(cell) -> str:
+    """A value from a user's table as the file has it: text quoted, a number as written
+    (``1e+308``, not numpy's ``np.float64(1e+308)``)."""
+    return repr(cell) if isinstance(cell, str) else str(cell)

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core import xla
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.errors import InputError, shown
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.sim.sensors import depth_seg
 
@@ -86,14 +86,9 @@ def _finite(df: pd.DataFrame, path: Path, name: str, unbounded: bool) -> np.ndar
     v = pd.to_numeric(df[name], errors="coerce").to_numpy(float)
     bad = np.flatnonzero(~(np.isfinite(v) & ((np.abs(v) <= MAX_COORD) | unbounded)))
     if len(bad):
-        raise InputError(str(path), f"row {_line(df, bad[0])}, column {name}", f"{_shown(df[name].iloc[bad[0]])} is not a "
+        raise InputError(str(path), f"row {_line(df, bad[0])}, column {name}", f"{shown(df[name].iloc[bad[0]])} is not a "
                          "finite number" + ("" if unbounded else f" within {MAX_COORD:g}"))
     return v
-
-
-def _shown(cell) -> str:
-    """A cell as the file has it: text quoted, a number as written (not numpy's repr)."""
-    return repr(cell) if isinstance(cell, str) else str(cell)
 
 
 def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None) -> pd.DataFrame:
@@ -103,7 +98,7 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
     seed = pd.to_numeric(df["seed"], errors="coerce").to_numpy(float)
     bad = np.flatnonzero(~(np.isfinite(seed) & (seed >= 0) & (seed < 2**31) & (seed == np.round(seed))))
     if len(bad):
-        raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{_shown(df['seed'].iloc[bad[0]])} is not a seed "
+        raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{shown(df['seed'].iloc[bad[0]])} is not a seed "
                          f"(a whole number from 0 to {2**31 - 1})")
     df = df.assign(seed=seed.astype(np.int64), policy=df["policy"].fillna("").astype(str),
                    world=df["world"].fillna("").astype(str))

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.errors import InputError, shown
 from rosmeery_jax.core.files import write_atomic
 
 METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
@@ -91,12 +91,13 @@ def load(directory: str | Path) -> pd.DataFrame:
     for c in NAME_COLUMNS:
         bad = [i for i, v in enumerate(df[c].astype(str)) if not plain_name(v)]
         if bad:
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{df[c].iloc[bad[0]]!r} is not a plain name "
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a plain name "
                              "(names in a results table become file names: no folders, no leading dot)")
     for c in ("seed", "time_s", "value"):
         values = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
-        bad = np.flatnonzero(~np.isfinite(values))
+        bad = np.flatnonzero(~np.isfinite(values) | ((c == "seed") & ((values < 0) | (values != np.round(values)))))
         if len(bad):
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{df[c].iloc[bad[0]]!r} is not a number")
+            kind = "a seed (a whole number >= 0)" if c == "seed" else "a finite number"
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not {kind}")
         df[c] = values.astype(int) if c == "seed" else values
     return df
