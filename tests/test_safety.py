@@ -256,6 +256,12 @@ def test_plot_never_writes_outside_its_folder(tmp_path, capsys):
     ({"weights": "x.pt"}, "is for --detector yolo"),
     ({"worlds": "procedural:office:0-100000000"}, "at most 10,000"),
     ({"worlds": "procedural:office:3:rooms=2:rooms=3"}, "given twice"),
+    # a detector period the run cannot be cut into ran with the largest that divides it (7 -> 6 s)
+    ({"detector": "oracle", "duration": 300.0, "detector_period_s": 7.0}, "detector_period_s.*nearest, 6 s or 10 s"),
+    ({"detector": "oracle", "duration": 45.0}, "detector_period_s: 10 s .*nearest, 9 s or 15 s"),
+    ({"detector": "oracle", "detector_period_s": 0.5}, "detector_period_s: 0.5 s .*nearest, 1 s"),
+    ({"detector": "oracle", "detector_period_s": 60.0}, None),  # longer than the run: the run is one period
+    ({"detector": "off", "duration": 45.0, "detector_period_s": 7.0}, None),  # no detector: no period
 ])
 def test_session_options_that_were_reinterpreted(tmp_path, option, needle):
     from rosmeery_jax.core.errors import InputError

@@ -101,6 +101,8 @@ class SessionConfig:
             _check_mappers(self, worlds)
             decisions(self)
             sample_steps(self)
+            if self.detector != "off":
+                detector_period(self)
         _check_unique(self, worlds, source)
         if self.weights and self.detector != "yolo":
             raise InputError(source, "weights", f"{self.weights!r} is for --detector yolo, not {self.detector!r}")
@@ -314,12 +316,30 @@ def decisions(cfg: SessionConfig) -> int:
     return n
 
 
+def detector_period(cfg: SessionConfig) -> int:
+    """Decisions per detector period, whose boundaries the label schedule is cut at: a
+    whole number of them that divides the run's (a period as long as the run or longer is
+    the run), or one InputError naming the nearest periods that are."""
+    total, period = decisions(cfg), cfg.dt * cfg.decide_every
+    if cfg.detector_period_s >= cfg.duration - 1e-6:
+        return total
+    k = int(round(cfg.detector_period_s / period))
+    if k < 1 or abs(k * period - cfg.detector_period_s) > 1e-6 or total % k:
+        fits = [d * period for d in range(1, total + 1) if total % d == 0]
+        nearest = [f for f in fits if f < cfg.detector_period_s][-1:] + [f for f in fits if f > cfg.detector_period_s][:1]
+        raise InputError("config", "detector_period_s", f"{cfg.detector_period_s:g} s must be a whole number of "
+                         f"decision periods ({period:g} s) that divides the duration ({cfg.duration:g} s), as "
+                         f"labels are folded in at its boundaries: the nearest, {' or '.join(f'{f:g} s' for f in nearest)}")
+    return k
+
+
 def per_call(cfg: SessionConfig, total: int) -> int:
     """Decisions per jitted call: the detector period with a detector (the label schedule
-    is cut at its boundaries), else ``chunk_s`` (progress granularity only); the largest
-    that divides the run, so one compiled function serves."""
-    want = cfg.detector_period_s if cfg.detector != "off" else cfg.chunk_s
-    want = max(1, int(round(want / (cfg.dt * cfg.decide_every))))
+    is cut at its boundaries), else ``chunk_s`` (progress granularity only, so the largest
+    that divides the run), so one compiled function serves."""
+    if cfg.detector != "off":
+        return detector_period(cfg)
+    want = max(1, int(round(cfg.chunk_s / (cfg.dt * cfg.decide_every))))
     return max(d for d in range(1, min(want, total) + 1) if total % d == 0)
 
 
