@@ -59,3 +59,8 @@ def test_without_digests_the_paths_are_compared(reference, tmp_path, capsys):
     lines = digest.compare(reference, other)
     assert lines[0].startswith("small_office__random seed 0: the same path")
     assert lines[2].startswith("small_office__random seed 2: the paths part at 7 s by 0.25")
+    (other / "runs" / "kitchen__random.metrics.csv").write_text("")  # a run of the second folder alone
+    assert digest.compare(reference, other)[0] == f"kitchen__random: only in {other}"
+    assert main(["diff", str(reference), str(tmp_path / "typo")]) == 2  # was: every run "only in" the first
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "typo: runs: no finished runs" in err

@@ -51,17 +51,24 @@ def _digest(parts) -> str:
 def compare(a: str | Path, b: str | Path) -> list[str]:
     """One line per run and seed of two results folders: identical, or where they part."""
     a, b = Path(a), Path(b)
+    in_a, in_b = _finished(a), _finished(b)
     lines = []
-    for path in sorted((a / "runs").glob("*.metrics.csv")) if (a / "runs").is_dir() else []:
-        run = path.name[:-len(".metrics.csv")]
-        if not (b / "runs" / path.name).is_file():
-            lines.append(f"{run}: only in {a}")
+    for run in sorted(in_a | in_b):
+        if run not in in_a or run not in in_b:
+            lines.append(f"{run}: only in {a if run in in_a else b}")
             continue
         digest = [f / "runs" / f"{run}.digest.csv" for f in (a, b)]
         lines += _by_digest(run, *digest) if all(p.is_file() for p in digest) else _by_path(run, a, b)
-    if not lines:
-        raise InputError(str(a), "runs", "no finished runs to compare (not a results folder?)")
     return lines
+
+
+def _finished(folder: Path) -> set[str]:
+    """The runs a results folder holds (those with a metrics file)."""
+    runs = {p.name[:-len(".metrics.csv")] for p in (folder / "runs").glob("*.metrics.csv")} \
+        if (folder / "runs").is_dir() else set()
+    if not runs:
+        raise InputError(str(folder), "runs", "no finished runs to compare (not a results folder?)")
+    return runs
 
 
 def _by_digest(run: str, x: Path, y: Path) -> list[str]:
