@@ -353,3 +353,9 @@ def test_train_refuses_a_range_of_worlds_by_its_size():
 
     with pytest.raises(InputError, match="at most 10,000"):
         ppo.load_config(None, worlds=["procedural:office:0-100000000"])
+
+
+@pytest.mark.parametrize("option", [["--batches", "1,100000000"], ["--memory-batch", "100000000"]])
+def test_a_bench_batch_beyond_the_machines_memory_is_refused_before_it_starts(option, capsys):
+    assert main(["bench", *option]) == 2  # it was allocated until the system killed it
+    _one_line(capsys, "command line", f"{option[0]}: 100,000,000 robots need about", "GB allows")

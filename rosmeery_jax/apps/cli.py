@@ -27,14 +27,15 @@ from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import WEIGHTS, weights_file
-from rosmeery_jax.env import make
+from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.scoring import evaluate as map_eval
 from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
 from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
-from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
+from rosmeery_jax.core.xla import compilation_cache, cores, host_devices, memory_bytes
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
+from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import save_world_picture
 from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
@@ -138,6 +139,11 @@ def _cmd_bench(args) -> int:
         raise InputError("command line", "--devices", f"{args.devices} must be >= 0 (0: one per core)")
     host_devices(args.devices or cores())  # before JAX starts
     load_world(args.world)  # a bad name fails here, in one line, before any compile
+    for option, batch in (("--batches", max(args.batches)), ("--memory-batch", args.memory_batch)):
+        need, have = batch * env_bytes(EnvConfig()), memory_bytes()
+        if need > 0.8 * have:
+            raise InputError("command line", option, f"{batch:,} robots need about {need / 1e9:,.1f} GB, more than "
+                             f"this machine's {have / 1e9:.1f} GB allows")
     cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,
                       memory_batch=args.memory_batch, session_s=args.session_s, devices=args.devices)
     quiet = (lambda msg: print(msg, file=sys.stderr)) if args.json else print

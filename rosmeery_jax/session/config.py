@@ -239,6 +239,11 @@ def _check_unique(cfg: SessionConfig, worlds, source: str) -> None:
             raise InputError(source, "policies", f"{label!r} appears twice (join replay files with '+' in one entry)")
 
 
+def env_bytes(env: EnvConfig) -> float:
+    """Device memory one env's state and one step's camera work take (estimate, with headroom)."""
+    return DEVICE_BYTES_PER_ENV + env.camera.width * env.camera.height * CAMERA_BYTES_PER_PIXEL
+
+
 def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     """Refuse a session whose logs or batch cannot fit in this machine's memory (the whole
     session is one batch: every world x policy x seed, each policy padded to whole blocks)."""
@@ -250,8 +255,7 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     cam = cfg.env_config.camera  # every step's depth and labels, and a chunk's detector frames
     frames = per_call(cfg, decisions(cfg)) * cfg.decide_every // frame_steps(cfg) if cfg.detector != "off" else 0
     swept = frames * frame_steps(cfg) if any(m != "oracle" for m in cfg.mappers) else 0  # steps' depth, for mappers
-    need_device = batch * (DEVICE_BYTES_PER_ENV + cam.width * cam.height * (CAMERA_BYTES_PER_PIXEL
-                                                                             + SWEEP_BYTES_PER_PIXEL * swept)
+    need_device = batch * (env_bytes(cfg.env_config) + cam.width * cam.height * SWEEP_BYTES_PER_PIXEL * swept
                            + FRAME_BYTES_PER_PIXEL * frames * cam.rgb_width * cam.rgb_height)
     have = memory_bytes()
     for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
