@@ -21,7 +21,6 @@ class InputError(ValueError):
         super().__init__(f"{location}: {problem}".replace("\n", " "))
 
 
-
 def shown(cell) -> str:
     """A value from a user's table as the file has it: text quoted, a number as written
     (``1e+308``, not numpy's ``np.float64(1e+308)``)."""
