@@ -110,7 +110,7 @@ def test_a_wrong_label_keeps_ori_and_loses_cori_and_the_wrong_predicates(world, 
 @pytest.mark.parametrize("case, field", [
     ("garbage", "file"), ("no_instance", "vertex"), ("nan", "vertex x, y, z"),
     ("label", "objects[0].label"), ("world", "frame.world"), ("confidence", "vertex confidence"),
-    ("fraction", "vertex object_id"), ("ascii_nan", "vertex"),
+    ("fraction", "vertex object_id"), ("ascii_nan", "vertex"), ("huge_id", "vertex object_id"),
 ])
 def test_bad_maps_are_one_line_naming_file_and_field_and_nothing_is_written(world, tmp_path, capsys, case, field):
     chair, _ = _parts(world)
@@ -132,6 +132,10 @@ def test_bad_maps_are_one_line_naming_file_and_field_and_nothing_is_written(worl
         cloud = trimesh.Trimesh(vertices=chair, faces=np.zeros((0, 3), np.int64), process=False)
         cloud.vertex_attributes["object_id"] = np.full(len(chair), 0.5 if case == "fraction" else 0.0, np.float32)
         cloud.vertex_attributes["confidence"] = np.full(len(chair), 1.5 if case == "confidence" else 1.0, np.float32)
+        ply.write_bytes(trimesh.exchange.ply.export_ply(cloud, encoding="binary", include_attributes=True))
+    elif case == "huge_id":  # an int64 id: instance x samples would overflow the scoring's pair keys
+        cloud = trimesh.Trimesh(vertices=chair, faces=np.zeros((0, 3), np.int64), process=False)
+        cloud.vertex_attributes["object_id"] = np.full(len(chair), 2 ** 62, np.int64)
         ply.write_bytes(trimesh.exchange.ply.export_ply(cloud, encoding="binary", include_attributes=True))
     elif case == "ascii_nan":  # trimesh would cast it to the lowest int32, warning only
         rows = "".join(f"{x} {y} {z} 0\n" for x, y, z in chair[:-1]) + "0 0 0 nan\n"

@@ -131,14 +131,14 @@ def _columns(ply: Path, columns: dict) -> np.ndarray:
 
 
 def _whole_numbers(ply: Path, vertex, name: str) -> np.ndarray:
-    """A per-point id field (instance, label) as int64 (P,); a float field must hold whole
-    numbers an int32 can."""
-    values = vertex[name]
-    if values.dtype.kind == "f":
-        bad = ~(np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 31))
-        if bad.any():
-            row = int(np.argmax(bad))
-            raise InputError(ply, f"vertex {name}", f"{values[row]} (row {row}) is not a whole number")
+    """A per-point id field (instance, label) as int64 (P,): whole numbers an int32 holds,
+    in an integer or a float property (larger ids would overflow the scoring's pair keys)."""
+    values = vertex[name].astype(np.float64)  # exact for every integer that passes
+    bad = ~(np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 31))
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise InputError(ply, f"vertex {name}", f"{vertex[name][row]} (row {row}) is not a whole number between "
+                         f"-{2 ** 31 - 1} and {2 ** 31 - 1}")
     return values.astype(np.int64)
 
 
