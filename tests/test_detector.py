@@ -481,3 +481,32 @@ def test_detect_runs_one_pass_per_shared_network_and_returns_each_row_its_frames
             assert (obj[r, :, 0] == group.world[r]).all() and (label[r, :, 0] == r * 10 + np.arange(f)).all()
         else:
             assert (obj[r] == -1).all()  # a padding env gets no detections
+
+
+@pytest.mark.parametrize("case, where", [
+    ("1.7 0.5 0.5 0.2 0.2", "a.txt: row 1"), ("27 0.5 0.5 0.2 0.2", "a.txt: row 1"),  # counted as class 1 / a crash
+    ("-1 0.5 0.5 0.2 0.2", "a.txt: row 1"), ("0 nan 0.5 0.2 0.2", "a.txt: row 1"),  # -1 was the last class
+    ("0 0.5 0.5 0.2 0.2\n0 5 5 0.2 0.2", "a.txt: row 2"), ("0 0.5 0.5 0 0.2", "a.txt: row 1"),
+    ("size", "b.png: image: 160x96 pixels, not 160x128"), ("json", "data.json: file: not valid JSON"),
+])
+def test_a_bad_dataset_is_one_error_naming_file_and_row(tmp_path, case, where):
+    import cv2
+
+    from rosmeery_jax.detector import dataset
+
+    (tmp_path / "images" / "val").mkdir(parents=True)
+    (tmp_path / "labels" / "val").mkdir(parents=True)
+    (tmp_path / "data.json").write_text("{bad" if case == "json" else "{}")
+    for name, h in (("a", 128), ("b", 96 if case == "size" else 128)):
+        cv2.imwrite(str(tmp_path / "images" / "val" / f"{name}.png"), np.full((h, 160, 3), 99, np.uint8))
+        rows = case if name == "a" and case not in ("size", "json") else "3 0.5 0.5 0.2 0.2"
+        (tmp_path / "labels" / "val" / f"{name}.txt").write_text(rows + "\n")
+    with pytest.raises(InputError) as err:
+        dataset.read(tmp_path, "val")
+    assert where in str(err.value) and "\n" not in str(err.value)
+    (tmp_path / "data.json").write_text("{}")  # the same files, made good, read
+    (tmp_path / "labels" / "val" / "a.txt").write_text("3 0.5 0.5 0.2 0.2\n26 1 0 0.1 1\n")
+    if case != "size":
+        images, rows, _ = dataset.read(tmp_path, "val")
+        assert images.shape == (2, 128, 160, 3)
+        np.testing.assert_allclose(rows[0], [[3, 0.5, 0.5, 0.2, 0.2], [26, 1, 0, 0.1, 1]], rtol=1e-6)

@@ -249,21 +249,38 @@ def read(root: str | Path, split: str) -> tuple[np.ndarray, list[np.ndarray], di
     meta_path = root / "data.json"
     if not meta_path.is_file():
         raise InputError(str(meta_path), "file", "not found: make the dataset with `rosmeery detector dataset`")
-    meta = json.loads(meta_path.read_text())
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+        raise InputError(str(meta_path), "file", f"not valid JSON ({type(err).__name__})") from None
     files = sorted((root / "images" / split).glob("*.png"))
     if not files:
         raise InputError(str(root / "images" / split), "images", "no images in this split")
-    imgs, rows = [], []
+    imgs, rows, classes = [], [], len(load_taxonomy().names)
     for f in files:
         img = cv2.imread(str(f))
         if img is None:
             raise InputError(str(f), "image", "unreadable")
+        if imgs and img.shape != imgs[0].shape:
+            raise InputError(str(f), "image", f"{img.shape[1]}x{img.shape[0]} pixels, not {imgs[0].shape[1]}x"
+                             f"{imgs[0].shape[0]} like {files[0].name}: a split's images share one size")
         imgs.append(img[..., ::-1])
-        lab = root / "labels" / split / f"{f.stem}.txt"
-        try:
-            r = np.array([line.split() for line in lab.read_text().splitlines() if line.strip()],
-                         np.float32).reshape(-1, 5)
-        except (OSError, ValueError) as err:
-            raise InputError(str(lab), "rows", f"not YOLO label rows ({err})") from None
-        rows.append(r)
+        rows.append(_label_rows(root / "labels" / split / f"{f.stem}.txt", classes))
     return np.stack(imgs), rows, meta
+
+
+def _label_rows(path: Path, classes: int) -> np.ndarray:
+    """A YOLO label file as rows (B, 5) float32: class (a whole number below ``classes``),
+    then the box's centre x, y and width, height as shares of the image, in [0, 1]."""
+    try:
+        lines = path.read_text().splitlines()
+        r = np.array([line.split() for line in lines if line.strip()], np.float32).reshape(-1, 5)
+    except (OSError, ValueError) as err:
+        raise InputError(str(path), "rows", f"not YOLO label rows ({err})") from None
+    ok = (r[:, 0] == np.round(r[:, 0])) & (r[:, 0] >= 0) & (r[:, 0] < classes)
+    ok &= ((r[:, 1:] >= 0) & (r[:, 1:] <= 1)).all(1) & (r[:, 3:] > 0).all(1)  # NaN fails too
+    if not ok.all():
+        row = int(np.argmin(ok))
+        raise InputError(str(path), f"row {row + 1}", f"{' '.join(f'{v:g}' for v in r[row])}: a row is a class "
+                         f"(0-{classes - 1}), then x, y, w, h as shares of the image (0-1, w and h above 0)")
+    return r
