@@ -144,6 +144,18 @@ def test_world_pictures_need_a_file_and_a_folder(tmp_path, capsys):
     target.write_text("x")
     assert main(["worlds", "--pictures", str(target)]) == 2
     _one_line(capsys, "is a file")
+    mine = tmp_path / "mine.png"  # a picture of the user's: never replaced
+    mine.write_text("mine")
+    assert main(["world", "show", "small_office", "--out", str(mine)]) == 2
+    _one_line(capsys, "mine.png: --out: exists already")
+    folder = tmp_path / "pictures"
+    folder.mkdir()
+    (folder / "laboratory.png").write_text("mine")
+    assert main(["worlds", "--pictures", str(folder)]) == 2  # checked before the kitchen's is written
+    _one_line(capsys, "laboratory.png: --pictures: exists already")
+    assert mine.read_text() == "mine" and [p.name for p in folder.iterdir()] == ["laboratory.png"]
+    assert main(["world", "show", "small_office", "--out", str(tmp_path / "small.txt")]) == 2  # was a traceback
+    _one_line(capsys, "small.txt: --out: '.txt' is not a picture format")
 
 
 # --- sessions: late errors, resumes, locks, interrupts ---

@@ -37,7 +37,7 @@ from rosmeery_jax.core.xla import compilation_cache, cores, host_devices, memory
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.world import load_world, world_names
-from rosmeery_jax.world.draw import save_world_picture
+from rosmeery_jax.world.draw import picture_format, save_world_picture
 from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
                                          generate, write_world)
 from rosmeery_jax.world.stats import stats_table, summary, world_names_in
@@ -48,6 +48,8 @@ def _cmd_worlds(args) -> int:
         raise InputError(args.pictures, "--pictures", "is a file, not a folder")
     worlds = [load_world(n) for n in world_names()]
     summaries = [w.summary() for w in worlds]
+    for w in worlds if args.pictures else ():  # every picture checked before any is written
+        require_new(Path(args.pictures) / f"{w.name}.png", "--pictures", kind="file")
     if args.pictures:
         for w, s in zip(worlds, summaries):
             s["picture"] = str(save_world_picture(w, Path(args.pictures) / f"{w.name}.png"))
@@ -118,6 +120,8 @@ def _cmd_worlds_stats(args) -> int:
 def _cmd_world_show(args) -> int:
     if Path(args.out).is_dir():
         raise InputError(args.out, "--out", "is a folder: name the picture to write (FILE.png)")
+    require_new(args.out, kind="file")  # a picture already there is never replaced
+    picture_format(args.out)
     world = load_world(args.world)
     out = save_world_picture(world, args.out)
     print(f"wrote {out} ({world.title}: {world.truth.num_objects} objects)")

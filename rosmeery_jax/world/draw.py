@@ -12,6 +12,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.patches import FancyArrow, Patch  # noqa: E402
 
+from rosmeery_jax.core.errors import InputError  # noqa: E402
 from rosmeery_jax.core.files import atomic_path  # noqa: E402
 from rosmeery_jax.world.load import World  # noqa: E402
 from rosmeery_jax.world.scene import WALL  # noqa: E402
@@ -59,14 +60,26 @@ def draw_world(world: World, ax=None, labels: bool = True, legend: bool = True):
     return ax
 
 
+def picture_format(out: str | Path, flag: str = "--out") -> str:
+    """The format ``out``'s suffix names (png without one), or one InputError if matplotlib
+    writes no such format."""
+    fmt = Path(out).suffix.lstrip(".").lower() or "png"
+    formats = plt.figure().canvas.get_supported_filetypes()
+    plt.close("all")
+    if fmt not in formats:
+        raise InputError(str(out), flag, f"'.{fmt}' is not a picture format ({', '.join(sorted(formats))})")
+    return fmt
+
+
 def save_world_picture(world: World, out: str | Path, dpi: int = 130) -> Path:
-    """Write the top-down picture of ``world`` to ``out`` (PNG, atomically)."""
+    """Write the top-down picture of ``world`` to ``out`` (PNG without a suffix, atomically)."""
     out = Path(out)
+    fmt = picture_format(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(9, 7.5))
     draw_world(world, ax)
     fig.tight_layout()
     with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=dpi, format=out.suffix.lstrip(".") or "png")
+        fig.savefig(tmp, dpi=dpi, format=fmt)
     plt.close(fig)
     return out
