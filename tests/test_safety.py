@@ -68,6 +68,10 @@ def test_evaluate_never_replaces_a_sessions_or_an_earlier_evaluations_tables(ses
     assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(target)]) == 2
     _one_line(capsys, "a_file", "is a file")
     assert target.read_text() == "mine"
+    named = tmp_path / "named"  # the name is the tables' policy column: one `rosmeery plot` would refuse
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--name", "../up", "--out", str(named)]) == 2
+    _one_line(capsys, "--name", "'../up' is not a plain name")
+    assert not named.exists()
 
 
 def test_generate_never_replaces_an_edited_world(tmp_path, capsys):

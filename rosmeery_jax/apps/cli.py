@@ -359,6 +359,8 @@ def _cmd_teleop(args) -> int:
 def _cmd_evaluate(args) -> int:
     if not args.tolerance > 0 or not math.isfinite(args.tolerance):
         raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
+    if not results.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
+        raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
     world = load_world(args.world)
     maps = [map_eval.read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
