@@ -240,6 +240,8 @@ def test_a_broken_mapper_plugin_is_one_line_naming_it_with_nothing_written(tmp_p
     ("def m(log, truth):\n    return log.ps\n", "must return one float per step"),
     ("def m(log, truth):\n    return float(log.ps.sum())\n", "cannot run under JAX"),
     ("m = 3\n", "is not a function"),
+    ("import rosmeery_jax\n@rosmeery_jax.register_metric('../up')\ndef m(log, truth):\n    return log.ps.sum(-1)\n",
+     "'../up' is not a plain name"),  # its plots would be named after it
 ])
 def test_a_broken_metric_plugin_is_one_line(tmp_path, capsys, code, needle):
     plugin = tmp_path / "metric.py"

@@ -39,11 +39,11 @@ def load(spec: str, source: str, field: str):
 
 
 def _module(where: str, spec: str, source: str, field: str):
+    if where.endswith(".py") and not Path(where).is_file():
+        raise InputError(source, field, f"plugin {spec!r}: no such file {where!r}")
     try:
         if where.endswith(".py"):
             path = Path(where).resolve()
-            if not path.is_file():
-                raise InputError(source, field, f"plugin {spec!r}: no such file {where!r}")
             name = "rosmeery_plugin_" + hashlib.sha1(str(path).encode()).hexdigest()[:12]
             if name in sys.modules:
                 return sys.modules[name]
@@ -57,8 +57,8 @@ def _module(where: str, spec: str, source: str, field: str):
                 raise
             return module
         return importlib.import_module(where)
-    except InputError:
-        raise
+    except InputError as err:  # ours, raised by the plugin's code (a register_metric name)
+        raise InputError(source, field, f"plugin {spec!r} failed to import: {err}") from None
     except Exception as err:  # the plugin's own code failed to import: say where
         frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         if isinstance(err, SyntaxError) and err.filename:

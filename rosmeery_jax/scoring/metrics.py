@@ -26,6 +26,7 @@ import numpy as np
 
 from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.scoring.results import plain_name
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
@@ -34,7 +35,10 @@ DEFAULT_METRICS = ("ori", "cori", "cori_any", "opi", "opi_strict")
 
 
 def register(name: str) -> Callable[[MetricFn], MetricFn]:
-    """Decorator: make ``fn(log, truth) -> (..., T)`` available as metric ``name``."""
+    """Decorator: make ``fn(log, truth) -> (..., T)`` available as metric ``name`` (a plain
+    name: the results' plots are named after it)."""
+    if not isinstance(name, str) or not plain_name(name):
+        raise InputError("register_metric", "name", f"{name!r} is not a plain name (no folders, no leading dot)")
 
     def add(fn: MetricFn) -> MetricFn:
         REGISTRY[name] = fn
