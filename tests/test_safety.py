@@ -120,6 +120,10 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     assert main(["detector", "train", "--data", str(data), "--out", str(tmp_path)]) == 2
     _one_line(capsys, "is a folder")
     assert weights.read_bytes() == b"precious"
+    (tmp_path / "new.log.csv").write_text("my log")  # the log new.pt's training would write beside it
+    assert main(["detector", "train", "--data", str(data), "--out", str(tmp_path / "new.pt")]) == 2
+    _one_line(capsys, "new.log.csv", "exists already")
+    assert (tmp_path / "new.log.csv").read_text() == "my log"
 
 
 @pytest.mark.parametrize("args, needle", [

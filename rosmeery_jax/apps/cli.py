@@ -246,10 +246,11 @@ def _cmd_detector_dataset(args) -> int:
 
 
 def _cmd_detector_train(args) -> int:
-    from rosmeery_jax.detector.train import TrainConfig, train  # torch (the detector extra): only here
+    from rosmeery_jax.detector.train import TrainConfig, log_file, train  # torch (the detector extra): only here
 
     _positive(args, "epochs", "batch", "max_images", "seed")
-    out = require_new(args.out, kind="file")  # earlier weights are never replaced
+    out = require_new(args.out, kind="file")  # earlier weights are never replaced, nor their log
+    require_new(log_file(out), kind="file")
     for name in ("images/train", "images/val"):
         if not Path(args.data, name).is_dir():
             raise InputError(str(Path(args.data, name)), "--data", "not found: make the dataset with "

@@ -124,6 +124,11 @@ def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator, m
     return out, torch.from_numpy(np.concatenate(targets) if targets else np.zeros((0, 6), np.float32))
 
 
+def log_file(out: str | Path) -> Path:
+    """The per-epoch log written beside weights ``out``: ``<stem>.log.csv``."""
+    return Path(out).with_name(Path(out).stem + ".log.csv")
+
+
 def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), progress: bool = True) -> dict:
     """Train on ``data`` (a dataset folder), write ``out`` (weights) and ``out``'s log.csv
     beside it; returns the best validation result."""
@@ -155,7 +160,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
         return 1e-5 + 0.5 * (cfg.lr - 1e-5) * (1 + math.cos(math.pi * t))
 
     out = Path(out)
-    log_path = out.with_name(out.stem + ".log.csv")
+    log_path = log_file(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     best = {"map50": -1.0}
     step = 0
