@@ -3,6 +3,7 @@ silent overwrites, seeds independent of their batch-mates, interrupted sessions.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import pickle
@@ -18,7 +19,7 @@ import pytest
 
 from conftest import SMALL_RUN, one_line_error
 from rosmeery_jax.apps.cli import main
-from rosmeery_jax.env import make
+from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.core.errors import InputError
 
 # One session setting for the module's sessions (the kill-9 test's child included: it inherits
@@ -40,6 +41,38 @@ def test_overrides_reach_any_depth_and_are_type_checked():
         make("small_office", robot__max_speed=True)
     with pytest.raises(InputError, match="must be a finite number"):
         make("small_office", robot__max_speed=float("nan"))
+
+
+@pytest.mark.parametrize("key, value, needle", [
+    ("robot__max_speed", -1.0, "must be a number > 0"), ("robot__control_dt", 0.0, "must be a number > 0"),
+    ("robot__substeps", 0, "a whole number >= 1"), ("nav__recoveries", -1, "a number >= 0"),
+    ("mapping__miss", 0.4, "a number < 0"), ("camera__hfov", 3.2, "(0, pi)"), ("laser__min_range", 20.0,
+    "below laser__max_range"), ("mapping__threshold", 5.0, "below mapping__clamp"),
+    ("knowledge__min_fraction", 1.5, "[0, 1]"),
+])
+def test_settings_out_of_their_range_are_refused_by_name(key, value, needle):
+    """They were taken: a negative top speed, a control period of 0 (a division by zero later)."""
+    with pytest.raises(InputError) as err:
+        EnvConfig().with_overrides("my.toml", **{key: value})
+    assert str(err.value).startswith(f"my.toml: {key}: ") and needle in str(err.value)
+
+
+def test_every_numeric_setting_has_a_range():
+    """A new setting cannot go unchecked: each number is in LIMITS or checked in with_overrides."""
+    from rosmeery_jax.env.config import LIMITS
+
+    def numbers(obj, prefix=""):
+        for f in dataclasses.fields(obj):
+            v = getattr(obj, f.name)
+            if dataclasses.is_dataclass(v):
+                yield from numbers(v, f"{prefix}{f.name}__")
+            elif isinstance(v, (int, float)) and not isinstance(v, bool):
+                yield prefix + f.name
+
+    elsewhere = {"robot__near_proxies", "laser__beams", "camera__width", "camera__height", "camera__rgb_width",
+                 "camera__rgb_height"}
+    assert set(numbers(EnvConfig())) == set(LIMITS) | elsewhere
+    EnvConfig().with_overrides("defaults")  # every default within its range
 
 
 def test_robot_dimensions_have_one_source():

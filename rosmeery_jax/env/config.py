@@ -3,6 +3,7 @@ navigation, knowledge), overridden at any depth as ``section__field=value``."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -17,6 +18,35 @@ from rosmeery_jax.world import WorldConfig
 
 
 MAX_PIXELS = 4096  # image sides and laser beams: larger is never a robot's sensor, and would not fit
+
+# What each numeric setting may be, as (test, what the message says it must be). Sizes,
+# rates, gains and times are positive; counts of iterations at least 1; offsets, margins
+# and recovery counts may be 0. Image sides, beams and proxies are checked in with_overrides.
+_POSITIVE = (lambda v: v > 0, "a number > 0")
+_NOT_NEGATIVE = (lambda v: v >= 0, "a number >= 0")
+_COUNT = (lambda v: v >= 1, "a whole number >= 1")
+LIMITS = {
+    **dict.fromkeys(("robot__radius", "robot__height", "robot__mass", "robot__max_speed", "robot__max_turn_rate",
+                     "robot__control_dt", "robot__kv_lin", "robot__kv_yaw", "robot__max_piece", "robot__max_force",
+                     "laser__max_range", "camera__max_range", "mapping__hit", "mapping__clamp", "mapping__threshold",
+                     "mapping__max_range", "nav__plan_resolution", "nav__lookahead", "nav__goal_tolerance",
+                     "nav__yaw_tolerance", "nav__k_turn", "nav__stuck_time", "nav__still_time",
+                     "nav__still_distance", "nav__timeout", "nav__backoff_time", "nav__backoff_speed",
+                     "nav__turn_time", "knowledge__coverage__temperature"), _POSITIVE),
+    **dict.fromkeys(("robot__substeps", "robot__solver_iterations", "robot__line_search_iterations",
+                     "robot__max_pairs", "nav__sweeps", "nav__flood_cells"), _COUNT),
+    **dict.fromkeys(("robot__skin", "laser__min_range", "laser__height", "camera__min_range", "camera__mount_height",
+                     "camera__cull", "nav__near_cost", "nav__stuck_progress", "nav__recoveries",
+                     "knowledge__coverage__abs_tol", "knowledge__coverage__rel_tol"), _NOT_NEGATIVE),
+    "mapping__miss": (lambda v: v < 0, "a number < 0 (the log-odds a free cell's ray adds)"),
+    "knowledge__min_fraction": (lambda v: 0 <= v <= 1, "a share in [0, 1]"),
+    "laser__fov": (lambda v: 0 < v <= 2 * math.pi, "an angle in (0, 2 pi] radians"),
+    "camera__hfov": (lambda v: 0 < v < math.pi, "an angle in (0, pi) radians"),
+    "camera__pitch": (lambda v: -math.pi / 2 < v < math.pi / 2, "an angle in (-pi / 2, pi / 2) radians"),
+    "camera__mount_x": (lambda v: True, "a number"),  # ahead of the centre or behind it; finite, as every value
+    "knowledge__coverage__max_incidence": (lambda v: 0 < v <= math.pi / 2, "an angle in (0, pi / 2] radians"),
+    "knowledge__coverage__min_facing": (lambda v: -1 <= v < 1, "a cosine in [-1, 1)"),
+}
 
 
 @dataclass(frozen=True)
@@ -37,6 +67,7 @@ class EnvConfig:
         """Override fields at any depth as ``section__sub__field=value`` (type-checked; an
         unknown or badly typed key is one error naming ``source`` and the key)."""
         cfg = overrides_.apply(self, overrides, source)
+        _check_limits(cfg, source)
         near, pairs = cfg.robot.near_proxies, cfg.robot.max_pairs
         if near < 0 or 0 < near < pairs:
             raise InputError(source, "robot__near_proxies", f"{near} must be 0 (every proxy) or at least "
@@ -52,6 +83,23 @@ class EnvConfig:
             if value not in allowed:
                 raise InputError(source, name, f"{value!r} is not one of {', '.join(map(repr, allowed))}")
         return cfg
+
+
+def _check_limits(cfg: EnvConfig, source: str) -> None:
+    """Every numeric setting within :data:`LIMITS`, and each range's near end below its far one."""
+    for key, (ok, wanted) in LIMITS.items():
+        value = cfg
+        for part in key.split("__"):
+            value = getattr(value, part)
+        if not ok(value):
+            raise InputError(source, key, f"{value} must be {wanted}")
+    for section in ("laser", "camera"):
+        near, far = getattr(cfg, section).min_range, getattr(cfg, section).max_range
+        if not near < far:
+            raise InputError(source, f"{section}__min_range", f"{near} must be below {section}__max_range ({far})")
+    if not cfg.mapping.threshold < cfg.mapping.clamp:
+        raise InputError(source, "mapping__threshold", f"{cfg.mapping.threshold} must be below mapping__clamp "
+                         f"({cfg.mapping.clamp}): log-odds are clamped there, so no cell would ever be decided")
 
 
 def body_dimensions(cfg: EnvConfig, world_config: WorldConfig) -> WorldConfig:
