@@ -95,12 +95,15 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             raise ValueError("duration must be > 0 s, decide_every and num_envs at least 1")
         env_cfg = EnvConfig().with_overrides("gym", **overrides.flatten({**config.env,
                                                                          "action_mode": config.action_mode}))
+        period = env_cfg.robot.control_dt * config.decide_every
+        self.horizon = int(round(config.duration / period))  # decisions per episode
+        if self.horizon < 1 or abs(self.horizon * period - config.duration) > 1e-6:
+            raise ValueError(f"duration {config.duration:g} s is not a whole number of decisions ({period:g} s each)")
         self.bank = world_bank(worlds, env_cfg)
         self.config, self.num_envs, self.log_every = config, num_envs, log_every
         if log_every and config.decide_every % log_every:
             raise ValueError(f"log_every {log_every} must divide decide_every {config.decide_every}")
         self.world = np.arange(num_envs) % len(self.bank)
-        self.horizon = max(1, int(round(config.duration / (self.bank.env.dt * config.decide_every))))
         self.single_observation_space = self._observation_space()
         self.single_action_space = self._action_space()
         self.observation_space = batch_space(self.single_observation_space, num_envs)

@@ -57,6 +57,13 @@ def test_observations_are_what_the_robot_perceives_and_episodes_end_at_the_durat
     assert (obs["occupancy"] == 0).any() and (obs["occupancy"] == 1).any()  # its own map: free and walls
 
 
+@pytest.mark.parametrize("duration", [3.05, 0.4])
+def test_a_duration_that_is_not_whole_decisions_is_refused(world, duration):
+    """3.05 s ran as 3 decisions and 0.4 s as one of 1 s; sessions refuse both, and so does the env."""
+    with pytest.raises(ValueError, match=f"duration {duration:g} s is not a whole number of decisions \\(1 s each\\)"):
+        VectorEnv([world], 1, GymConfig(duration=duration))
+
+
 def test_the_vector_env_batches_robots_over_worlds_and_scores_a_submitted_map(world):
     vec = VectorEnv([world], 2, VECTOR)
     obs, _ = vec.reset(seed=0)
