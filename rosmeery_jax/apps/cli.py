@@ -33,7 +33,7 @@ from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
 from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
-from rosmeery_jax.core.xla import compilation_cache, cores, host_devices, memory_bytes
+from rosmeery_jax.core.xla import MEMORY_SHARE, compilation_cache, cores, host_devices, memory_bytes
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.world import load_world, world_names
@@ -145,7 +145,7 @@ def _cmd_bench(args) -> int:
     load_world(args.world)  # a bad name fails here, in one line, before any compile
     for option, batch in (("--batches", max(args.batches)), ("--memory-batch", args.memory_batch)):
         need, have = batch * env_bytes(EnvConfig()), memory_bytes()
-        if need > 0.8 * have:
+        if need > MEMORY_SHARE * have:
             raise InputError("command line", option, f"{batch:,} robots need about {need / 1e9:,.1f} GB, more than "
                              f"this machine's {have / 1e9:.1f} GB allows")
     cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,

@@ -66,6 +66,9 @@ def host_devices(n: int) -> None:
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={n}".strip()
 
 
+MEMORY_SHARE = 0.8  # of this machine's memory, what one run (batch, logs) may plan to take
+
+
 def memory_bytes() -> float:
     """This machine's memory (8 GB where the system does not say)."""
     try:

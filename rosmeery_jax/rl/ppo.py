@@ -38,7 +38,7 @@ from tqdm import tqdm
 from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import interrupt, xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.xla import memory_bytes
+from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
 from rosmeery_jax.env import EnvConfig, world_bank
 from rosmeery_jax.rl.env import ExplorationEnv
@@ -138,7 +138,7 @@ def _check_size(cfg: TrainConfig, source: str) -> None:
     obs = rl.obs_size * 4 + 64  # bytes of one observation and its transition
     need = float(p.num_envs) * (ENV_BYTES + p.num_steps * obs * ROLLOUT_COPIES)
     have = memory_bytes()
-    if need > 0.8 * have:
+    if need > MEMORY_SHARE * have:
         raise InputError(source, "ppo.num_envs", f"{p.num_envs:,} envs x {p.num_steps} steps need about "
                          f"{need / 1e9:,.1f} GB, more than this machine's {have / 1e9:.1f} GB allows")
 

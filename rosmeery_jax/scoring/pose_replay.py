@@ -21,7 +21,7 @@ import pandas as pd
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError, shown
-from rosmeery_jax.scoring import metrics
+from rosmeery_jax.scoring import metrics, results
 from rosmeery_jax.sim.sensors import depth_seg
 
 POSE_COLUMNS = ("t", "x", "y", "yaw")
@@ -96,7 +96,7 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
     ``world`` picks the world (required when the file holds several); ``run`` = (policy,
     seed), required when the world has several runs."""
     seed = pd.to_numeric(df["seed"], errors="coerce").to_numpy(float)
-    bad = np.flatnonzero(~(np.isfinite(seed) & (seed >= 0) & (seed < 2**31) & (seed == np.round(seed))))
+    bad = np.flatnonzero(results.not_seeds(seed))
     if len(bad):
         raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{shown(df['seed'].iloc[bad[0]])} is not a seed "
                          f"(a whole number from 0 to {2**31 - 1})")

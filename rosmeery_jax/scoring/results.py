@@ -31,6 +31,12 @@ def seconds(t):
     return np.where(whole, t, np.round(np.where(whole, 0.0, t), 6))[()]
 
 
+def not_seeds(values: np.ndarray) -> np.ndarray:
+    """(R,) True where a table's seed column (as floats, NaN for text) holds no seed: a
+    whole number from 0 to 2**31 - 1."""
+    return ~(np.isfinite(values) & (values >= 0) & (values < 2**31) & (values == np.round(values)))
+
+
 def metric_frame(curves: dict[str, np.ndarray], times: np.ndarray, *, world: str, policy: str,
                  detector: str, seed: int, mapper: str = "oracle") -> pd.DataFrame:
     """Long table of curves {metric: (T,)} sampled at times (T,) seconds (:func:`seconds`)."""
@@ -95,9 +101,9 @@ def load(directory: str | Path) -> pd.DataFrame:
                              "(names in a results table become file names: no folders, no leading dot)")
     for c in ("seed", "time_s", "value"):
         values = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
-        bad = np.flatnonzero(~np.isfinite(values) | ((c == "seed") & ((values < 0) | (values != np.round(values)))))
+        bad = np.flatnonzero(not_seeds(values) if c == "seed" else ~np.isfinite(values))
         if len(bad):
-            kind = "a seed (a whole number >= 0)" if c == "seed" else "a finite number"
+            kind = f"a seed (a whole number from 0 to {2**31 - 1})" if c == "seed" else "a finite number"
             raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not {kind}")
         df[c] = values.astype(int) if c == "seed" else values
     return df

@@ -14,7 +14,7 @@ import numpy as np
 from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import overrides, plugins
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.xla import memory_bytes
+from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 from rosmeery_jax.env import EnvConfig, make
@@ -259,7 +259,7 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
                            + FRAME_BYTES_PER_PIXEL * frames * cam.rgb_width * cam.rgb_height)
     have = memory_bytes()
     for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
-        if need > 0.8 * have:
+        if need > MEMORY_SHARE * have:
             raise InputError(source, "seeds" if what.startswith("the batch") else "duration",
                              f"{cfg.seeds} seeds x {len(worlds)} worlds x {len(cfg.policies)} policies x "
                              f"{cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, more than this "

@@ -9,6 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backend_bases import FigureCanvasBase  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.patches import FancyArrow, Patch  # noqa: E402
 
@@ -64,8 +65,7 @@ def picture_format(out: str | Path, flag: str = "--out") -> str:
     """The format ``out``'s suffix names (png without one), or one InputError if matplotlib
     writes no such format."""
     fmt = Path(out).suffix.lstrip(".").lower() or "png"
-    formats = plt.figure().canvas.get_supported_filetypes()
-    plt.close("all")
+    formats = FigureCanvasBase.get_supported_filetypes()
     if fmt not in formats:
         raise InputError(str(out), flag, f"'.{fmt}' is not a picture format ({', '.join(sorted(formats))})")
     return fmt
