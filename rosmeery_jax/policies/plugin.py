@@ -35,9 +35,10 @@ def plugin_class(spec: str) -> type[Policy]:
     return cls
 
 
-def check_plugin(spec: str, env) -> None:
-    """Build the plugin for ``env``, reset one robot and run one decision, compiled: any
-    failure, a wrong shape or dtype, or a non-finite target is one line."""
+def check_plugin(spec: str, env, state=None) -> None:
+    """Build the plugin for ``env``, reset one robot (or take ``state``, ``env``'s reset,
+    shared by the plugins of one config) and run one decision, compiled: any failure, a
+    wrong shape or dtype, or a non-finite target is one line."""
     where = ("config", "policies")
     try:
         policy = plugin_class(spec)(env)
@@ -46,7 +47,7 @@ def check_plugin(spec: str, env) -> None:
     except Exception as err:
         raise InputError(*where, f"plugin {spec!r} cannot be built for the world: {plugins.describe(err)}") from None
     key = jax.random.key(0)
-    state = xla.jit(env.reset)(key)
+    state = xla.jit(env.reset)(key) if state is None else state
     try:
         pstate = policy.init(key)
         target, after = xla.jit(policy.decide)(state, pstate, key)

@@ -4,15 +4,17 @@ whole before anything runs or is written."""
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from rosmeery_jax.core import config as config_loader
-from rosmeery_jax.core import overrides, plugins
+from rosmeery_jax.core import overrides, plugins, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector import runtime as runtimes
@@ -96,8 +98,9 @@ class SessionConfig:
             for w in self.worlds:
                 _check_world_name(w)
             worlds = [load_world(w) for w in self.worlds]
+            stage = functools.cache(lambda: _plugin_stage(self))
             for p in self.policies:
-                _check_policy(p, worlds, self)
+                _check_policy(p, worlds, self, stage)
             _check_mappers(self, worlds)
             decisions(self)
             sample_steps(self)
@@ -200,7 +203,15 @@ def run_label(spec: str) -> str:
     return agent_class(spec).name if spec.startswith(AGENT) else policy_label(spec)
 
 
-def _check_policy(spec: str, worlds, cfg: SessionConfig) -> None:
+def _plugin_stage(cfg: SessionConfig) -> tuple:
+    """(env, state): the first world's env and one robot's reset, on which every plugin
+    policy of ``cfg`` makes its first decision (one env, one reset compile for them all)."""
+    env = make(cfg.worlds[0], labels="detections" if cfg.detector != "off" else "observed",
+               **overrides.flatten(cfg.env))
+    return env, xla.jit(env.reset)(jax.random.key(0))
+
+
+def _check_policy(spec: str, worlds, cfg: SessionConfig, stage) -> None:
     if spec.startswith(AGENT):
         agent_class(spec)
         if cfg.detector != "off":
@@ -208,8 +219,7 @@ def _check_policy(spec: str, worlds, cfg: SessionConfig) -> None:
                              "robots label what they observe)")
         return
     if plugins.is_plugin(spec) and not spec.startswith((REPLAY_PREFIX, "learned:")):
-        labels = "detections" if cfg.detector != "off" else "observed"
-        check_plugin(spec, make(cfg.worlds[0], labels=labels, **overrides.flatten(cfg.env)))
+        check_plugin(spec, *stage())
     if policy_class(spec) is LearnedPolicy:
         load_policy(policy_file(spec))  # one line naming the file if it is not a policy file
     if spec.startswith(REPLAY_PREFIX):
