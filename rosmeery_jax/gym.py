@@ -39,6 +39,7 @@ Shapes: B robots, H x W camera pixels, Hg x Wg occupancy cells, N objects.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
@@ -91,8 +92,8 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             raise ValueError(f"action_mode {config.action_mode!r} is not 'target' or 'velocity'")
         if config.reward not in REWARDS:
             raise ValueError(f"reward {config.reward!r} is not one of {', '.join(REWARDS)}")
-        if not config.duration > 0 or config.decide_every < 1 or num_envs < 1:
-            raise ValueError("duration must be > 0 s, decide_every and num_envs at least 1")
+        if not 0 < config.duration < math.inf or config.decide_every < 1 or num_envs < 1:
+            raise ValueError("duration must be a finite number > 0 s, decide_every and num_envs at least 1")
         env_cfg = EnvConfig().with_overrides("gym", **overrides.flatten({**config.env,
                                                                          "action_mode": config.action_mode}))
         period = env_cfg.robot.control_dt * config.decide_every

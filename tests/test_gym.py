@@ -64,6 +64,13 @@ def test_a_duration_that_is_not_whole_decisions_is_refused(world, duration):
         VectorEnv([world], 1, GymConfig(duration=duration))
 
 
+@pytest.mark.parametrize("duration", [float("inf"), float("nan"), 0.0])
+def test_a_duration_that_is_no_finite_positive_number_is_refused(world, duration):
+    """An infinite episode was an OverflowError from counting its decisions."""
+    with pytest.raises(ValueError, match="duration must be a finite number > 0 s"):
+        VectorEnv([world], 1, GymConfig(duration=duration))
+
+
 def test_the_vector_env_batches_robots_over_worlds_and_scores_a_submitted_map(world):
     vec = VectorEnv([world], 2, VECTOR)
     obs, _ = vec.reset(seed=0)

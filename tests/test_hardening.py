@@ -100,8 +100,9 @@ def test_the_reset_key_sets_the_start_heading_bitwise():
 # --- session configs: everything checked before anything is written ---
 
 @pytest.mark.parametrize("toml, field", [
-    ("[env]\ncamera__cul = 3\n", "camera__cul"),
-    ("[env]\ncamera = {cull = 'many'}\n", "camera__cull"),
+    ("[env]\ncamera__cul = 3\n", "env.camera.cul: unknown option"),
+    ("[env]\ncamera = {cull = 'many'}\n", "env.camera.cull: 'many' is not"),  # named as the file spells it
+    ("[env.robot]\nmax_speed = -1.0\n", "env.robot.max_speed: -1.0 must be a number > 0"),
     ("seeds = true\n", "seeds"),
     ("devices = -1\n", "devices"),
     ("worlds = 5\n", "worlds"),

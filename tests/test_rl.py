@@ -216,15 +216,23 @@ def test_bad_config_is_refused(worlds):
         ExplorationEnv(bank, replace(CFG, candidates=0))
 
 
-def test_the_train_command_refuses_a_bad_config_in_one_line(tmp_path, capsys):
-    """`rosmeery train` (which imports the trainer, and gymnax with it, only when it runs)."""
+@pytest.mark.parametrize("text, needle", [
+    ("[ppo]\nupdates = 0\n", "ppo.updates: 0 must be"),
+    ("[ppo]\nclip_eps = nan\n", "ppo.clip_eps: nan must be a finite number"),  # keys as the file spells them
+    ("[env.robot]\nmax_speed = -1.0\n", "env.robot.max_speed: -1.0 must be"),
+    ("[rl]\nepisode_s = 1e9\n", "rl.episode_s: 1000000000.0 must be a finite number > 0 and at most 1e+06"),
+    ("[rl]\ndecide_every = 1_000_000_000_000\n", "rl.decide_every: 1000000000000 must be a whole number in [1, "),
+])
+def test_the_train_command_refuses_a_bad_config_in_one_line(tmp_path, capsys, text, needle):
+    """`rosmeery train` (which imports the trainer, and gymnax with it, only when it runs);
+    an episode or a decision of more control steps than int32 counts was a traceback."""
     from rosmeery_jax.apps.cli import main
 
     toml, out = tmp_path / "ppo.toml", tmp_path / "o"
-    toml.write_text("[ppo]\nupdates = 0\n")
+    toml.write_text(text)
     assert main(["train", "--config", str(toml), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"{toml}: ppo.updates: 0 must be" in err[0] and not out.exists()
+    assert len(err) == 1 and f"{toml}: {needle}" in err[0] and not out.exists()
 
 
 # --- PPO ---------------------------------------------------------------------------------

@@ -316,7 +316,7 @@ def test_sample_s_and_sizes_that_cannot_be_honoured(tmp_path):
         load_config(deep)
     wide = tmp_path / "wide.toml"
     wide.write_text('worlds = ["small_office"]\n[env]\ncamera__width = 100000\n')
-    with pytest.raises(InputError, match="camera__width"):
+    with pytest.raises(InputError, match="env.camera.width"):
         load_config(wide)
 
 

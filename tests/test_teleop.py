@@ -46,7 +46,7 @@ def _steps(n: int, v: float = 0.5, w: float = 0.2) -> str:
     (lambda: _header() + "\n" + _steps(3).replace('"k": 2', '"k": 7'), "line 3: k"),
     (lambda: _header(dt=0.2) + "\n" + _steps(3), "line 1: dt"),  # another rate cannot be replayed
     (lambda: _header(start_pose="here") + "\n" + _steps(3), "line 1: start_pose"),
-    (lambda: _header(env={"camera__cull": "many"}) + "\n" + _steps(3), "camera__cull"),
+    (lambda: _header(env={"camera__cull": "many"}) + "\n" + _steps(3), "line 1: env.camera.cull"),
     (lambda: _header() + "\n" + _steps(3).replace("0.5,", "1e300,", 1), "line 2"),
 ])
 def test_bad_recordings_are_one_line_errors(tmp_path, capsys, content, field):

@@ -21,28 +21,38 @@ from rosmeery_jax.core.errors import InputError
 
 def flatten(values: dict, prefix: str = "") -> dict[str, Any]:
     """``{"a": {"b": 1}}`` -> ``{"a__b": 1}``; dotted keys become ``__`` paths."""
-    out: dict[str, Any] = {}
+    return {path: value for path, _, value in _leaves(values, prefix)}
+
+
+def _leaves(values: dict, prefix: str = "", label: str = ""):
+    """(path, label, value) per leaf: the path joins field names with ``__``; the label is
+    the key as the user wrote it, a nested table's keys joined to it by ``.`` (messages)."""
     for key, value in values.items():
-        path = prefix + str(key).replace(".", "__")
+        path, name = prefix + str(key).replace(".", "__"), label + str(key)
         if isinstance(value, dict):
-            out.update(flatten(value, path + "__"))
+            yield from _leaves(value, path + "__", name + ".")
         else:
-            out[path] = value
-    return out
+            yield path, name, value
 
 
 def apply(config, overrides: dict[str, Any], source: str = "config"):
     """A copy of the dataclass ``config`` with every override set (see module docstring)."""
-    for key, value in flatten(overrides).items():
-        config = _set(config, key.split("__"), value, key, source)
+    for key, label, value in _leaves(overrides):
+        config = _set(config, key.split("__"), value, label, source)
     return config
+
+
+def in_table(err: InputError, table: str) -> InputError:
+    """``err`` about a key of a file's ``table`` (``[env]``), the key spelt as in the file:
+    ``robot__max_speed`` -> ``env.robot.max_speed``."""
+    return InputError(err.source, f"{table}.{err.where.replace('__', '.')}", err.problem)
 
 
 def _set(obj, path: list[str], value, key: str, source: str):
     names = {f.name: f for f in dataclasses.fields(obj)}
     head = path[0]
     if head not in names:
-        where = key[: key.rfind(head)].rstrip("_") or "top level"
+        where = key[: key.rfind(head)].rstrip("_.") or "top level"
         raise InputError(source, key, f"unknown option {head!r} in {where} (options: {', '.join(sorted(names))})")
     current = getattr(obj, head)
     if len(path) > 1:

@@ -24,6 +24,8 @@ from rosmeery_jax.sim import coverage
 
 REWARDS = ("ori", "cori", "coverage")
 MAX_CANDIDATES = 256  # K: more would not fit a batch's observations
+STEP_LIMIT = 2**31 - 1  # control steps are counted in int32
+MAX_EPISODE_S = 1e6  # simulated seconds (11.6 days): the horizon counts control steps in int32
 
 
 @dataclass(frozen=True)
@@ -46,19 +48,24 @@ class RLConfig:
 
     def horizon(self, dt: float) -> int:
         """Control steps per episode."""
-        return max(1, int(round(self.episode_s / dt)))
+        steps = max(1, int(round(self.episode_s / dt)))
+        if steps > STEP_LIMIT:
+            raise ValueError(f"episode_s {self.episode_s:g} is {steps} control steps of {dt:g} s, more than "
+                             f"{STEP_LIMIT} (int32)")
+        return steps
 
 
 def check_rl(rl: RLConfig, source: str, prefix: str = "rl.") -> None:
     """Every RL setting in range; one InputError naming ``source`` and the field."""
-    for name, top in (("candidates", MAX_CANDIDATES), ("decide_every", None)):
+    for name, top in (("candidates", MAX_CANDIDATES), ("decide_every", STEP_LIMIT)):
         value = getattr(rl, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1 or (top and value > top):
-            raise InputError(source, prefix + name, f"{value!r} must be a whole number in [1, {top or 'inf'}]")
-    for name in ("episode_s", "radius"):
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
+            raise InputError(source, prefix + name, f"{value!r} must be a whole number in [1, {top}]")
+    for name, top in (("episode_s", MAX_EPISODE_S), ("radius", math.inf)):
         value = getattr(rl, name)
-        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-            raise InputError(source, prefix + name, f"{value!r} must be a finite number > 0")
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or not 0 < value <= top:
+            raise InputError(source, prefix + name, f"{value!r} must be a finite number > 0"
+                             + (f" and at most {top:g}" if top < math.inf else ""))
     for name in ("reward_scale", "fail_penalty"):
         value = getattr(rl, name)
         if not isinstance(value, (int, float)) or not math.isfinite(value):

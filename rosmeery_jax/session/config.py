@@ -94,7 +94,10 @@ class SessionConfig:
                 raise InputError(source, name, "is empty: name at least one")
         with _as_source(source):
             metrics.resolve(self.metrics)
-            self.env_config  # noqa: B018  (type-checks the overrides)
+            try:
+                self.env_config  # noqa: B018  (type-checks the overrides)
+            except InputError as err:
+                raise overrides.in_table(err, "env") from None
             for w in self.worlds:
                 _check_world_name(w)
             worlds = [load_world(w) for w in self.worlds]
@@ -229,7 +232,10 @@ def _check_policy(spec: str, worlds, cfg: SessionConfig, stage) -> None:
                              f"(recorded in: {', '.join(sorted(recorded))})")
         for recs in recorded.values():  # one batch per world: one set of env settings
             for rec in recs:
-                EnvConfig().with_overrides(f"{rec.path}: line 1: env", **overrides.flatten(rec.header.get("env", {})))
+                try:
+                    EnvConfig().with_overrides(f"{rec.path}: line 1", **overrides.flatten(rec.header.get("env", {})))
+                except InputError as err:
+                    raise overrides.in_table(err, "env") from None
                 if rec.header.get("env", {}) != recs[0].header.get("env", {}):
                     raise InputError(str(rec.path), "line 1: env", f"differs from {recs[0].path}'s: recordings "
                                      "replayed together need the same env settings")
