@@ -387,7 +387,7 @@ def _cmd_evaluate(args) -> int:
 def _cmd_record(args) -> int:
     if args.seed is not None and args.seeds is not None:
         raise InputError("command line", "--seed", "give --seed S (one seed) or --seeds N (seeds 0..N-1), not both")
-    seeds = [args.seed] if args.seed is not None else args.seeds or 1
+    seeds = [args.seed] if args.seed is not None else 1 if args.seeds is None else args.seeds
     cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate)
     folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
                      progress=not args.quiet)

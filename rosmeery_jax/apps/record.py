@@ -84,16 +84,17 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     list of seeds) into ``out`` (module docstring); returns the seed folders. Seeds 0 to the
     largest are simulated in one batch (a seed's run does not depend on its batch-mates)."""
     out = Path(out)
-    wanted = list(range(seeds)) if isinstance(seeds, int) else sorted(set(seeds))
-    if not wanted or min(wanted) < 0:
+    count = seeds if isinstance(seeds, int) else max(seeds, default=-1) + 1  # seeds 0..count-1 simulated
+    if count < 1 or not isinstance(seeds, int) and min(seeds) < 0:
         raise InputError("command line", "--seeds", f"{seeds!r}: name at least one seed, none negative")
     dt = SessionConfig().dt
     check(cfg, out, resume, dt)
     settings = {"world": world, "policy": policy, "duration": duration, **asdict(cfg)}
     _check_settings(out, settings)
-    session = SessionConfig(worlds=(world,), policies=(policy,), seeds=max(wanted) + 1, duration=duration,
-                            detector="off", decide_every=cfg.decide_every, sample_s=dt, out=str(out / "session"))
-    session = session.validate("command line")
+    session = SessionConfig(worlds=(world,), policies=(policy,), seeds=count, duration=duration, detector="off",
+                            decide_every=cfg.decide_every, sample_s=dt, out=str(out / "session"))
+    session = session.validate("command line")  # a count this machine's memory holds, before it is listed
+    wanted = list(range(seeds)) if isinstance(seeds, int) else sorted(set(seeds))
     if not (out / SETTINGS).exists():
         write_atomic(out / SETTINGS, json.dumps(settings, indent=2))
     folders = [out / f"seed{k}" for k in wanted]
