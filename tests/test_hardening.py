@@ -125,6 +125,24 @@ def test_bad_configs_are_refused_before_writing(tmp_path, capsys, toml, field):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_session_checks_a_config_nobody_validated_and_only_once(tmp_path, monkeypatch):
+    """``Session(cfg)`` as docs/api.md writes it: a config never validated ran with 0 seeds
+    and wrote a results folder of nothing; a validated one is not checked again."""
+    from rosmeery_jax import Session, SessionConfig
+
+    cfg = SessionConfig(worlds=("small_office",), policies=("random",), seeds=0, duration=2.0, detector="off",
+                        out=str(tmp_path / "o"))
+    with pytest.raises(InputError, match="seeds: 0 must be a whole number >= 1"):
+        Session(cfg)
+    assert not (tmp_path / "o").exists()
+    good = dataclasses.replace(cfg, seeds=1).validate()
+    calls = []
+    monkeypatch.setattr(SessionConfig, "validate", lambda self, source="config": calls.append(source) or self)
+    Session(good)
+    Session(dataclasses.replace(good, seeds=2))  # a changed copy is checked again
+    assert calls == ["config"]
+
+
 def test_non_utf8_toml_and_bad_out_are_one_line(tmp_path, capsys):
     path = tmp_path / "s.toml"
     path.write_bytes("seeds = 2 # caf\xe9\n".encode("latin-1"))

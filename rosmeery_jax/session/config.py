@@ -122,7 +122,13 @@ class SessionConfig:
             with _as_source(source):
                 runtimes.check(self.detector_runtime)
         _check_size(self, worlds, source)
+        object.__setattr__(self, "_validated", True)  # not a field: a changed copy is checked again
         return self
+
+    @property
+    def validated(self) -> bool:
+        """Whether :meth:`validate` passed on this very object (a Session checks it otherwise)."""
+        return getattr(self, "_validated", False)
 
 
 class _as_source:

@@ -44,7 +44,10 @@ class Session:
     """``cluster``: None to simulate here, or a Ray address (:mod:`.cluster`) to send each
     unfinished run to a worker; ``cache``: the workers' persistent compilation cache."""
 
-    def __init__(self, cfg: SessionConfig, progress: bool = True, cluster: str | None = None, cache: bool = True):
+    def __init__(self, cfg: SessionConfig, progress: bool = True, cluster: str | None = None, cache: bool = True,
+                 checked: bool = False):
+        """``cfg`` is validated unless it was (``checked``: a part of a config that was)."""
+        cfg = cfg if cfg.validated or checked else cfg.validate()
         self.cfg, self.progress, self.cluster, self.cache = cfg, progress, cluster, cache
         if cluster is not None and cfg.devices > 1:
             raise InputError("command line", "--devices", "not with --cluster: each Ray worker runs its shard on "
@@ -155,7 +158,7 @@ def run_shard(cfg: SessionConfig, world: str, policy: str, cache: bool) -> tuple
     bytes}, timing) for the driver to write."""
     xla.compilation_cache(cache)
     with tempfile.TemporaryDirectory(prefix="rosmeery-shard-") as tmp:
-        out = Session(replace(cfg, worlds=(world,), policies=(policy,), out=tmp), progress=False).run()
+        out = Session(replace(cfg, worlds=(world,), policies=(policy,), out=tmp), progress=False, checked=True).run()
         name = run_name(world, policy)
         files = sorted(p for p in (out / "runs").glob(f"{name}.*")) + sorted((out / "maps").glob(f"{name}__seed*"))
         timing = json.loads((out / "timing.json").read_text()) if (out / "timing.json").exists() else {}
