@@ -199,9 +199,13 @@ def test_commands_are_validated_and_only_the_page_may_drive():
     own = {"Content-Type": "application/json", "Origin": f"http://127.0.0.1:{port}"}
     try:
         for body in (b'{"v": NaN, "w": 0}', b'{"v": Infinity}', b'{"v": "fast"}', b'{"keys": "up"}', b"[1, 2]",
-                     b"not json"):
-            assert _post(port, body, own) == 400, body
-            assert app.cmd is None, body  # nothing moved
+                     b"not json", b'{"v": 1' + b"0" * 400 + b"}",  # an int float cannot hold: was a TypeError
+                     b"[" * 30000 + b"]" * 30000):  # nested past Python's recursion limit: was a RecursionError
+            assert _post(port, body, own) == 400, body[:20]
+            assert app.cmd is None, body[:20]  # nothing moved
+        # a negative length read until the client hung up (a timeout here); too long is refused unread
+        for length in ("-1", "70000"):
+            assert _post(port, b'{"v": 1}', {**own, "Content-Length": length}) == 400, length
         # another site's page: text/plain (a "simple" request), or a foreign Origin
         assert _post(port, b'{"v": 1, "w": 0}', {"Content-Type": "text/plain"}) == 415
         assert _post(port, b'{"v": 1, "w": 0}', {**own, "Origin": "http://evil.example"}) == 403

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -43,6 +44,7 @@ from rosmeery_jax.scoring import metrics
 
 STATIC = Path(__file__).parent / "static"
 COMMAND_TIMEOUT_S = 0.5
+MAX_BODY = 65536  # bytes of a command's JSON
 CURVE_POINTS = 600  # metric history sent to the page (60 s at 10 Hz)
 
 
@@ -200,12 +202,20 @@ def parse_command(body, robot) -> np.ndarray:
         fwd = int(bool({"ArrowUp", "w", "W"} & keys)) - int(bool({"ArrowDown", "s", "S"} & keys))
         turn = int(bool({"ArrowLeft", "a", "A"} & keys)) - int(bool({"ArrowRight", "d", "D"} & keys))
         return np.array([fwd * robot.max_speed, turn * robot.max_turn_rate], np.float32)
-    v, w = body.get("v", 0.0), body.get("w", 0.0)
-    for name, x in (("v", v), ("w", w)):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
-            raise ValueError(f"{name} must be a finite number")
+    v, w = (_finite(name, body.get(name, 0.0)) for name in ("v", "w"))
     return np.array([np.clip(v, -robot.max_speed, robot.max_speed),
                      np.clip(w, -robot.max_turn_rate, robot.max_turn_rate)], np.float32)
+
+
+def _finite(name: str, x) -> float:
+    """``x`` as a float, or ValueError unless it is a finite JSON number (an integer of
+    400 digits is a number float cannot hold)."""
+    try:
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+            raise ValueError
+        return float(x)
+    except (ValueError, OverflowError):
+        raise ValueError(f"{name} must be a finite number") from None
 
 
 def _handler(app: Teleop):
@@ -269,10 +279,12 @@ def _handler(app: Teleop):
             if self.headers.get("Content-Type", "").split(";")[0].strip() != "application/json":
                 return self._error(415, "Content-Type must be application/json")
             try:
-                length = min(int(self.headers.get("Content-Length", 0) or 0), 65536)
+                length = int(self.headers.get("Content-Length", 0) or 0)
+                if not 0 <= length <= MAX_BODY:  # a negative length would read until the client hangs up
+                    raise ValueError
                 body = json.loads(self.rfile.read(length) or b"{}")
-            except (ValueError, json.JSONDecodeError):
-                return self._error(400, "body is not JSON")
+            except (ValueError, RecursionError):  # RecursionError: arrays nested thousands deep
+                return self._error(400, f"body is not JSON of at most {MAX_BODY} bytes")
             if path == "/command":
                 try:
                     app.command(body)
