@@ -130,6 +130,11 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     (["detector", "dataset", "--per-world", "0"], "--per-world"), (["detector", "dataset", "--per-world", "-3"],
                                                                     "--per-world"),
     (["detector", "dataset", "--seed", "-1"], "--seed"), (["detector", "train", "--epochs", "0"], "--epochs"),
+    (["detector", "dataset", "--worlds", "small_office", "--per-world", "1000000000"], "GB on disk"),  # was killed
+    # for memory while drawing the viewpoints
+    (["detector", "dataset", "--worlds", " , "], "--worlds: name at least one world"),  # wrote an empty dataset
+    (["detector", "dataset", "--worlds", "small_office,small_office"], "appears twice"),  # its frames overwrote
+    # each other
     (["detector", "train", "--batch", "0"], "--batch"), (["detector", "train", "--max-images", "0"], "--max-images"),
     (["teleop", "--world", "small_office", "--port", "70000"], "--port"),
     (["teleop", "--world", "small_office", "--port", "-1"], "--port"),

@@ -21,6 +21,7 @@ No torch here: rendering is the JAX raycaster. Layout of ``OUT``::
 from __future__ import annotations
 
 import json
+import shutil
 import zlib
 from dataclasses import asdict, dataclass
 from functools import cache
@@ -222,9 +223,29 @@ def generate(cfg: DatasetConfig, splits: tuple[str, ...] = ("train", "val"), pro
             yield ("val" if val[k] else "train"), world.name, int(k), img, yolo_rows(lab, cats, cfg.min_pixels)
 
 
+FRAME_BYTES = 20_000  # a rendered frame's PNG and label file, generously (about 15 kB at 160 x 128)
+
+
+def check(cfg: DatasetConfig, out: Path, source: str = "command line") -> None:
+    """The worlds named once each (a world twice wrote its frames over each other) and the
+    frames within the disk space free where ``out`` goes; one InputError otherwise."""
+    if not cfg.worlds:
+        raise InputError(source, "--worlds", "name at least one world")
+    twice = next((w for w in cfg.worlds if cfg.worlds.count(w) > 1), None)
+    if twice is not None:
+        raise InputError(source, "--worlds", f"{twice!r} appears twice")
+    need = float(cfg.per_world) * len(cfg.worlds) * FRAME_BYTES
+    free = shutil.disk_usage(next(p for p in (out, *out.parents) if p.exists())).free
+    if need > free:
+        raise InputError(source, "--per-world", f"{cfg.per_world} viewpoints x {len(cfg.worlds)} worlds need about "
+                         f"{need / 1e9:,.1f} GB on disk, more than the {free / 1e9:,.1f} GB free at {out}")
+
+
 def write(cfg: DatasetConfig, out: str | Path, progress: bool = True) -> dict:
-    """Render the dataset into ``out`` (see the module docstring); returns its summary."""
-    out = Path(out)
+    """Render the dataset into ``out`` (see the module docstring) after :func:`check`;
+    returns its summary."""
+    out = Path(out).absolute()
+    check(cfg, out)
     counts = {"train": 0, "val": 0}
     boxes = {"train": 0, "val": 0}
     for split, world, k, img, rows in generate(cfg, progress=progress):
