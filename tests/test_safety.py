@@ -133,6 +133,8 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     (["detector", "dataset", "--worlds", "small_office", "--per-world", "1000000000"], "GB on disk"),  # was killed
     # for memory while drawing the viewpoints
     (["detector", "dataset", "--worlds", " , "], "--worlds: name at least one world"),  # wrote an empty dataset
+    (["detector", "export", "--batch", "100000000"], "GB, more than this machine's"),  # torch's allocation
+    (["detector", "export", "--size", "100000x100000"], "--size: '100000x100000' is not WxH"),  # traceback
     (["detector", "dataset", "--worlds", "small_office,small_office"], "appears twice"),  # its frames overwrote
     # each other
     (["detector", "train", "--batch", "0"], "--batch"), (["detector", "train", "--max-images", "0"], "--max-images"),

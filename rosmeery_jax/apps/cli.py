@@ -28,6 +28,7 @@ from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 from rosmeery_jax.env import EnvConfig, make
+from rosmeery_jax.env.config import MAX_PIXELS
 from rosmeery_jax.scoring import evaluate as map_eval
 from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
@@ -273,12 +274,17 @@ def _cmd_detector_export(args) -> int:
     out = require_new(args.out, kind="file")
     try:
         w, h = (int(v) for v in args.size.lower().split("x"))
-        if w <= 0 or h <= 0:
+        if not (1 <= w <= MAX_PIXELS and 1 <= h <= MAX_PIXELS):
             raise ValueError
     except ValueError:
-        raise InputError("--size", "value", f"{args.size!r} is not WxH in whole pixels, e.g. 160x128") from None
-    model = checkpoint.load(weights_file(args.weights))
+        raise InputError("command line", "--size", f"{args.size!r} is not WxH in whole pixels up to {MAX_PIXELS}, "
+                         "e.g. 160x128") from None
     size = runtimes.padded(h, w)
+    need, have = 4.0 * args.batch * 3 * size[0] * size[1], memory_bytes() * MEMORY_SHARE  # the traced input
+    if need > have:
+        raise InputError("command line", "--batch", f"{args.batch} frames of {size[1]}x{size[0]} need {need / 1e9:,.1f} "
+                         f"GB, more than this machine's {have / 1e9:,.1f} GB allows")
+    model = checkpoint.load(weights_file(args.weights))
     runtimes.export(model, out, args.batch, *size)
     print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{size[0]}x{size[1]}")
     return 0
