@@ -87,7 +87,7 @@ class SessionConfig:
 
     def validate(self, source: str = "config") -> "SessionConfig":
         """Every check that can be made before a run starts; one InputError naming ``source``.
-        Pure: it changes nothing (devices are set up by the runner)."""
+        Pure but for a mark that it passed (``validated``); devices are set up by the runner."""
         _check_values(self, source)
         for name in LIST_FIELDS:
             if not getattr(self, name):
