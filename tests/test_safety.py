@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 
 from conftest import SMALL_RUN, one_line_error
+from rosmeery_jax.apps import cli
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.files import folder_lock
 from rosmeery_jax.scoring.results import METRIC_COLUMNS
@@ -140,11 +141,15 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     (["detector", "train", "--batch", "0"], "--batch"), (["detector", "train", "--max-images", "0"], "--max-images"),
     (["teleop", "--world", "small_office", "--port", "70000"], "--port"),
     (["teleop", "--world", "small_office", "--port", "-1"], "--port"),
+    (["teleop", "--world", "small_office", "--conf-threshold", "-1"], "--conf-threshold"),  # was taken
+    (["teleop", "--world", "small_office", "--conf-threshold", "nan"], "--conf-threshold"),
+    (["teleop", "--world", "small_office", "--seed", "-1"], "--seed"),
     (["record", "--world", "small_office", "--seed", "3", "--seeds", "2"], "--seed"),
 ])
-def test_bad_numbers_are_one_line_before_anything(tmp_path, capsys, args, needle):
+def test_bad_numbers_are_one_line_before_anything(tmp_path, capsys, monkeypatch, args, needle):
     if args[:2] == ["detector", "train"]:
         pytest.importorskip("torch")
+    monkeypatch.setattr(cli, "Teleop", lambda *a, **k: pytest.fail("teleop started"))  # not served forever
     out = tmp_path / "o"
     extra = [] if args[0] == "teleop" else ["--out", str(out / ("w.pt" if args[1] == "train" else "x"))]
     assert main([*args, *extra]) == 2

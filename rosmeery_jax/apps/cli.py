@@ -333,6 +333,9 @@ def _cmd_detector_eval(args) -> int:
 def _cmd_teleop(args) -> int:
     if not 1 <= args.port <= 65535:
         raise InputError("command line", "--port", f"{args.port} is not a TCP port (1-65535)")
+    _positive(args, "seed")
+    if not 0 <= args.conf_threshold <= 1:  # as a session's
+        raise InputError("command line", "--conf-threshold", f"{args.conf_threshold!r} must be a number in [0, 1]")
     load_world(args.world)  # a bad name fails here, in one line
     record = Path(args.record or f"recordings/{Path(args.world).stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     if record.exists():
