@@ -476,3 +476,11 @@ def test_training_settings_out_of_range_are_refused(override, field):
 
     with pytest.raises(InputError, match=field):
         ppo.load_config(None, **override)
+
+
+def test_an_episode_longer_than_int32_control_steps_is_refused():
+    """The horizon is counted in int32: at 1 us a step, 1e6 s is 1e12 steps (an
+    OverflowError once it reached JAX)."""
+    assert RLConfig(episode_s=120.0).horizon(0.1) == 1200
+    with pytest.raises(ValueError, match=r"episode_s 1e\+06 is 1000000000000 control steps of 1e-06 s"):
+        RLConfig(episode_s=1e6).horizon(1e-6)
