@@ -144,6 +144,7 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     (["teleop", "--world", "small_office", "--conf-threshold", "-1"], "--conf-threshold"),  # was taken
     (["teleop", "--world", "small_office", "--conf-threshold", "nan"], "--conf-threshold"),
     (["teleop", "--world", "small_office", "--seed", "-1"], "--seed"),
+    (["worlds", "stats", "small_office", "--rows", "-1"], "--rows: -1 must be"),  # printed nothing, exit 0
     (["record", "--world", "small_office", "--seed", "3", "--seeds", "2"], "--seed"),
 ])
 def test_bad_numbers_are_one_line_before_anything(tmp_path, capsys, monkeypatch, args, needle):
@@ -151,7 +152,7 @@ def test_bad_numbers_are_one_line_before_anything(tmp_path, capsys, monkeypatch,
         pytest.importorskip("torch")
     monkeypatch.setattr(cli, "Teleop", lambda *a, **k: pytest.fail("teleop started"))  # not served forever
     out = tmp_path / "o"
-    extra = [] if args[0] == "teleop" else ["--out", str(out / ("w.pt" if args[1] == "train" else "x"))]
+    extra = [] if args[0] in ("teleop", "worlds") else ["--out", str(out / ("w.pt" if args[1] == "train" else "x"))]
     assert main([*args, *extra]) == 2
     _one_line(capsys, needle)
     assert not out.exists()
@@ -278,6 +279,10 @@ def test_plot_never_writes_outside_its_folder(tmp_path, capsys):
                                                                                           index=False)
         assert main(["plot", str(shared)]) == 2  # a seed 1.5 was read as seed 1
         _one_line(capsys, "metrics.csv", f"row 2, column {column}", needle)
+    pd.DataFrame([], columns=METRIC_COLUMNS).to_csv(shared / "metrics.csv", index=False)
+    assert main(["plot", str(shared)]) == 2  # was "wrote 0 plots", exit 0
+    _one_line(capsys, "metrics.csv: rows: none: nothing to plot")
+    assert not (shared / "plots").exists()
 
 
 # --- silently reinterpreted, now refused ---

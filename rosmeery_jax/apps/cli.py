@@ -104,6 +104,8 @@ def _cmd_worlds_generate(args) -> int:
 
 
 def _cmd_worlds_stats(args) -> int:
+    if args.rows < 0:
+        raise InputError("command line", "--rows", f"{args.rows} must be a whole number >= 0 (0: the summary only)")
     names = world_names_in(args.worlds)
     table, cats = stats_table(names)
     if args.csv:
@@ -427,7 +429,10 @@ def _cmd_diff(args) -> int:
 
 def _cmd_plot(args) -> int:
     d = Path(args.dir)
-    written = plots.plot_results(results.load(d), d / "plots")
+    df = results.load(d)
+    if df.empty:
+        raise InputError(str(d / "metrics.csv"), "rows", "none: nothing to plot")
+    written = plots.plot_results(df, d / "plots")
     print(f"wrote {len(written)} plots to {d / 'plots'}")
     return 0
 
