@@ -241,7 +241,6 @@ def _cmd_detector_dataset(args) -> int:
         raise InputError("command line", "--near", f"{args.near} must be a share between 0 and 1")
     cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed, balance=args.balance,
                                 near=args.near)
-    dataset.check(cfg, out.absolute())
     with output_folder(out):
         summary = dataset.write(cfg, out, progress=not args.quiet)
     print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "

@@ -63,6 +63,15 @@ class EnvConfig:
     labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
     # (detector off); "detections": only what `Env.attach` folds in (a detector)
 
+    @classmethod
+    def from_table(cls, values: dict, source: str = "config", table: str = "env") -> "EnvConfig":
+        """The config a file's ``[env]`` table (nested or ``__`` keys) sets; an error names
+        the key as the file spells it (``env.robot.max_speed``)."""
+        try:
+            return cls().with_overrides(source, **overrides_.flatten(values))
+        except InputError as err:
+            raise overrides_.in_table(err, table) from None
+
     def with_overrides(self, source: str = "config", **overrides: Any) -> "EnvConfig":
         """Override fields at any depth as ``section__sub__field=value`` (type-checked; an
         unknown or badly typed key is one error naming ``source`` and the key)."""

@@ -36,7 +36,7 @@ from flax.training.train_state import TrainState
 from tqdm import tqdm
 
 from rosmeery_jax.core import config as config_loader
-from rosmeery_jax.core import interrupt, overrides, xla
+from rosmeery_jax.core import interrupt, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
@@ -110,10 +110,7 @@ def _prepare(values: dict, source: str) -> dict:
 
 
 def _check(cfg: TrainConfig, source: str) -> None:
-    try:
-        EnvConfig().with_overrides(source, **cfg.env)
-    except InputError as err:
-        raise overrides.in_table(err, "env") from None
+    EnvConfig.from_table(cfg.env, source)
     expand_names(cfg.worlds)  # a range refused by its size, before anything is built
     check_rl(cfg.rl, source)
     p = cfg.ppo

@@ -78,7 +78,7 @@ class SessionConfig:
     @property
     def env_config(self) -> EnvConfig:
         """The env configuration of the session's robots (its ``env`` overrides applied)."""
-        return EnvConfig().with_overrides("config", **overrides.flatten(self.env))
+        return EnvConfig.from_table(self.env)
 
     @property
     def dt(self) -> float:
@@ -94,10 +94,7 @@ class SessionConfig:
                 raise InputError(source, name, "is empty: name at least one")
         with _as_source(source):
             metrics.resolve(self.metrics)
-            try:
-                self.env_config  # noqa: B018  (type-checks the overrides)
-            except InputError as err:
-                raise overrides.in_table(err, "env") from None
+            self.env_config  # noqa: B018  (type-checks the overrides)
             for w in self.worlds:
                 _check_world_name(w)
             worlds = [load_world(w) for w in self.worlds]
@@ -238,10 +235,7 @@ def _check_policy(spec: str, worlds, cfg: SessionConfig, stage) -> None:
                              f"(recorded in: {', '.join(sorted(recorded))})")
         for recs in recorded.values():  # one batch per world: one set of env settings
             for rec in recs:
-                try:
-                    EnvConfig().with_overrides(f"{rec.path}: line 1", **overrides.flatten(rec.header.get("env", {})))
-                except InputError as err:
-                    raise overrides.in_table(err, "env") from None
+                EnvConfig.from_table(rec.header.get("env", {}), f"{rec.path}: line 1")
                 if rec.header.get("env", {}) != recs[0].header.get("env", {}):
                     raise InputError(str(rec.path), "line 1: env", f"differs from {recs[0].path}'s: recordings "
                                      "replayed together need the same env settings")
