@@ -410,6 +410,16 @@ def test_the_shipped_policy_loads():
     assert logits.shape == (rl.actions,) and value.shape == ()
 
 
+def test_the_progress_bar_shows_the_last_return_an_episode_gave():
+    nan = float("nan")
+    curve = [{"update": 1, "return": nan}]
+    assert ppo._last_return(curve) == "return - (no episode ended yet)"
+    curve += [{"update": 2, "return": 0.25}, {"update": 3, "return": nan}]
+    assert ppo._last_return(curve) == "return 0.250 (update 2)"  # not "return nan"
+    curve.append({"update": 4, "return": -1.0})
+    assert ppo._last_return(curve) == "return -1.000"
+
+
 def test_a_diverged_training_run_stops_and_keeps_its_last_good_checkpoint(worlds, trained, tmp_path):
     """NaN losses (as lr = 1e30 gives from the second update) stop the run with one error,
     before the NaN state is saved: the checkpoint and curve stay those of update 2."""

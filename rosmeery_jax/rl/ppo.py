@@ -343,7 +343,7 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
         steps += int(stats.pop("env_steps"))  # control steps the decisions took, summed over envs
         curve.append({"update": u + 1, "env_steps": steps, **stats, "wall_s": elapsed})
         bar.update(1)
-        bar.set_postfix_str(f"return {stats['return']:.3f}, {(steps - start) / elapsed:,.0f} env-steps/s")
+        bar.set_postfix_str(f"{_last_return(curve)}, {(steps - start) / elapsed:,.0f} env-steps/s")
         if (u + 1) % p.checkpoint_every == 0 or u + 1 == p.updates:
             save_checkpoint(out / "checkpoint.msgpack", runner, u + 1, curve)
             # the last update's picture is drawn once, below
@@ -353,6 +353,16 @@ def _train(cfg: TrainConfig, out: Path, resume: bool, progress: bool) -> None:
     bar.close()
     save_policy(out / "policy.msgpack", cfg.rl, cfg.env, runner.train.params)
     _write_curve(out, curve, picture=True)
+
+
+def _last_return(curve: list[dict]) -> str:
+    """The progress bar's return: the latest update's where an episode ended in it, else the
+    last one that had one, named by its update (an update where none ended has no return)."""
+    for row in reversed(curve):
+        if math.isfinite(row["return"]):
+            latest = row is curve[-1]
+            return f"return {row['return']:.3f}" + ("" if latest else f" (update {row['update']})")
+    return "return - (no episode ended yet)"
 
 
 def _check_finite(out: Path, update: int, stats: dict, params) -> None:
