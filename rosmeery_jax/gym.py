@@ -88,6 +88,9 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         steps and its pose and navigation status at every step (``last_logs`` (B, spans, N),
         ``last_track`` an ``env.Track`` of (B, decide_every, ...)), as sessions record them."""
         worlds = [worlds] if isinstance(worlds, str) else list(worlds)
+        overrides.check_fields(config, "GymConfig")
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int):
+            raise ValueError(f"num_envs {num_envs!r} must be a whole number")
         if config.action_mode not in ("target", "velocity"):
             raise ValueError(f"action_mode {config.action_mode!r} is not 'target' or 'velocity'")
         if config.reward not in REWARDS:

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -67,8 +69,19 @@ def test_a_duration_that_is_not_whole_decisions_is_refused(world, duration):
 @pytest.mark.parametrize("duration", [float("inf"), float("nan"), 0.0])
 def test_a_duration_that_is_no_finite_positive_number_is_refused(world, duration):
     """An infinite episode was an OverflowError from counting its decisions."""
-    with pytest.raises(ValueError, match="duration must be a finite number > 0 s"):
+    with pytest.raises(ValueError, match="duration.* must be a finite number"):
         VectorEnv([world], 1, GymConfig(duration=duration))
+
+
+@pytest.mark.parametrize("config, num_envs, needle", [
+    (GymConfig(duration="3"), 1, "GymConfig: duration: '3' is not of type float"),  # a TypeError
+    (GymConfig(decide_every=2.5), 1, "decide_every: 2.5 is not of type int"),
+    (GymConfig(camera="no"), 1, "camera: 'no' is not of type bool"),  # taken as True
+    (GymConfig(), 2.5, "num_envs 2.5 must be a whole number"),  # ran 3 robots
+])
+def test_a_config_of_the_wrong_types_is_refused(world, config, num_envs, needle):
+    with pytest.raises(ValueError, match=re.escape(needle)):
+        VectorEnv([world], num_envs, config)
 
 
 def test_the_vector_env_batches_robots_over_worlds_and_scores_a_submitted_map(world):

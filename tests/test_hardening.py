@@ -7,6 +7,7 @@ import dataclasses
 import json
 import os
 import pickle
+import re
 import signal
 import subprocess
 import sys
@@ -141,6 +142,25 @@ def test_a_session_checks_a_config_nobody_validated_and_only_once(tmp_path, monk
     Session(good)
     Session(dataclasses.replace(good, seeds=2))  # a changed copy is checked again
     assert calls == ["config"]
+
+
+@pytest.mark.parametrize("field, value, needle", [
+    ("worlds", "small_office", "worlds: 'small_office' must be a tuple of names (one name: ('small_office',))"),
+    ("seeds", 2.5, "seeds: 2.5 is not of type int"), ("seeds", True, "seeds: True is not of type int"),
+    ("duration", "10", "duration: '10' is not of type float"),  # a TypeError deep in the checks
+    ("duration", float("inf"), "duration: inf must be a finite number"), ("env", [], "env: [] must be a dict"),
+])
+def test_a_python_built_config_of_the_wrong_types_is_one_error_naming_the_field(tmp_path, field, value, needle):
+    """The file and command-line loaders check types as they read; a SessionConfig built in
+    Python is checked by ``validate`` (a string for worlds was read as one world a letter)."""
+    from rosmeery_jax import SessionConfig
+
+    cfg = SessionConfig(worlds=("small_office",), policies=("random",), detector="off", out=str(tmp_path / "o"))
+    with pytest.raises(InputError, match=re.escape(needle)):
+        dataclasses.replace(cfg, **{field: value}).validate()
+    ok = dataclasses.replace(cfg, worlds=["small_office"], out=tmp_path / "o", duration=10).validate()
+    assert ok.worlds == ("small_office",) and ok.out == str(tmp_path / "o")  # a list and a Path, as Python writes
+    assert json.loads(json.dumps(dataclasses.asdict(ok)))["out"] == ok.out  # config.json could not hold a Path
 
 
 def test_non_utf8_toml_and_bad_out_are_one_line(tmp_path, capsys):

@@ -66,6 +66,21 @@ def test_a_perfect_map_scores_one_and_a_denser_copy_scores_the_same(world, tmp_p
     assert m2["ori"] == 1.0
 
 
+def test_evaluate_takes_a_world_file_and_refuses_no_maps_and_a_bad_tolerance(world, tmp_path):
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.scoring.evaluate import evaluate
+
+    chair, _ = _parts(world)
+    m = read_map(_write(tmp_path, world, chair, np.zeros(len(chair)), {0: ("chair", 1.0)}), world.taxonomy)
+    by_file = evaluate(str(world.path), [m])[3]  # a name or file, as load_world takes (was an AttributeError)
+    assert by_file == evaluate(world, [m])[3] and by_file["ori"] > 0
+    with pytest.raises(InputError, match="maps: is empty"):
+        evaluate(world, [])
+    for bad in (0.0, -1.0, float("nan"), "0.05"):
+        with pytest.raises(InputError, match="tolerance: .* must be a distance > 0"):
+            evaluate(world, [m], tolerance=bad)
+
+
 def test_merged_objects_lose_the_smaller_one(world, tmp_path):
     chair, desk = _parts(world)
     ply = _write(tmp_path, world, np.concatenate([chair, desk]), np.zeros(len(chair) + len(desk)), {0: ("desk", 1.0)})

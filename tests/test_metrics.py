@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import re
 import warnings
 from types import MappingProxyType
 
@@ -138,6 +139,16 @@ def test_summary_figures():
     assert s["auc"] == pytest.approx((0.1 + 0.35 + 0.7 + 0.95) / 4)
     assert s["t50_s"] == 2.0 and s["t90_s"] == 3.0
     assert np.isnan(metrics.summarize(t, np.zeros(5))["t50_s"])
+    assert np.isnan(metrics.summarize(t, np.full(5, np.nan))["t90_s"])  # was 0.0: a time for no value
+
+
+@pytest.mark.parametrize("times, curve, needle", [
+    ([], [], "non-empty"), ([0.0, 1.0, 2.0], [0.1, 0.2], "(3,) and curve (2,)"),  # an IndexError; a wrong area
+    ([2.0, 1.0, 0.0], [0.1, 0.2, 0.3], "increasing order"), ([0.0, np.inf], [0.1, 0.2], "finite"),
+])
+def test_summary_figures_of_a_malformed_curve_are_refused(times, curve, needle):
+    with pytest.raises(ValueError, match=re.escape(needle)):
+        metrics.summarize(np.array(times), np.array(curve))
 
 
 def test_predicates_from_labels_count_correct_levels():

@@ -5,6 +5,7 @@ session."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import jax
@@ -486,6 +487,22 @@ def test_training_settings_out_of_range_are_refused(override, field):
 
     with pytest.raises(InputError, match=field):
         ppo.load_config(None, **override)
+
+
+@pytest.mark.parametrize("change, needle", [
+    ({"ppo": ppo.PPOConfig(lr=-1.0)}, "ppo.lr: -1.0 must be a finite number > 0"),  # it trained
+    ({"ppo": ppo.PPOConfig(updates=2.5)}, "ppo.updates: 2.5 is not of type int"),
+    ({"rl": RLConfig(reward_scale="x")}, "rl.reward_scale: 'x' is not of type float"),
+    ({"worlds": "small_office"}, "worlds: 'small_office' must be a non-empty list"),
+])
+def test_a_python_built_training_config_is_checked_before_anything_is_written(tmp_path, change, needle):
+    """``train(cfg, out)`` as docs/api.md names it: a TrainConfig built in Python skips the
+    file loader, so ``train`` checks it."""
+    from rosmeery_jax.core.errors import InputError
+
+    with pytest.raises(InputError, match=re.escape(needle)):
+        ppo.train(replace(ppo.TrainConfig(), **change), tmp_path / "o", progress=False)
+    assert not (tmp_path / "o").exists()
 
 
 def test_an_episode_longer_than_int32_control_steps_is_refused():

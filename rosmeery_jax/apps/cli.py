@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import socket
 import sys
@@ -369,8 +368,7 @@ def _cmd_teleop(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    if not args.tolerance > 0 or not math.isfinite(args.tolerance):
-        raise InputError("command line", "--tolerance", f"{args.tolerance!r} must be a distance > 0 (m)")
+    map_eval.check_tolerance(args.tolerance, "command line", "--tolerance")
     if not results.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
         raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced

@@ -63,6 +63,22 @@ def _set(obj, path: list[str], value, key: str, source: str):
     return dataclasses.replace(obj, **{head: _checked(value, hint, current, key, source)})
 
 
+SCALARS = (bool, int, float, str)
+
+
+def check_fields(obj, source: str, prefix: str = "") -> None:
+    """Every scalar field (bool, int, float, str) of the dataclass ``obj`` holds a value of
+    its type, as a file's value must (a dataclass built in Python skips the loaders' checks);
+    one InputError naming ``source`` and ``prefix`` + the field. Other fields are the
+    caller's to check."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        hint = hints[f.name]
+        kinds = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+        if all(k in SCALARS or k is type(None) for k in kinds):
+            _checked(getattr(obj, f.name), hint, None, prefix + f.name, source)
+
+
 def _checked(value, hint, current, key: str, source: str):
     if dataclasses.is_dataclass(current):
         raise InputError(source, key, "is a section: set its fields as KEY__FIELD")

@@ -36,7 +36,7 @@ from flax.training.train_state import TrainState
 from tqdm import tqdm
 
 from rosmeery_jax.core import config as config_loader
-from rosmeery_jax.core import interrupt, xla
+from rosmeery_jax.core import interrupt, overrides, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
@@ -84,12 +84,12 @@ class TrainConfig:
     env: dict = field(default_factory=dict)
 
 
-def load_config(path: str | Path | None, **overrides) -> TrainConfig:
+def load_config(path: str | Path | None, **cli) -> TrainConfig:
     """The training configuration of a TOML file (``worlds``, tables ``[ppo]``, ``[rl]``,
-    ``[env]``), with ``overrides`` (``ppo__updates=5``) on top; one InputError naming the
+    ``[env]``), with ``cli`` values (``ppo__updates=5``) on top; one InputError naming the
     file and field for anything wrong."""
     source = str(path) if path else "command line"
-    cfg = config_loader.load(TrainConfig(), path or None, overrides, prepare=_prepare)
+    cfg = config_loader.load(TrainConfig(), path or None, cli, prepare=_prepare)
     _check(cfg, source)
     return cfg
 
@@ -110,6 +110,12 @@ def _prepare(values: dict, source: str) -> dict:
 
 
 def _check(cfg: TrainConfig, source: str) -> None:
+    if isinstance(cfg.worlds, str) or not cfg.worlds or not all(isinstance(w, str) and w for w in cfg.worlds):
+        raise InputError(source, "worlds", f"{cfg.worlds!r} must be a non-empty list of world names")
+    if not isinstance(cfg.env, dict):
+        raise InputError(source, "env", f"{cfg.env!r} must be a table of EnvConfig overrides")
+    overrides.check_fields(cfg.ppo, source, "ppo.")
+    overrides.check_fields(cfg.rl, source, "rl.")
     EnvConfig.from_table(cfg.env, source)
     expand_names(cfg.worlds)  # a range refused by its size, before anything is built
     check_rl(cfg.rl, source)
@@ -305,7 +311,10 @@ def load_checkpoint(path: Path, template: Runner) -> tuple[Runner, int, list[dic
 
 
 def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
-    """Train to ``cfg.ppo.updates`` updates, writing into ``out`` (module docstring)."""
+    """Train to ``cfg.ppo.updates`` updates, writing into ``out`` (module docstring); ``cfg``
+    is checked first (:func:`load_config` checks a file's, a TrainConfig built in Python is
+    checked here)."""
+    _check(cfg, "config")
     out = Path(out)
     record = json.loads(json.dumps(asdict(cfg)))
     fresh = _check_out(out, record, resume)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import warnings
 from pathlib import Path
 from typing import NamedTuple
@@ -38,6 +39,7 @@ from scipy.spatial import cKDTree
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.scoring import metrics, results
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
+from rosmeery_jax.world import load_world
 
 TOLERANCE = 0.05  # m: a point within this of a surface sample lies on it (samples are 5 cm apart)
 INSTANCE_FIELDS = ("object_id", "instance")
@@ -281,11 +283,23 @@ def score_shared(world, shared: np.ndarray, label: np.ndarray, conf: np.ndarray)
     return ObjectLog(ps, conf_true, c, lab, declared, correct), ix
 
 
+def check_tolerance(tolerance, source: str, where: str) -> None:
+    """A tie distance is a finite number of metres > 0 (0 or less ties nothing)."""
+    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
+        raise InputError(source, where, f"{tolerance!r} must be a distance > 0 (m)")
+
+
 def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external"):
     """Score maps of one run (curves over their ``time_s``, else their order).
 
     Returns (metrics table, objects table of the last map, per-class table, summary dict),
-    the first two in the session's formats (policy = ``name``, detector = "own", seed 0)."""
+    the first two in the session's formats (policy = ``name``, detector = "own", seed 0).
+    ``world``: a World, or a name or file :func:`load_world` takes."""
+    if isinstance(world, (str, os.PathLike)):
+        world = load_world(world)
+    if not maps:
+        raise InputError("evaluate", "maps", "is empty: give at least one map")
+    check_tolerance(tolerance, "evaluate", "tolerance")
     times = [m.time_s if m.time_s is not None else float(k) for k, m in enumerate(maps)]
     timed = [m.time_s is not None for m in maps]
     if any(timed) and not all(timed):  # times for some, order for others: no one order

@@ -145,13 +145,17 @@ def summarize(times: np.ndarray, curve: np.ndarray) -> dict[str, float]:
     the curve divided by the duration (the curve's time average, in [0, 1]); first time the
     curve reaches 50% and 90% of its final value (NaN when the final value is 0)."""
     times, curve = np.asarray(times, float), np.asarray(curve, float)
+    if times.ndim != 1 or times.shape != curve.shape or not len(times):
+        raise ValueError(f"summarize: times {times.shape} and curve {curve.shape} must be one non-empty (T,) each")
+    if (np.diff(times) < 0).any() or not np.isfinite(times).all():
+        raise ValueError("summarize: times must be finite and in increasing order")
     final = float(curve[-1])
     span = times[-1] - times[0]
     auc = float(np.trapezoid(curve, times) / span) if span > 0 else final
     out = {"final": final, "auc": auc}
     for frac in (0.5, 0.9):
         key = f"t{int(frac * 100)}_s"
-        if final <= 0:
+        if not final > 0:  # 0 or NaN: no fraction of it is reached
             out[key] = float("nan")
         else:
             out[key] = float(times[np.argmax(curve >= frac * final - 1e-12)])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import importlib.util
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -74,6 +75,14 @@ class SessionConfig:
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
     # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
     # the YOLO detector runs), at most one per block
+
+    def __post_init__(self):
+        # The Python API's natural spellings: a list for a tuple, a Path for the folder
+        for name in LIST_FIELDS:
+            if isinstance(getattr(self, name), list):
+                object.__setattr__(self, name, tuple(getattr(self, name)))
+        if isinstance(self.out, os.PathLike):
+            object.__setattr__(self, "out", os.fspath(self.out))
 
     @property
     def env_config(self) -> EnvConfig:
@@ -144,7 +153,21 @@ class _as_source:
         return False
 
 
+def _check_types(cfg: SessionConfig, source: str) -> None:
+    """Each field has its type (a file or the command line is checked as it is read; a
+    SessionConfig built in Python is checked here)."""
+    overrides.check_fields(cfg, source)
+    for name in LIST_FIELDS:
+        value = getattr(cfg, name)
+        if not isinstance(value, tuple) or not all(isinstance(x, str) for x in value):
+            hint = f" (one name: ({value!r},))" if isinstance(value, str) else ""
+            raise InputError(source, name, f"{value!r} must be a tuple of names{hint}")
+    if not isinstance(cfg.env, dict):
+        raise InputError(source, "env", f"{cfg.env!r} must be a dict of EnvConfig overrides")
+
+
 def _check_values(cfg: SessionConfig, source: str) -> None:
+    _check_types(cfg, source)
     if cfg.detector not in DETECTORS:
         raise InputError(source, "detector", f"{cfg.detector!r} is not available (available: {', '.join(DETECTORS)})")
     if not 0 <= cfg.conf_threshold <= 1:
