@@ -142,6 +142,8 @@ def test_a_session_checks_a_config_nobody_validated_and_only_once(tmp_path, monk
     Session(good)
     Session(dataclasses.replace(good, seeds=2))  # a changed copy is checked again
     assert calls == ["config"]
+    with pytest.raises(TypeError, match="Session takes a SessionConfig, not dict"):  # an AttributeError
+        Session({"worlds": ["small_office"]})
 
 
 @pytest.mark.parametrize("field, value, needle", [

@@ -263,6 +263,18 @@ def _half_ori(log, truth):
     return 0.5 * metrics.REGISTRY["ori"](log, truth)
 
 
+def test_a_built_in_metric_cannot_be_replaced_but_your_own_can_be_re_registered():
+    """``@register("ori")`` silently replaced the paper's ORI in every later session."""
+    from rosmeery_jax.core.errors import InputError
+
+    ori = metrics.REGISTRY["ori"]
+    with pytest.raises(InputError, match="register_metric: name: 'ori' is a built-in metric"):
+        metrics.register("ori")(_half_ori)
+    assert metrics.REGISTRY["ori"] is ori
+    metrics.register("half_ori")(_half_ori)  # a notebook cell run twice
+    assert metrics.REGISTRY["half_ori"] is _half_ori
+
+
 @pytest.fixture(scope="module")
 def replay_dir(tmp_path_factory):
     """`rosmeery replay` on a turn on the spot in the Small Office, with a user metric."""
@@ -434,3 +446,19 @@ def test_learned_table_joins_folders_and_compares_every_policy_with_one(tmp_path
     assert "  random: Kitchen +0.000 (no spread) p 1.000; Laboratory +0.000 (no spread) p 1.000" in out
     assert "nan" not in out.split("against semantic_nbv")[1]  # a seed or two: no interval, but every comparison
     assert "variant" not in out.split("mean ORI AUC over the 3 paper worlds")[1].split("\n\n")[0]
+
+
+def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it_cannot_read(tmp_path):
+    from rosmeery_jax.scoring.plots import plot_results
+
+    rows = [dict(world=w, policy="random", detector="off", seed=s, time_s=t, metric=m, value=t / 2)
+            for w in ("a", "b") for s in (0, 1) for t in (0.0, 1.0) for m in ("ori", "opi")]
+    df = pd.DataFrame(rows)  # no mapper column: the oracle's, as older tables
+    paths = plot_results(df, tmp_path / "p")
+    assert sorted(p.name for p in paths) == ["a_opi.png", "a_ori.png", "b_opi.png", "b_ori.png"]
+    assert all(p.read_bytes().startswith(b"\x89PNG") for p in paths)
+    with pytest.raises(ValueError, match="plot_results: the table lacks world, metric"):  # an AttributeError
+        plot_results(df.drop(columns=["world", "metric"]), tmp_path / "q")
+    with pytest.raises(ValueError, match="has no rows"):
+        plot_results(df.iloc[:0], tmp_path / "q")
+    assert not (tmp_path / "q").exists()

@@ -171,6 +171,9 @@ def test_missing_world_file_and_unknown_name(tmp_path):
         load_world(tmp_path / "nope.xml")
     with pytest.raises(InputError, match="no built-in world"):
         load_world("atlantis")
+    (tmp_path / "d.xml").mkdir()
+    with pytest.raises(InputError, match="d.xml: is a folder, not a world file"):  # was "not found"
+        load_world(tmp_path / "d.xml")
 
 
 def test_world_show_writes_a_png(tmp_path, capsys):

@@ -41,6 +41,8 @@ def register(name: str) -> Callable[[MetricFn], MetricFn]:
         raise InputError("register_metric", "name", f"{name!r} is not a plain name (no folders, no leading dot)")
 
     def add(fn: MetricFn) -> MetricFn:
+        if name in DEFAULT_METRICS and name in REGISTRY:  # your own may be re-registered (a notebook cell re-run)
+            raise InputError("register_metric", "name", f"{name!r} is a built-in metric: name yours otherwise")
         REGISTRY[name] = fn
         return fn
 

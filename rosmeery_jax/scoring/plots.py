@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.scoring.results import plain_name  # noqa: E402
+from rosmeery_jax.scoring.results import METRIC_COLUMNS, plain_name  # noqa: E402
 
 LABELS = {"ori": "ORI", "cori": "cORI", "cori_any": "cORI (any label)", "opi": "OPI", "opi_strict": "OPI (strict)"}
 
@@ -50,7 +50,12 @@ def plot_curves(df: pd.DataFrame, world: str, metric: str, ax=None):
 
 
 def plot_results(df: pd.DataFrame, directory: str | Path) -> list[Path]:
-    """Write ``<world>_<metric>.png`` for every world and metric in df into directory."""
+    """Write ``<world>_<metric>.png`` for every world and metric in df into directory
+    (``df`` as :func:`load_results` gives it; ``mapper`` may be left out)."""
+    missing = [c for c in METRIC_COLUMNS if c not in df.columns and c != "mapper"]
+    if missing or df.empty:
+        raise ValueError(f"plot_results: the table {'lacks ' + ', '.join(missing) if missing else 'has no rows'} "
+                         "(a results table: load_results(folder))")
     out = []
     unsafe = [n for n in (*df.world.unique(), *df.metric.unique()) if not plain_name(str(n))]
     if unsafe:  # names become file names: never a path out of ``directory``

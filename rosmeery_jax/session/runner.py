@@ -47,6 +47,9 @@ class Session:
     def __init__(self, cfg: SessionConfig, progress: bool = True, cluster: str | None = None, cache: bool = True,
                  checked: bool = False):
         """``cfg`` is validated unless it was (``checked``: a part of a config that was)."""
+        if not isinstance(cfg, SessionConfig):
+            raise TypeError(f"Session takes a SessionConfig, not {type(cfg).__name__} (rj.SessionConfig(...) or "
+                            "rj.load_config(path))")
         cfg = cfg if cfg.validated or checked else cfg.validate()
         self.cfg, self.progress, self.cluster, self.cache = cfg, progress, cluster, cache
         if cluster is not None and cfg.devices > 1:

@@ -155,7 +155,7 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
         return path
     path = Path(text).expanduser().resolve()
     if not path.is_file():
-        raise InputError(path, "", "world file not found")
+        raise InputError(path, "", "is a folder, not a world file" if path.is_dir() else "world file not found")
     return path
 
 
