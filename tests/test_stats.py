@@ -58,3 +58,16 @@ def test_tied_with_best_bolds_the_best_and_what_a_paired_test_cannot_tell_from_i
                           "c": base})  # behind the best in every seed (p = 2 / 2^6)
     assert stats.tied_with_best(table) == {"a": True, "b": True, "c": False}
     assert stats.bold_cells(table, ["c", "a"], lambda p, ci: f"{p} {ci.mean:.3f}") == ["c 0.575", "**a 0.675**"]
+
+
+def test_a_nan_seed_is_no_finding_and_unpaired_values_are_refused():
+    """A NaN seed gave p = 0.0, a 'significant' difference; values of different lengths
+    (one broadcast over the other) or a table are not seeds."""
+    r = stats.paired([0.1, 0.2, 0.3], [0.5, np.nan, 0.7])
+    assert np.isnan(r.p) and np.isnan(r.diff.mean) and r.seeds == 3
+    i = stats.interval([0.1, np.nan, 0.3, 0.4])
+    assert np.isnan(i.mean) and np.isnan(i.low) and np.isnan(i.high)
+    with pytest.raises(ValueError, match="paired: 3 and 1 values"):
+        stats.paired([0.1, 0.2, 0.3], [0.5])
+    with pytest.raises(ValueError, match=r"shape \(2, 3\): one per seed"):
+        stats.interval(np.ones((2, 3)))

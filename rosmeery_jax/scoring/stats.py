@@ -55,10 +55,19 @@ class Paired(NamedTuple):
         return self.diff.mean / self.sd if self.sd > 0 else float("nan")
 
 
-def interval(values, level: float = LEVEL) -> Interval:
-    """The mean of ``values`` (S,) and its bootstrap interval."""
+def _seeds(values) -> np.ndarray:
     v = np.asarray(values, float)
-    mean = float(v.mean())
+    if v.ndim != 1:
+        raise ValueError(f"values of shape {v.shape}: one per seed, (S,)")
+    return v
+
+
+def interval(values, level: float = LEVEL) -> Interval:
+    """The mean of ``values`` (S,) and its bootstrap interval (NaN where a value is NaN)."""
+    v = _seeds(values)
+    mean = float(v.mean()) if len(v) else float("nan")
+    if not np.isfinite(v).all():
+        return Interval(mean, float("nan"), float("nan"))
     if len(v) < 3:
         return Interval(mean, float("nan"), float("nan"))
     if np.ptp(v) == 0:
@@ -74,8 +83,15 @@ def interval(values, level: float = LEVEL) -> Interval:
 
 
 def paired(a, b, level: float = LEVEL) -> Paired:
-    """Compare ``b`` with ``a``, both (S,) in seed order."""
-    d = np.asarray(b, float) - np.asarray(a, float)
+    """Compare ``b`` with ``a``, both (S,) in seed order; a NaN value gives a NaN p (no
+    finding), never a small one."""
+    a, b = _seeds(a), _seeds(b)
+    if a.shape != b.shape:
+        raise ValueError(f"paired: {len(a)} and {len(b)} values: one per seed in each, in the same order")
+    d = b - a
+    if not len(d) or not np.isfinite(d).all():
+        nan = float("nan")
+        return Paired(Interval(float(d.mean()) if len(d) else nan, nan, nan), nan, len(d), nan)
     sd = float(d.std(ddof=1)) if len(d) > 1 else float("nan")
     if len(d) < 2 or np.all(d == d[0]):
         return Paired(Interval(float(d.mean()), float(d.mean()), float(d.mean())), 1.0 if not d.any() else
