@@ -196,7 +196,9 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         """All robots anew; robot i's key is ``seed`` folded with i (the same seed, the same
         episodes)."""
         super().reset(seed=seed)
-        base = int(self.np_random.integers(2**31)) if seed is None else seed
+        base = int(self.np_random.integers(2**31 - self.num_envs)) if seed is None else seed
+        if base + self.num_envs > 2**31:  # robot i's seed base + i is an int32, as a session's seeds
+            raise ValueError(f"seed {base} must be at most 2**31 - num_envs ({2**31 - self.num_envs})")
         # robot i as a session's seed base + i (its env key: the seed's key folded with 0)
         self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(i), 0))(base + jnp.arange(self.num_envs))
         self._episode = 0
@@ -216,7 +218,11 @@ class VectorEnv(gymnasium.vector.VectorEnv):
             obs = self._start(jax.vmap(jax.random.fold_in, in_axes=(0, None))(self._keys, self._episode))
             zeros = np.zeros(self.num_envs)
             return obs, zeros, zeros.astype(bool), zeros.astype(bool), {}
-        actions = jnp.asarray(np.asarray(actions, np.float32).reshape(self.num_envs, -1))
+        actions = np.asarray(actions, np.float32)
+        if actions.shape != self.action_space.shape or not np.isfinite(actions).all():
+            raise ValueError(f"actions of shape {actions.shape} must be finite numbers of shape "
+                             f"{self.action_space.shape}")
+        actions = jnp.asarray(actions)
         self.t += 1
         self.state, obs, new, recorded = self._step(jnp.asarray(self.world), self.state, actions,
                                                     jnp.full(self.num_envs, self.t, jnp.int32))

@@ -42,6 +42,20 @@ def test_gymnasiums_env_checker_passes(env):
     check_env(env, skip_render_check=True)
 
 
+def test_a_non_finite_or_misshapen_action_and_a_seed_beyond_int32_are_refused(env):
+    """A NaN target was driven to; an action of the wrong size was a reshape error; a seed
+    of 2**80 an OverflowError inside JAX."""
+    env.reset(seed=0)
+    state = env.vec.state
+    for bad, needle in ((np.float32([np.nan, 0, 0]), r"shape \(1, 3\) must be finite"),
+                        (np.float32([1, 0]), r"shape \(1, 2\) must be finite numbers of shape \(1, 3\)")):
+        with pytest.raises(ValueError, match=needle):
+            env.step(bad)
+    assert env.vec.state is state and env.vec.t == 0  # nothing stepped
+    with pytest.raises(ValueError, match=r"seed 2147483648 must be at most 2\*\*31 - num_envs \(2147483647\)"):
+        env.reset(seed=2**31)
+
+
 def test_observations_are_what_the_robot_perceives_and_episodes_end_at_the_duration(env):
     obs, _ = env.reset(seed=3)
     assert set(obs) == {"rgb", "depth", "scan", "pose", "occupancy", "nav_status", "time"}  # no ground truth
