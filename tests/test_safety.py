@@ -399,3 +399,15 @@ def test_train_refuses_a_range_of_worlds_by_its_size():
 def test_a_bench_batch_beyond_the_machines_memory_is_refused_before_it_starts(option, capsys):
     assert main(["bench", *option]) == 2  # it was allocated until the system killed it
     _one_line(capsys, "command line", f"{option[0]}: 100,000,000 robots need about", "GB allows")
+
+
+@pytest.mark.parametrize("option, needle", [
+    (["--steps", "0"], "--steps: 0 must be >= 1"), (["--memory-batch", "-1"], "--memory-batch: -1 must be >= 0"),
+    (["--session-s", "nan"], "--session-s: nan must be a number of seconds"),  # these ran the bench
+    (["--devices", "1000"], "--devices: 1000 must divide the reference batch (64"),  # the split was skipped
+    (["--session-s", "1e9"], "--session-s: duration: 5 seeds x 4 worlds"),  # refused after minutes of benching
+])
+def test_bench_options_out_of_range_are_refused_before_it_starts(option, needle, capsys, monkeypatch):
+    monkeypatch.setattr(cli, "host_devices", lambda n: pytest.fail("devices set up"))
+    assert main(["bench", *option]) == 2
+    _one_line(capsys, "command line", needle)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import os
 import resource
 import statistics
@@ -37,9 +38,12 @@ import numpy as np
 from mujoco import rollout
 
 from rosmeery_jax.core import xla
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
-from rosmeery_jax.env import make
+from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.session import Session, SessionConfig
+from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.session.engine import Replicas
 from rosmeery_jax.sim import grid
 from rosmeery_jax.sim.sensors import camera_rays, depth_seg, laser, laser_dirs
@@ -56,6 +60,27 @@ class BenchConfig:
     seed: int = 0
     session_s: float = 20.0  # simulated seconds of the end-to-end default session (0 = skip)
     devices: int = 0  # also time the reference batch split over this many devices (0 = every device)
+
+
+def check(cfg: BenchConfig) -> None:
+    """Every option in range before JAX starts; one InputError naming the option. The
+    session's duration is checked as a session checks it (its logs fit in memory)."""
+    for option, value, low in (("--steps", cfg.steps, 1), ("--memory-batch", cfg.memory_batch, 0),
+                               ("--devices", cfg.devices, 0)):
+        if value < low:
+            raise InputError("command line", option, f"{value} must be >= {low}")
+    if cfg.devices and cfg.reference_batch % cfg.devices:  # else the split was skipped without a word
+        raise InputError("command line", "--devices", f"{cfg.devices} must divide the reference batch "
+                         f"({cfg.reference_batch} robots)")
+    for option, batch in (("--batches", max(cfg.batches)), ("--memory-batch", cfg.memory_batch)):
+        need, have = batch * env_bytes(EnvConfig()), memory_bytes()
+        if need > MEMORY_SHARE * have:
+            raise InputError("command line", option, f"{batch:,} robots need about {need / 1e9:,.1f} GB, more than "
+                             f"this machine's {have / 1e9:.1f} GB allows")
+    if not (math.isfinite(cfg.session_s) and cfg.session_s >= 0):
+        raise InputError("command line", "--session-s", f"{cfg.session_s!r} must be a number of seconds >= 0")
+    if cfg.session_s:
+        SessionConfig(duration=cfg.session_s, out="-").validate("command line: --session-s")
 
 
 def random_targets(world, n: int, seed: int) -> np.ndarray:

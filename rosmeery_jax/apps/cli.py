@@ -17,7 +17,7 @@ import jax
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.apps.bench import BenchConfig, format_table, run_bench
+from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.record import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
@@ -26,7 +26,7 @@ from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import WEIGHTS, weights_file
-from rosmeery_jax.env import EnvConfig, make
+from rosmeery_jax.env import make
 from rosmeery_jax.env.config import MAX_PIXELS
 from rosmeery_jax.scoring import evaluate as map_eval
 from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
@@ -35,7 +35,6 @@ from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
 from rosmeery_jax.core.xla import MEMORY_SHARE, compilation_cache, cores, host_devices, memory_bytes
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
-from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import picture_format, save_world_picture
 from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
@@ -141,17 +140,11 @@ def _int_list(text: str) -> tuple[int, ...]:
 
 
 def _cmd_bench(args) -> int:
-    if args.devices < 0:
-        raise InputError("command line", "--devices", f"{args.devices} must be >= 0 (0: one per core)")
-    host_devices(args.devices or cores())  # before JAX starts
-    load_world(args.world)  # a bad name fails here, in one line, before any compile
-    for option, batch in (("--batches", max(args.batches)), ("--memory-batch", args.memory_batch)):
-        need, have = batch * env_bytes(EnvConfig()), memory_bytes()
-        if need > MEMORY_SHARE * have:
-            raise InputError("command line", option, f"{batch:,} robots need about {need / 1e9:,.1f} GB, more than "
-                             f"this machine's {have / 1e9:.1f} GB allows")
     cfg = BenchConfig(world=args.world, batches=args.batches, steps=args.steps,
                       memory_batch=args.memory_batch, session_s=args.session_s, devices=args.devices)
+    check(cfg)
+    host_devices(args.devices or cores())  # before JAX starts
+    load_world(args.world)  # a bad name fails here, in one line, before any compile
     quiet = (lambda msg: print(msg, file=sys.stderr)) if args.json else print
     result = run_bench(cfg, progress=quiet)
     print(json.dumps(result, indent=2) if args.json else format_table(result))
