@@ -403,6 +403,7 @@ def test_a_bench_batch_beyond_the_machines_memory_is_refused_before_it_starts(op
 
 @pytest.mark.parametrize("option, needle", [
     (["--steps", "0"], "--steps: 0 must be >= 1"), (["--memory-batch", "-1"], "--memory-batch: -1 must be >= 0"),
+    (["--steps", "99999999999"], "--steps: 99999999999 must be at most 2147483647"),  # a traceback from JAX
     (["--session-s", "nan"], "--session-s: nan must be a number of seconds"),  # these ran the bench
     (["--devices", "1000"], "--devices: 1000 must divide the reference batch (64"),  # the split was skipped
     (["--session-s", "1e9"], "--session-s: duration: 5 seeds x 4 worlds"),  # refused after minutes of benching

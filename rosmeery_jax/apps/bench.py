@@ -42,6 +42,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
 from rosmeery_jax.env import EnvConfig, make
+from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.session.engine import Replicas
@@ -69,6 +70,8 @@ def check(cfg: BenchConfig) -> None:
                                ("--devices", cfg.devices, 0)):
         if value < low:
             raise InputError("command line", option, f"{value} must be >= {low}")
+    if cfg.steps > STEP_LIMIT:  # a chunk's steps are counted in int32
+        raise InputError("command line", "--steps", f"{cfg.steps} must be at most {STEP_LIMIT}")
     if cfg.devices and cfg.reference_batch % cfg.devices:  # else the split was skipped without a word
         raise InputError("command line", "--devices", f"{cfg.devices} must divide the reference batch "
                          f"({cfg.reference_batch} robots)")
