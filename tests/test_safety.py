@@ -147,7 +147,9 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     (["worlds", "stats", "small_office", "--rows", "-1"], "--rows: -1 must be"),  # printed nothing, exit 0
     (["record", "--world", "small_office", "--seed", "3", "--seeds", "2"], "--seed"),
     # an oversize session names what made it so
-    (["run", "--worlds", "small_office", "--seeds", "3", "--duration", "1e9"], "command line: duration: 3 seeds x"),
+    (["run", "--worlds", "small_office", "--seeds", "3", "--duration", "1e8"], "command line: duration: 3 seeds x"),
+    (["run", "--worlds", "small_office", "--duration", "1e308"], "duration: 1e+308 s is more control steps"),  # hung
+    (["run", "--worlds", "small_office", "--duration", "2e8", "--detector-period-s", "7"], "the nearest, 5 s or 8 s"),
     (["run", "--worlds", "small_office", "--seeds", "100000000", "--duration", "10"], "command line: seeds: 1000"),
 ])
 def test_bad_numbers_are_one_line_before_anything(tmp_path, capsys, monkeypatch, args, needle):

@@ -27,6 +27,7 @@ from rosmeery_jax.policies.learned import policy_file
 from rosmeery_jax.policies.plugin import check_plugin
 from rosmeery_jax.policies.replay import recordings_by_world
 from rosmeery_jax.rl.network import load_policy
+from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.mapper import BUILT_IN, check_mapper, mapper_label
 from rosmeery_jax.session.engine import BLOCK
@@ -361,6 +362,9 @@ def decisions(cfg: SessionConfig) -> int:
     period = cfg.dt * cfg.decide_every
     if not math.isfinite(cfg.duration):
         raise InputError("config", "duration", f"{cfg.duration} must be a finite number of seconds")
+    if cfg.duration / cfg.dt > STEP_LIMIT:  # steps are counted in int32 (and 1e308 s hung the checks below)
+        raise InputError("config", "duration", f"{cfg.duration:g} s is more control steps of {cfg.dt:g} s than "
+                         f"a session counts ({STEP_LIMIT}): at most {STEP_LIMIT * cfg.dt:g} s")
     n = int(round(cfg.duration / period))
     if n < 1 or abs(n * period - cfg.duration) > 1e-6:
         raise InputError("config", "duration", f"{cfg.duration} s is not a whole number of decision periods "
@@ -377,12 +381,19 @@ def detector_period(cfg: SessionConfig) -> int:
         return total
     k = int(round(cfg.detector_period_s / period))
     if k < 1 or abs(k * period - cfg.detector_period_s) > 1e-6 or total % k:
-        fits = [d * period for d in range(1, total + 1) if total % d == 0]
+        fits = [d * period for d in _divisors(total)]
         nearest = [f for f in fits if f < cfg.detector_period_s][-1:] + [f for f in fits if f > cfg.detector_period_s][:1]
         raise InputError("config", "detector_period_s", f"{cfg.detector_period_s:g} s must be a whole number of "
                          f"decision periods ({period:g} s) that divides the duration ({cfg.duration:g} s), as "
                          f"labels are folded in at its boundaries: the nearest, {' or '.join(f'{f:g} s' for f in nearest)}")
     return k
+
+
+def _divisors(n: int) -> list[int]:
+    """The divisors of ``n`` in increasing order, found up to its square root (a session may
+    count 10^8 decisions)."""
+    small = [d for d in range(1, math.isqrt(n) + 1) if n % d == 0]
+    return small + [n // d for d in reversed(small) if d * d != n]
 
 
 def per_call(cfg: SessionConfig, total: int) -> int:
@@ -392,7 +403,7 @@ def per_call(cfg: SessionConfig, total: int) -> int:
     if cfg.detector != "off":
         return detector_period(cfg)
     want = max(1, int(round(cfg.chunk_s / (cfg.dt * cfg.decide_every))))
-    return max(d for d in range(1, min(want, total) + 1) if total % d == 0)
+    return max(d for d in _divisors(total) if d <= want)
 
 
 def frame_steps(cfg: SessionConfig) -> int:
