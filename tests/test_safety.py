@@ -144,6 +144,9 @@ def test_a_dataset_or_weights_already_there_are_never_replaced(tmp_path, capsys)
     (["teleop", "--world", "small_office", "--conf-threshold", "-1"], "--conf-threshold"),  # was taken
     (["teleop", "--world", "small_office", "--conf-threshold", "nan"], "--conf-threshold"),
     (["teleop", "--world", "small_office", "--seed", "-1"], "--seed"),
+    (["teleop", "--world", "small_office", "--seed", str(2**64)], "--seed: 18446744073709551616 must be at most"),  # an
+    # OverflowError after the compile
+    (["detector", "dataset", "--seed", str(2**31)], "--seed: 2147483648 must be at most 2147483647"),
     (["worlds", "stats", "small_office", "--rows", "-1"], "--rows: -1 must be"),  # printed nothing, exit 0
     (["record", "--world", "small_office", "--seed", "3", "--seeds", "2"], "--seed"),
     # an oversize session names what made it so
@@ -408,7 +411,7 @@ def test_a_bench_batch_beyond_the_machines_memory_is_refused_before_it_starts(op
     (["--steps", "99999999999"], "--steps: 99999999999 must be at most 2147483647"),  # a traceback from JAX
     (["--session-s", "nan"], "--session-s: nan must be a number of seconds"),  # these ran the bench
     (["--devices", "1000"], "--devices: 1000 must divide the reference batch (64"),  # the split was skipped
-    (["--session-s", "1e9"], "--session-s: duration: 5 seeds x 4 worlds"),  # refused after minutes of benching
+    (["--session-s", "1e8"], "--session-s: duration: 5 seeds x 4 worlds"),  # refused after minutes of benching
 ])
 def test_bench_options_out_of_range_are_refused_before_it_starts(option, needle, capsys, monkeypatch):
     monkeypatch.setattr(cli, "host_devices", lambda n: pytest.fail("devices set up"))
