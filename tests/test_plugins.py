@@ -176,8 +176,9 @@ def _check_sweeps(records, runs: int, every: int) -> None:
 
 
 BROKEN = {
-    "syntax": ("class P(:\n", "failed to import", "SyntaxError"),
-    "import": ("import no_such_module_here\n", "failed to import", "ModuleNotFoundError"),
+    "syntax": ("class P(:\n", "failed to import", "SyntaxError: invalid syntax (broken.py, line 1)"),
+    "import": ("import no_such_module_here\n", "failed to import",
+               "ModuleNotFoundError: No module named 'no_such_module_here' (broken.py, line 1, in <module>)"),
     "missing": ("x = 1\n", "defines no 'P'", ""),
     "not_a_policy": ("class P:\n    name = 'p'\n", "is not a Policy class", ""),
     "no_decide": ("from rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n", "lacks a decide", ""),
@@ -222,6 +223,11 @@ BROKEN_MAPPERS = {
             "np.full(4, 2), np.zeros(1, int), np.ones(1))\n", "instance ids outside [0, 1)"),
     "label": (MAPPER_HEAD + ADD + "    def semantic_map(self):\n        return MapState(np.zeros((4, 3)), "
               "np.zeros(4, int), np.full(1, 999), np.ones(1))\n", "labels outside"),
+    # passes the test frame, then raises in the session: a traceback through the engine's threads
+    "raises_later": (MAPPER_HEAD + "    n = 0\n    def add(self, frame):\n        M.n += 1\n        if M.n > 1:\n"
+                     "            raise ValueError('late')\n    def semantic_map(self):\n        return MapState("
+                     "np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, int), np.zeros(0))\n",
+                     "failed in add (frame 0): ValueError: late (mapper.py, line 9, in add)"),
 }
 
 

@@ -60,16 +60,24 @@ def _module(where: str, spec: str, source: str, field: str):
     except InputError as err:  # ours, raised by the plugin's code (a register_metric name)
         raise InputError(source, field, f"plugin {spec!r} failed to import: {err}") from None
     except Exception as err:  # the plugin's own code failed to import: say where
-        frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
-        if isinstance(err, SyntaxError) and err.filename:
-            at = f" ({Path(err.filename).name}, line {err.lineno})"
-        else:
-            at = f" ({Path(frame.filename).name}, line {frame.lineno})" if frame else ""
-        raise InputError(source, field, f"plugin {spec!r} failed to import: {type(err).__name__}: "
-                         f"{str(err).splitlines()[0] if str(err) else ''}{at}") from None
+        raise InputError(source, field, f"plugin {spec!r} failed to import: {describe(err)}") from None
 
 
 def describe(err: Exception) -> str:
-    """An exception raised by a plugin's code, in one short line."""
+    """An exception raised by a plugin's code, in one short line, with the line of the
+    user's code it came from (the last frame outside this package and the installed
+    libraries)."""
     text = str(err).strip().splitlines()
-    return f"{type(err).__name__}: {text[0][:200] if text else ''}"
+    return f"{type(err).__name__}: {text[0][:200] if text else ''}{_where(err)}"
+
+
+def _where(err: Exception) -> str:
+    if isinstance(err, SyntaxError) and err.filename:
+        return f" ({Path(err.filename).name}, line {err.lineno})"
+    ours = [Path(__file__).resolve().parents[1], Path(sys.prefix).resolve(), Path(sys.base_prefix).resolve()]
+    for frame in reversed(traceback.extract_tb(err.__traceback__)):
+        path = Path(frame.filename).resolve()
+        if frame.filename.startswith("<") or any(path.is_relative_to(p) for p in ours):
+            continue
+        return f" ({path.name}, line {frame.lineno}, in {frame.name})"
+    return ""

@@ -21,6 +21,7 @@ points. Shapes: H x W the detector frame, D detections, V points, I instances.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from contextlib import contextmanager
 from typing import NamedTuple
 
 import numpy as np
@@ -189,6 +190,22 @@ def check_mapper(spec: str, camera: CameraConfig, categories: tuple[str, ...]) -
         raise InputError("config", "mappers", f"plugin {spec!r} failed on a test frame: {plugins.describe(err)}") \
             from None
     check_map(spec, m, len(categories))
+
+
+@contextmanager
+def raised_by(spec: str, doing: str):
+    """A plugin mapper's exception during a session as one InputError naming the plugin,
+    what it was doing and its line (a traceback through the engine told neither); the
+    built-in mappers' raise as they are."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as err:
+        if spec in BUILT_IN:
+            raise
+        raise InputError("config", "mappers", f"plugin {spec!r} failed in {doing}: {plugins.describe(err)}") \
+            from None
 
 
 def check_map(spec: str, m, categories: int) -> MapState:

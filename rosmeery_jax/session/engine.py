@@ -55,7 +55,8 @@ from rosmeery_jax.env import Env, EnvConfig, Track, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
 from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.mapper import Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, mapper_class
+from rosmeery_jax.scoring.mapper import (Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, mapper_class,
+                                         raised_by)
 from rosmeery_jax.scoring.perceived import PerceivedMapper
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.session import digest
@@ -614,7 +615,9 @@ class _Detection:
         """Ask the mapper for its map after ``count`` frames and score it, if planned."""
         if count not in self.plan.score_at:
             return
-        m = check_map(online.spec, online.mapper.semantic_map(), len(online.scorer.world.taxonomy.names))
+        with raised_by(online.spec, "semantic_map"):
+            m = online.mapper.semantic_map()
+        m = check_map(online.spec, m, len(online.scorer.world.taxonomy.names))
         t0 = time.perf_counter()  # the scoring alone: a mapper may do work when asked for its map
         online.logs[count] = online.scorer.score(m).log
         self.timing["score_s"] += time.perf_counter() - t0
@@ -664,7 +667,7 @@ class _Detection:
         for r, mappers in enumerate(self.mappers):
             if mappers is None:
                 continue
-            sweepers = [m.mapper for m in mappers.values() if m.mapper.reads_depth()]
+            sweepers = [m for m in mappers.values() if m.mapper.reads_depth()]
             cameras = self.camera.pose(poses[r])  # (steps, 4, 4)
             for f in range(depth.shape[1]):
                 index = first_frame + f
@@ -677,18 +680,20 @@ class _Detection:
                 for online in mappers.values():
                     if index:  # the empty map (0 frames) was scored when the mapper was built
                         self._score(online, index)
-                    online.mapper.add(frame)
+                    with raised_by(online.spec, f"add (frame {index})"):
+                        online.mapper.add(frame)
 
     def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, cameras: np.ndarray, sweep: np.ndarray) -> None:
-        """Send ``mappers`` the depth of one frame period's steps after step ``before``: poses
+        """Send ``mappers`` (Mapped) the depth of one frame period's steps after step ``before``: poses
         (frame_steps, 3), their camera poses (frame_steps, 4, 4), sweep (frame_steps, h, w)
         (0: no return); the last step is the detector frame's."""
         dt = self.group.env.dt
         for j in range(len(sweep) - 1):
             step = before + j + 1  # step s ends at s dt
             frame = DepthFrame(step, step * dt, sweep[j], poses[j], cameras[j])
-            for mapper in mappers:
-                mapper.add_depth(frame)
+            for online in mappers:
+                with raised_by(online.spec, f"add_depth (step {step})"):
+                    online.mapper.add_depth(frame)
 
     def _relabel(self, c: int, logs: ObjectLog, dets: tuple) -> ObjectLog:
         """Fold chunk c's detections into the metrics' labels; the log's label fields from them."""
