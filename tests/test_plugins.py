@@ -305,6 +305,8 @@ AGENT_HEAD = "import numpy as np\nfrom rosmeery_jax.gym import Agent\nclass A(Ag
     (AGENT_HEAD + "    def act(self, obs):\n        return np.zeros((2, 2))\n", [], "shape (2, 2), not (2, 3)"),
     (AGENT_HEAD + "    def act(self, obs):\n        return obs['pose'] * np.nan\n", [], "not finite"),
     (AGENT_HEAD + "    def act(self, obs):\n        return obs['pose']\n", ["--detector", "oracle"], "--detector off"),
+    (AGENT_HEAD + "    def act(self, obs):\n        raise ValueError('no')\n", [],  # a traceback
+     "failed in act (decision 0): ValueError: no (agent.py, line 6, in act)"),
 ])
 def test_a_broken_agent_is_one_line_with_nothing_written(tmp_path, capsys, code, extra, needle):
     plugin = tmp_path / "agent.py"

@@ -14,6 +14,7 @@ import importlib.util
 import re
 import sys
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 from rosmeery_jax.core.errors import InputError
@@ -61,6 +62,18 @@ def _module(where: str, spec: str, source: str, field: str):
         raise InputError(source, field, f"plugin {spec!r} failed to import: {err}") from None
     except Exception as err:  # the plugin's own code failed to import: say where
         raise InputError(source, field, f"plugin {spec!r} failed to import: {describe(err)}") from None
+
+
+@contextmanager
+def raised_by(spec: str, field: str, doing: str):
+    """An exception of a plugin's code while it runs (not ours: an InputError passes) as one
+    InputError naming the config ``field``, the plugin, what it was doing and its line."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as err:
+        raise InputError("config", field, f"plugin {spec!r} failed in {doing}: {describe(err)}") from None
 
 
 def describe(err: Exception) -> str:

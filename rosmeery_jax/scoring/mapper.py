@@ -20,8 +20,8 @@ points. Shapes: H x W the detector frame, D detections, V points, I instances.
 
 from __future__ import annotations
 
+import contextlib
 from abc import ABC, abstractmethod
-from contextlib import contextmanager
 from typing import NamedTuple
 
 import numpy as np
@@ -192,20 +192,11 @@ def check_mapper(spec: str, camera: CameraConfig, categories: tuple[str, ...]) -
     check_map(spec, m, len(categories))
 
 
-@contextmanager
 def raised_by(spec: str, doing: str):
-    """A plugin mapper's exception during a session as one InputError naming the plugin,
-    what it was doing and its line (a traceback through the engine told neither); the
-    built-in mappers' raise as they are."""
-    try:
-        yield
-    except InputError:
-        raise
-    except Exception as err:
-        if spec in BUILT_IN:
-            raise
-        raise InputError("config", "mappers", f"plugin {spec!r} failed in {doing}: {plugins.describe(err)}") \
-            from None
+    """A plugin mapper's exception during a session as one InputError naming it, what it was
+    doing and its line (a traceback through the engine's threads told neither); the built-in
+    mappers' raise as they are."""
+    return contextlib.nullcontext() if spec in BUILT_IN else plugins.raised_by(spec, "mappers", doing)
 
 
 def check_map(spec: str, m, categories: int) -> MapState:

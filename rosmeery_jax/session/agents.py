@@ -16,7 +16,7 @@ import time
 import jax
 import numpy as np
 
-from rosmeery_jax.core import interrupt
+from rosmeery_jax.core import interrupt, plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Track
 from rosmeery_jax.gym import AGENT, GymConfig, VectorEnv, agent_class
@@ -30,14 +30,17 @@ def run_agent(cfg: SessionConfig, world: str, spec: str, bar) -> tuple[RunResult
     cls = agent_class(spec)
     vec = VectorEnv([world], cfg.seeds, GymConfig(cfg.duration, cfg.decide_every, camera=cls.camera, env=cfg.env),
                     log_every(cfg))
-    agent = cls(vec)
+    with plugins.raised_by(spec, "policies", "its constructor"):
+        agent = cls(vec)
     obs, _ = vec.reset(seed=0)  # robot k is seed k, as in the engine
     logs = [jax.tree.map(lambda a: np.asarray(a)[:, None], vec.log())]
     track = [jax.tree.map(lambda a: np.asarray(a)[:, None], Track.of(vec.state))]
     t1 = None
     for k in range(decisions(cfg)):
         interrupt.check()
-        obs, *_ = vec.step(_checked(spec, agent.act(obs), vec))
+        with plugins.raised_by(spec, "policies", f"act (decision {k})"):
+            actions = agent.act(obs)
+        obs, *_ = vec.step(_checked(spec, actions, vec))
         logs.append(jax.tree.map(np.asarray, vec.last_logs))
         track.append(jax.tree.map(np.asarray, vec.last_track))
         bar.update(cfg.decide_every * vec.bank.env.dt)
