@@ -66,9 +66,7 @@ def interval(values, level: float = LEVEL) -> Interval:
     """The mean of ``values`` (S,) and its bootstrap interval (NaN where a value is NaN)."""
     v = _seeds(values)
     mean = float(v.mean()) if len(v) else float("nan")
-    if not np.isfinite(v).all():
-        return Interval(mean, float("nan"), float("nan"))
-    if len(v) < 3:
+    if len(v) < 3 or not np.isfinite(v).all():
         return Interval(mean, float("nan"), float("nan"))
     if np.ptp(v) == 0:
         return Interval(mean, mean, mean)
