@@ -3,6 +3,8 @@ and `rosmeery diff` names the run, seed, chunk and part."""
 
 from __future__ import annotations
 
+import re
+
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -64,3 +66,42 @@ def test_without_digests_the_paths_are_compared(reference, tmp_path, capsys):
     assert main(["diff", str(reference), str(tmp_path / "typo")]) == 2  # was: every run "only in" the first
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "typo: runs: no finished runs" in err
+
+
+def _folder(root, digest_text=None, path_text=None):
+    """A results folder of one run, by hand: what `rosmeery diff` reads."""
+    runs = root / "runs"
+    runs.mkdir(parents=True)
+    (runs / "w__random.metrics.csv").write_text("")
+    if digest_text is not None:
+        (runs / "w__random.digest.csv").write_text(digest_text)
+    if path_text is not None:
+        (runs / "w__random.trajectory.csv").write_text(path_text)
+    return root
+
+
+def test_a_run_without_a_detector_is_identical_to_itself(tmp_path):
+    """Its digests' detections are empty: read as NaN they differed from themselves, and a
+    folder was 'different from the first chunk' from itself."""
+    text = "seed,chunk,time_s,physics,map,knowledge,detections\n0,0,2.0,2aa2,0192,a8ea,\n0,1,4.0,2bb2,0193,a8eb,\n"
+    a, b = _folder(tmp_path / "a", text), _folder(tmp_path / "b", text)
+    assert digest.compare(a, b) == ["w__random seed 0: identical over 2 chunks"]
+    c = _folder(tmp_path / "c", text.replace("a8eb,", "a8eb,ffff"))
+    assert digest.compare(a, c) == ["w__random seed 0: identical up to chunk 0 (2.0 s); at chunk 1 (4.0 s) "
+                                    "detections differ"]
+
+
+@pytest.mark.parametrize("digest_text, path_text, needle", [
+    ("garbage\n", None, "w__random.digest.csv: columns: missing seed, chunk"),  # an AttributeError
+    ("seed,chunk,time_s,physics,map,knowledge,detections\n0,x,2.0,a,b,c,\n", None, "row 2, column chunk: 'x' is not"),
+    (None, "garbage\n", "w__random.trajectory.csv: columns: missing seed, time_s, x"),  # a KeyError
+    (None, "seed,time_s,x,y,yaw\n0,1.0,oops,0,0\n", "row 2, column x: 'oops' is not a finite number"),
+])
+def test_a_malformed_run_file_is_one_line_naming_it(tmp_path, digest_text, path_text, needle):
+    from rosmeery_jax.core.errors import InputError
+
+    good = ("seed,chunk,time_s,physics,map,knowledge,detections\n0,0,2.0,a,b,c,\n" if digest_text else None,
+            "seed,time_s,x,y,yaw\n0,1.0,0,0,0\n" if path_text else None)
+    a, b = _folder(tmp_path / "a", *good), _folder(tmp_path / "b", digest_text, path_text)
+    with pytest.raises(InputError, match=re.escape(needle)):
+        digest.compare(a, b)

@@ -35,7 +35,7 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
     trajectories, the rows of ``world`` and ``run`` = (policy, seed) (``run`` may be left
     out when the file holds one run of the world)."""
     path = Path(path)
-    df = _read_csv(path)
+    df = results.read_table(path)
     session = set(SESSION_COLUMNS) <= set(df.columns)
     if session:
         df = session_run(df, path, world, run)
@@ -62,18 +62,6 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
             raise InputError(str(path), f"row {_line(df, k)}, columns x, y", f"({poses[k, 0]:g}, {poses[k, 1]:g}) "
                              f"lies outside the world {world.name!r}")
     return t, poses
-
-
-def _read_csv(path: Path) -> pd.DataFrame:
-    """The file's table, row k being the file's line k + 2 (the header is line 1)."""
-    if not path.is_file():
-        raise InputError(str(path), "file", "not found")
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
-        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0]})") from None
-    df.index = pd.RangeIndex(len(df))  # a ragged file may have made its first fields an index
-    return df
 
 
 def _line(df: pd.DataFrame, k: int) -> int:

@@ -79,16 +79,29 @@ def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
     return write_atomic(path, df.to_csv(index=False))
 
 
+def read_table(path: str | Path, columns=(), missing: str = "not found", **read) -> pd.DataFrame:
+    """A CSV file's table with at least ``columns``, row k being the file's line k + 2 (the
+    header is line 1); a missing (``missing`` says what it means), unreadable or short file
+    is one InputError naming it. ``read``: pandas.read_csv's options."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(str(path), "file", missing)
+    try:
+        df = pd.read_csv(path, **read)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as err:
+        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0][:120]})") from None
+    df.index = pd.RangeIndex(len(df))  # a ragged file may have made its first fields an index
+    absent = [c for c in columns if c not in df.columns]
+    if absent:
+        raise InputError(str(path), "columns", f"missing {', '.join(absent)}")
+    return df
+
+
 def load(directory: str | Path) -> pd.DataFrame:
     """The metric curves of a results folder as one long DataFrame (``metrics.csv``);
     a missing or malformed file is one InputError naming the file and the column or row."""
     path = Path(directory) / "metrics.csv"
-    try:
-        df = pd.read_csv(path)
-    except FileNotFoundError:
-        raise InputError(str(path), "file", "not found: not a results folder") from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as err:
-        raise InputError(str(path), "file", f"not a readable CSV ({str(err).splitlines()[0][:120]})") from None
+    df = read_table(path, missing="not found: not a results folder")
     if "mapper" not in df.columns:  # results written before mappers were a column
         df["mapper"] = "oracle"
     missing = [c for c in METRIC_COLUMNS if c not in df.columns]

@@ -22,7 +22,8 @@ import jax
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.errors import InputError, shown
+from rosmeery_jax.scoring import results
 
 PARTS = ("physics", "map", "knowledge", "detections")
 
@@ -71,8 +72,20 @@ def _finished(folder: Path) -> set[str]:
     return runs
 
 
+def _digests(path: Path) -> pd.DataFrame:
+    """A digest file as text (an empty part, as ``detections`` without a detector, stays "":
+    read as NaN it differed from itself), its seeds and chunks whole numbers."""
+    df = results.read_table(path, ("seed", "chunk", "time_s", *PARTS), dtype=str, keep_default_na=False)
+    for c in ("seed", "chunk"):
+        bad = np.flatnonzero(~df[c].str.fullmatch(r"\d{1,10}"))
+        if len(bad):
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a "
+                             "whole number")
+    return df
+
+
 def _by_digest(run: str, x: Path, y: Path) -> list[str]:
-    da, db = (pd.read_csv(p, dtype=str) for p in (x, y))
+    da, db = (_digests(p) for p in (x, y))
     out = []
     for seed, ga in da.groupby("seed", sort=True):
         gb = db[db.seed == seed]
@@ -90,8 +103,21 @@ def _by_digest(run: str, x: Path, y: Path) -> list[str]:
     return out
 
 
+def _path(path: Path) -> pd.DataFrame:
+    """A run's trajectory file, its seed, time and pose columns numbers."""
+    df = results.read_table(path, ("seed", "time_s", "x", "y", "yaw"))
+    for c in ("seed", "time_s", "x", "y", "yaw"):
+        values = pd.to_numeric(df[c], errors="coerce")
+        bad = np.flatnonzero(~np.isfinite(values.to_numpy(float)))
+        if len(bad):
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a "
+                             "finite number")
+        df[c] = values
+    return df
+
+
 def _by_path(run: str, a: Path, b: Path) -> list[str]:
-    ta, tb = (pd.read_csv(f / "runs" / f"{run}.trajectory.csv") for f in (a, b))
+    ta, tb = (_path(f / "runs" / f"{run}.trajectory.csv") for f in (a, b))
     key = ["seed", "time_s"]
     m = ta.merge(tb, on=key, suffixes=("_a", "_b")).sort_values(key)
     out = []
