@@ -59,7 +59,7 @@ from rosmeery_jax.env.world_bank import world_bank
 from rosmeery_jax.rl.task import REWARDS, score
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.mapper import MapState, OnlineScorer
+from rosmeery_jax.scoring.mapper import MapState, OnlineScorer, check_map
 from rosmeery_jax.scoring.results import plain_name
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
@@ -236,7 +236,10 @@ class VectorEnv(gymnasium.vector.VectorEnv):
 
     def submit_map(self, i: int, m: MapState) -> dict:
         """Score robot ``i``'s own map now: {metric: value} (the session's default metrics)."""
+        if not 0 <= i < self.num_envs:
+            raise ValueError(f"robot {i}: there are {self.num_envs} (0 to {self.num_envs - 1})")
         world = self.bank.worlds[self.world[i]]
+        m = check_map("the map", m, len(world.taxonomy.names), ("submit_map", f"robot {i}"))
         log = self._scorers[i].score(m).log
         t = world.truth
         table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))

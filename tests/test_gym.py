@@ -112,6 +112,12 @@ def test_the_vector_env_batches_robots_over_worlds_and_scores_a_submitted_map(wo
     assert scores["ori"] == pytest.approx(0.5) and scores["cori"] == pytest.approx(0.5)
     assert vec.submit_map(1, MapState(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64),
                                       np.zeros(0)))["ori"] == 0.0
+    # a malformed map or robot is one error, checked as a mapper's map is (they reached the scorer)
+    nan = perfect._replace(points=np.full_like(samples, np.nan))
+    with pytest.raises(ValueError, match="submit_map: robot 0: the map: points that are not finite"):
+        vec.submit_map(0, nan)
+    with pytest.raises(ValueError, match=r"robot 2: there are 2 \(0 to 1\)"):
+        vec.submit_map(2, perfect)
 
 
 def test_the_pytorch_agent_example_explores_through_the_vector_env(world):

@@ -199,10 +199,13 @@ def raised_by(spec: str, doing: str):
     return contextlib.nullcontext() if spec in BUILT_IN else plugins.raised_by(spec, "mappers", doing)
 
 
-def check_map(spec: str, m, categories: int) -> MapState:
+def check_map(spec: str, m, categories: int, source: tuple[str, str] | None = None) -> MapState:
     """``m`` as a MapState of numpy arrays, or one InputError naming the plugin and what is
-    wrong (type, shape, dtype, finiteness, ids, labels, confidences)."""
+    wrong (type, shape, dtype, finiteness, ids, labels, confidences); ``source``: (source,
+    field) of a map handed in otherwise than by a plugin mapper, which ``spec`` then names."""
     def bad(what: str):
+        if source:
+            return InputError(*source, f"{spec}: {what}")
         return InputError("config", "mappers", f"plugin {spec!r}: semantic_map returned {what}")
 
     if not isinstance(m, MapState):
