@@ -60,7 +60,7 @@ from rosmeery_jax.rl.task import REWARDS, score
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.evaluate import TOLERANCE
 from rosmeery_jax.scoring.mapper import MapState, OnlineScorer, check_map
-from rosmeery_jax.scoring.results import plain_name
+from rosmeery_jax.scoring.results import MAX_SEED, plain_name
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 
@@ -196,9 +196,10 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         """All robots anew; robot i's key is ``seed`` folded with i (the same seed, the same
         episodes)."""
         super().reset(seed=seed)
-        base = int(self.np_random.integers(2**31 - self.num_envs)) if seed is None else seed
-        if base + self.num_envs > 2**31:  # robot i's seed base + i is an int32, as a session's seeds
-            raise ValueError(f"seed {base} must be at most 2**31 - num_envs ({2**31 - self.num_envs})")
+        top = MAX_SEED + 1 - self.num_envs  # robot i's seed is base + i, as a session's seeds
+        base = int(self.np_random.integers(top + 1)) if seed is None else seed
+        if base > top:
+            raise ValueError(f"seed {base} must be at most 2**31 - num_envs ({top})")
         # robot i as a session's seed base + i (its env key: the seed's key folded with 0)
         self._keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.key(i), 0))(base + jnp.arange(self.num_envs))
         self._episode = 0
@@ -271,7 +272,7 @@ class Env(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        obs, info = self.vec.reset(seed=seed if seed is not None else int(self.np_random.integers(2**31)))
+        obs, info = self.vec.reset(seed=seed if seed is not None else int(self.np_random.integers(MAX_SEED + 1)))
         return _first(obs), info
 
     def step(self, action):

@@ -284,14 +284,14 @@ def _cmd_detector_export(args) -> int:
 
 
 def _positive(args, *names: str) -> None:
-    """Whole-number options that must be >= 1 (a seed from 0 to 2**31 - 1, as results hold
+    """Whole-number options that must be >= 1 (a seed from 0 to MAX_SEED, as results hold
     seeds); None is unset."""
     for name in names:
         value, least = getattr(args, name), 0 if name == "seed" else 1
         if value is not None and value < least:
             raise InputError("command line", "--" + name.replace("_", "-"), f"{value} must be a whole number >= {least}")
-        if name == "seed" and value is not None and value > 2**31 - 1:  # an OverflowError in teleop
-            raise InputError("command line", "--seed", f"{value} must be at most {2**31 - 1}")
+        if name == "seed" and value is not None and value > results.MAX_SEED:  # an OverflowError in teleop
+            raise InputError("command line", "--seed", f"{value} must be at most {results.MAX_SEED}")
 
 
 def _cmd_detector_eval(args) -> int:

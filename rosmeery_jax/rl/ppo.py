@@ -95,17 +95,12 @@ def load_config(path: str | Path | None, **cli) -> TrainConfig:
 
 
 def _prepare(values: dict, source: str) -> dict:
-    """``worlds`` (a non-empty list of names) and ``env`` (a free table), taken out of ``values``."""
-    given = {}
-    worlds = values.pop("worlds", None)
-    if worlds is not None:
-        if not isinstance(worlds, list) or not worlds or not all(isinstance(w, str) and w for w in worlds):
-            raise InputError(source, "worlds", "must be a non-empty list of world names")
-        given["worlds"] = tuple(worlds)
-    env = values.pop("env", {})
-    if not isinstance(env, dict):
-        raise InputError(source, "env", "must be a table of EnvConfig overrides")
-    given["env"] = env
+    """``worlds`` (a list of names, as a tuple) and ``env`` (a free table), taken out of
+    ``values`` as they are: :func:`_check` checks them."""
+    given = {"env": values.pop("env", {})}
+    if "worlds" in values:
+        worlds = values.pop("worlds")
+        given["worlds"] = tuple(worlds) if isinstance(worlds, list) else worlds
     return given
 
 

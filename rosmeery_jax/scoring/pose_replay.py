@@ -87,7 +87,7 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
     bad = np.flatnonzero(results.not_seeds(seed))
     if len(bad):
         raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{shown(df['seed'].iloc[bad[0]])} is not a seed "
-                         f"(a whole number from 0 to {2**31 - 1})")
+                         f"(a whole number from 0 to {results.MAX_SEED})")
     df = df.assign(seed=seed.astype(np.int64), policy=df["policy"].fillna("").astype(str),
                    world=df["world"].fillna("").astype(str))
     if world is not None:

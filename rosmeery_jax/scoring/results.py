@@ -31,10 +31,24 @@ def seconds(t):
     return np.where(whole, t, np.round(np.where(whole, 0.0, t), 6))[()]
 
 
+MAX_SEED = 2**31 - 1  # seeds are int32 keys, in sessions, recordings and the Gymnasium envs
+
+
 def not_seeds(values: np.ndarray) -> np.ndarray:
     """(R,) True where a table's seed column (as floats, NaN for text) holds no seed: a
-    whole number from 0 to 2**31 - 1."""
-    return ~(np.isfinite(values) & (values >= 0) & (values < 2**31) & (values == np.round(values)))
+    whole number from 0 to MAX_SEED."""
+    return ~(np.isfinite(values) & (values >= 0) & (values <= MAX_SEED) & (values == np.round(values)))
+
+
+def numbers(df: pd.DataFrame, path: Path, column: str, seeds: bool = False) -> np.ndarray:
+    """``column`` of a table read by :func:`read_table` as float64, every value finite (a
+    seed, with ``seeds``), or one InputError naming the file, row and column."""
+    values = pd.to_numeric(df[column], errors="coerce").to_numpy(float)
+    bad = np.flatnonzero(not_seeds(values) if seeds else ~np.isfinite(values))
+    if len(bad):
+        kind = f"a seed (a whole number from 0 to {MAX_SEED})" if seeds else "a finite number"
+        raise InputError(str(path), f"row {bad[0] + 2}, column {column}", f"{shown(df[column].iloc[bad[0]])} is not {kind}")
+    return values
 
 
 def metric_frame(curves: dict[str, np.ndarray], times: np.ndarray, *, world: str, policy: str,
@@ -113,10 +127,6 @@ def load(directory: str | Path) -> pd.DataFrame:
             raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a plain name "
                              "(names in a results table become file names: no folders, no leading dot)")
     for c in ("seed", "time_s", "value"):
-        values = pd.to_numeric(df[c], errors="coerce").to_numpy(float)
-        bad = np.flatnonzero(not_seeds(values) if c == "seed" else ~np.isfinite(values))
-        if len(bad):
-            kind = f"a seed (a whole number from 0 to {2**31 - 1})" if c == "seed" else "a finite number"
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not {kind}")
+        values = numbers(df, path, c, seeds=c == "seed")
         df[c] = values.astype(int) if c == "seed" else values
     return df

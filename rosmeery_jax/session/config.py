@@ -300,19 +300,18 @@ def _check_size(cfg: SessionConfig, worlds, source: str) -> None:
     have = memory_bytes()
     for what, need in (("the logs", need_host), ("the batch's device state", need_device)):
         if need > MEMORY_SHARE * have:
-            raise InputError(source, _culprit(cfg, what, need),
+            raise InputError(source, _culprit(cfg, what, need, MEMORY_SHARE * have),
                              f"{cfg.seeds} seeds x {len(worlds)} worlds x {len(cfg.policies)} policies x "
                              f"{cfg.duration:g} s: {what} need about {need / 1e9:,.1f} GB, more than this "
                              f"machine's {have / 1e9:.1f} GB allows (fewer seeds, worlds or a shorter duration)")
 
 
-def _culprit(cfg: SessionConfig, what: str, need: float) -> str:
+def _culprit(cfg: SessionConfig, what: str, need: float, limit: float) -> str:
     """The field an oversize refusal names: the batch grows with the seeds; the logs with the
     seeds and the duration, so "seeds" where they need too much even at the default duration."""
     if what.startswith("the batch"):
         return "seeds"
-    at_default = need * SessionConfig().duration / cfg.duration
-    return "seeds" if at_default > MEMORY_SHARE * memory_bytes() else "duration"
+    return "seeds" if need * SessionConfig().duration / cfg.duration > limit else "duration"
 
 
 def load_config(path: str | Path | None, **cli) -> SessionConfig:

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.core.errors import InputError, shown
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.scoring import results
 
 PARTS = ("physics", "map", "knowledge", "detections")
@@ -77,10 +77,7 @@ def _digests(path: Path) -> pd.DataFrame:
     read as NaN it differed from itself), its seeds and chunks whole numbers."""
     df = results.read_table(path, ("seed", "chunk", "time_s", *PARTS), dtype=str, keep_default_na=False)
     for c in ("seed", "chunk"):
-        bad = np.flatnonzero(~df[c].str.fullmatch(r"\d{1,10}"))
-        if len(bad):
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a "
-                             "whole number")
+        results.numbers(df, path, c, seeds=True)  # checked; kept as text, as the digests are compared
     return df
 
 
@@ -107,12 +104,7 @@ def _path(path: Path) -> pd.DataFrame:
     """A run's trajectory file, its seed, time and pose columns numbers."""
     df = results.read_table(path, ("seed", "time_s", "x", "y", "yaw"))
     for c in ("seed", "time_s", "x", "y", "yaw"):
-        values = pd.to_numeric(df[c], errors="coerce")
-        bad = np.flatnonzero(~np.isfinite(values.to_numpy(float)))
-        if len(bad):
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a "
-                             "finite number")
-        df[c] = values
+        df[c] = results.numbers(df, path, c, seeds=c == "seed")
     return df
 
 
