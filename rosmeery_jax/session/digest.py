@@ -104,7 +104,8 @@ def _path(path: Path) -> pd.DataFrame:
     """A run's trajectory file, its seed, time and pose columns numbers."""
     df = results.read_table(path, ("seed", "time_s", "x", "y", "yaw"))
     for c in ("seed", "time_s", "x", "y", "yaw"):
-        df[c] = results.numbers(df, path, c, seeds=c == "seed")
+        values = results.numbers(df, path, c, seeds=c == "seed")
+        df[c] = values.astype(np.int64) if c == "seed" else values
     return df
 
 
