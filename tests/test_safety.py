@@ -406,6 +406,16 @@ def test_a_bench_batch_beyond_the_machines_memory_is_refused_before_it_starts(op
     _one_line(capsys, "command line", f"{option[0]}: 100,000,000 robots need about", "GB allows")
 
 
+@pytest.mark.parametrize("devices, available, split", [
+    (0, 1, 1), (0, 2, 2), (0, 6, 4), (0, 12, 8), (0, 64, 64), (0, 96, 64),  # 6 cores: the split was skipped
+    (2, 6, 2), (8, 2, 2),  # as asked, at most those there are
+])
+def test_the_bench_splits_its_reference_batch_over_the_most_devices_that_divide_it(devices, available, split):
+    from rosmeery_jax.apps.bench import BenchConfig, split_devices
+
+    assert split_devices(BenchConfig(devices=devices), available) == split
+
+
 @pytest.mark.parametrize("option, needle", [
     (["--steps", "0"], "--steps: 0 must be >= 1"), (["--memory-batch", "-1"], "--memory-batch: -1 must be >= 0"),
     (["--steps", "99999999999"], "--steps: 99999999999 must be at most 2147483647"),  # a traceback from JAX

@@ -60,7 +60,7 @@ class BenchConfig:
     memory_batch: int = 1024
     seed: int = 0
     session_s: float = 20.0  # simulated seconds of the end-to-end default session (0 = skip)
-    devices: int = 0  # also time the reference batch split over this many devices (0 = every device)
+    devices: int = 0  # also time the reference batch split over this many devices (0 = as many as divide it)
 
 
 def check(cfg: BenchConfig) -> None:
@@ -84,6 +84,14 @@ def check(cfg: BenchConfig) -> None:
         raise InputError("command line", "--session-s", f"{cfg.session_s!r} must be a number of seconds >= 0")
     if cfg.session_s:
         SessionConfig(duration=cfg.session_s, out="-").validate("command line: --session-s")
+
+
+def split_devices(cfg: BenchConfig, available: int) -> int:
+    """How many devices the reference batch is split over: ``--devices`` (at most those
+    there are), or by default the most of them that divide the batch evenly (6 cores: 4)."""
+    if cfg.devices:
+        return min(cfg.devices, available)
+    return max(n for n in range(1, available + 1) if cfg.reference_batch % n == 0)
 
 
 def random_targets(world, n: int, seed: int) -> np.ndarray:
@@ -366,8 +374,8 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
     result["speedup_vs_mujoco_c"] = round(ours / peer["env_steps_per_s"], 2)
     result["speedup_full_step_vs_mujoco_c"] = round(ref_rate / peer["env_steps_per_s"], 2)
     result["reference_batch"] = cfg.reference_batch
-    n = min(cfg.devices or len(jax.devices()), len(jax.devices()))
-    if n > 1 and cfg.reference_batch % n == 0:  # every core busy, as the peer's threads keep them
+    n = split_devices(cfg, len(jax.devices()))
+    if n > 1:  # every core busy, as the peer's threads keep them
         progress(f"full and platform step at batch {cfg.reference_batch} split over {n} devices ...")
         full_n = env_throughput(env, cfg.reference_batch, cfg, n)["env_steps_per_s"]
         platform_n = env_throughput(platform_env, cfg.reference_batch, cfg, n)["env_steps_per_s"]

@@ -504,7 +504,8 @@ def _bench_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--session-s", type=float, default=20.0, metavar="S",
                    help="also time a default session of S simulated seconds end to end (0: skip)")
     p.add_argument("--devices", type=int, default=0, metavar="N", help="also time the reference batch split "
-                   "over N devices (default 0: one host device per core)")
+                   "over N devices (default 0: one host device per core, the batch split over as "
+                   "many as divide it)")
     p.add_argument("--json", action="store_true", help="print one JSON object (progress goes to stderr)")
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     p.set_defaults(func=_cmd_bench)
