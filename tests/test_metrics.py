@@ -117,6 +117,23 @@ def _table_log():
     return log, truth
 
 
+def test_a_log_and_truth_that_disagree_are_refused_not_broadcast():
+    log, truth = _table_log()
+    one = GroundTruthTable(*(a[:1] for a in truth))  # one object's truth broadcast over the log's two
+    with pytest.raises(ValueError, match=r"truth.ps_G has shape \(1,\): the log holds N = 2 objects"):
+        metrics.compute(log, one)
+    with pytest.raises(ValueError, match=r"log.label has shape \(2, 1\)"):
+        metrics.compute(log._replace(label=log.label[:, :1]), truth)
+    with pytest.raises(ValueError, match=r"log.ps has shape \(\)"):
+        metrics.compute(ObjectLog(*(a[1, 0] for a in log)), truth)
+    step = metrics.compute(ObjectLog(*(a[1] for a in log)), truth)  # one step's log (N,): its value
+    assert step["ori"] == pytest.approx(0.5)
+    with pytest.raises(TypeError, match=r"log must be ObjectLog\(ps, .*not NoneType"):
+        metrics.compute(None, truth)
+    with pytest.raises(TypeError, match="truth must be GroundTruthTable"):
+        metrics.compute(log, {"ps_G": truth.ps_G})
+
+
 def test_metrics_match_hand_arithmetic():
     log, truth = _table_log()
     c = metrics.compute(log, truth)

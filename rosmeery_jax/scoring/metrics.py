@@ -130,11 +130,31 @@ def _register_plugin(spec: str) -> str:
 def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:
     """{metric name: (..., T) float64 numpy curve} for the chosen metrics, in one compiled
     call per shape (op by op, a session paid a compile of every operation for every world)."""
-    log = ObjectLog(*(np.asarray(a) for a in log))
-    truth = GroundTruthTable(*(np.asarray(a) for a in truth))
+    log, truth = _arrays(log, truth)
     names = resolve(names)
     curves = _curves(log, truth, names)  # a jitted dict comes back in sorted key order
     return {n: np.asarray(curves[n], np.float64) for n in names}
+
+
+def _arrays(log, truth) -> tuple[ObjectLog, GroundTruthTable]:
+    """``log`` and ``truth`` as numpy, or a clear error: every log field of one shape, (..., T,
+    N) or one step's (N,); every truth field (N,) (one object's truth would broadcast over any N)."""
+    for name, arg, kind in (("log", log, ObjectLog), ("truth", truth, GroundTruthTable)):
+        if not isinstance(arg, tuple) or len(arg) != len(kind._fields):
+            raise TypeError(f"compute_metrics: {name} must be {kind.__name__}({', '.join(kind._fields)}), "
+                            f"not {type(arg).__name__}")
+    log = ObjectLog(*(np.asarray(a) for a in log))
+    truth = GroundTruthTable(*(np.asarray(a) for a in truth))
+    shape = log.ps.shape
+    for field, a in zip(ObjectLog._fields, log):
+        if a.shape != shape or a.ndim < 1:
+            raise ValueError(f"compute_metrics: log.{field} has shape {a.shape}: every field must be "
+                             f"(..., N) like log.ps {shape}")
+    for field, a in zip(GroundTruthTable._fields, truth):
+        if a.shape != shape[-1:]:
+            raise ValueError(f"compute_metrics: truth.{field} has shape {a.shape}: the log holds "
+                             f"N = {shape[-1]} objects")
+    return log, truth
 
 
 @partial(jax.jit, static_argnums=2)
