@@ -176,6 +176,18 @@ def test_missing_world_file_and_unknown_name(tmp_path):
         load_world(tmp_path / "d.xml")
 
 
+def test_a_name_or_config_of_another_type_is_a_type_error_naming_it():
+    from rosmeery_jax.env import EnvConfig, world_bank
+
+    with pytest.raises(TypeError, match=r"names must be a list of worlds \(one world: \['kitchen'\]\)"):
+        world_bank("kitchen")  # its letters were read as the worlds 'k', 'i', ...
+    with pytest.raises(TypeError, match="config must be an EnvConfig, not str"):
+        world_bank(["kitchen"], "x")
+    with pytest.raises(TypeError, match="config must be a WorldConfig, not int"):
+        load_world("kitchen", 3)
+    assert world_bank(("kitchen",), EnvConfig()).worlds[0].name == "kitchen"
+
+
 def test_world_show_writes_a_png(tmp_path, capsys):
     out = tmp_path / "small.png"
     assert main(["world", "show", "small_office", "--out", str(out)]) == 0

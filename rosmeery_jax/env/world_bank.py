@@ -11,6 +11,7 @@ gather). Indices follow ``bank.names``.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import NamedTuple
 
 from rosmeery_jax.env import world_data as wd
@@ -43,7 +44,12 @@ class WorldBank(NamedTuple):
 
 
 def world_bank(names, config: EnvConfig | None = None) -> WorldBank:
-    """Load ``names`` (built-in names, paths or ``procedural:KIND:A-B`` ranges) into a bank."""
+    """Load ``names`` (a list of built-in names, paths or ``procedural:KIND:A-B`` ranges)
+    into a bank."""
+    if isinstance(names, (str, Path)):  # else a name's letters would be read as names
+        raise TypeError(f"world_bank: names must be a list of worlds (one world: [{str(names)!r}])")
+    if config is not None and not isinstance(config, EnvConfig):
+        raise TypeError(f"world_bank: config must be an EnvConfig, not {type(config).__name__}")
     config = config or EnvConfig()
     names = tuple(expand_names(list(names)))
     if not names:

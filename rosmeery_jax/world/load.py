@@ -162,6 +162,8 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
 def load_world(name_or_path: str | Path, config: WorldConfig | None = None,
                taxonomy: str | Path | None = None) -> World:
     """Load a world by built-in name or MJCF path (cached per file, config and taxonomy)."""
+    if config is not None and not isinstance(config, WorldConfig):
+        raise TypeError(f"load_world: config must be a WorldConfig, not {type(config).__name__}")
     path = resolve_world_path(name_or_path)
     return _load(path, path.stat().st_mtime_ns, config or WorldConfig(),
                  str(taxonomy) if taxonomy is not None else None)
