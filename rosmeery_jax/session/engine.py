@@ -49,6 +49,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rosmeery_jax.core import interrupt, xla
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import Env, EnvConfig, Track, world_bank
@@ -76,6 +77,7 @@ class Run(NamedTuple):
     policy: int
     rows: np.ndarray
     host_policy: Any  # the policy built for this world (recordings, start checks)
+    spec: str  # the policy entry, as the config names it
 
 
 @dataclass
@@ -166,7 +168,8 @@ def _group(config: EnvConfig, members: list, seeds: int, decide_every: int, tota
             host = make_policy(spec, envs[w], decide_every, total_steps)
             b = host.batch_size(seeds)
             if b:  # else a replay with no recording in this world
-                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows.add_block_run(q, w, b), host))
+                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows.add_block_run(q, w, b), host,
+                                spec))
     used = devices or max(1, min(len(jax.devices()), len(rows.blocks)))  # auto: no device without a real block
     for _ in range((-len(rows.blocks)) % used if runs else 0):  # whole blocks per device
         rows.add_padding_block()
@@ -513,6 +516,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
         with interrupt.deferred():  # Ctrl-C between chunks, never inside a JAX callback
             for c in range(plan.total // plan.per_call):
                 interrupt.check()  # Ctrl-C stops a session here, between chunks (core.interrupt)
+                _raise_failed(jobs)
                 pending = empty
                 if capture and c >= 2:  # the detections of period c - 2 reach the robot now
                     jax.block_until_ready(state)  # chunk c - 1 simulated: what follows is waiting for the detector
@@ -544,6 +548,28 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     return _collect(group, start, state, data, blocks, track0, done, worker, timing)._replace(
         digests=[{k: [v[r] for r in np.flatnonzero(group.real)] for k, v in part.items()} for part in digests]
         if plan.digest else None)
+
+
+def _raise_failed(jobs: list[Future]) -> None:
+    """The error of a chunk the worker has finished with one, now rather than at the end."""
+    for job in jobs:
+        if job.done() and job.exception() is not None:
+            job.result()
+
+
+def check_poses(group: Group, first_step: int, poses: np.ndarray) -> None:
+    """One line naming the run, seed and time of the first real robot whose pose is not a
+    number in ``poses`` (B, steps, 3), steps from ``first_step`` + 1: a policy that sends a
+    target that is not finite puts it there, and every later figure of the run would be void."""
+    bad = ~np.isfinite(poses).all(axis=-1) & group.real[:, None]
+    if not bad.any():
+        return
+    hits = np.argwhere(bad)  # (row, step) pairs
+    row, step = hits[np.argmin(hits[:, 1])]
+    run = next(r for r in group.runs if row in r.rows)
+    raise InputError("config", "policies", f"{run.spec!r} drove seed {group.seed[row]} in "
+                     f"{group.envs[run.world].world.name} to a pose that is not a number at "
+                     f"t = {(first_step + step + 1) * group.env.dt:.1f} s (a target that is not finite does this)")
 
 
 def _start(group: Group, plan: Plan, capture: bool, data, blocks, keys: Keys, empty: tuple) -> Start:
@@ -634,6 +660,7 @@ class _Detection:
         """Chunk c: fetch it, detect its frames, rebuild the log's label fields."""
         logs, track = jax.tree.map(np.asarray, logs), jax.tree.map(np.asarray, track)
         dets, plan = None, self.plan
+        check_poses(self.group, c * plan.per_call * plan.decide_every, track.pose)
         if self.detectors is not None:
             t0 = time.perf_counter()
             if self.ready is not None:
