@@ -19,14 +19,15 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.scoring import results
+
 KEYS = ["world", "policy", "mapper", "metric"]
 
 
 def per_seed(folder: Path, metrics: list[str]) -> pd.DataFrame:
     """One row per (world, policy, mapper, metric, seed): final value and AUC."""
-    df = pd.read_csv(folder / "metrics.csv")
-    if "mapper" not in df.columns:
-        df["mapper"] = "oracle"
+    df = results.load(folder)
     df = df[df.metric.isin(metrics)]
     end = df.time_s.max()
 
@@ -71,4 +72,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except InputError as err:  # a folder that is not a results folder: one line, no traceback
+        raise SystemExit(f"error: {err}") from None

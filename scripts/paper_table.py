@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.scoring import stats
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.scoring import results, stats
 
 TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Small Office",
           "large_office": "Large Office"}
@@ -51,9 +52,7 @@ def comparisons(final: pd.DataFrame, metric: str = "ori") -> None:
 
 def main(folder: str) -> None:
     out = Path(folder)
-    full = pd.read_csv(out / "metrics.csv")
-    if "mapper" not in full.columns:
-        full["mapper"] = "oracle"
+    full = results.load(out)
     end = full.time_s.max()
     for mapper in sorted(full.mapper.unique()):
         print(f"\nmapper: {mapper}")
@@ -79,7 +78,7 @@ def main(folder: str) -> None:
         print(f"  {w:<13}{p:<14} gain {gain:+.3f}   t90 {np.mean(t90):6.0f} s")
     strict = final[final.metric.isin(["opi", "opi_strict"])].groupby(["world", "policy", "metric"]).value.mean()
     print("\nOPI vs OPI-strict:\n", strict.unstack().round(2).to_string())
-    traj = pd.read_csv(out / "trajectories.csv")
+    traj = results.read_table(out / "trajectories.csv", ["world", "policy", "seed", "time_s", "x", "y"])
     dist = traj.sort_values("time_s").groupby(["world", "policy", "seed"])[["x", "y"]].apply(
         lambda g: float(np.hypot(np.diff(g.x), np.diff(g.y)).sum()))
     print("\nmetres driven (mean over seeds, 1 s samples):\n", dist.groupby(["world", "policy"]).mean().round(0)
@@ -87,4 +86,7 @@ def main(folder: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "results/paper")
+    try:
+        main(sys.argv[1] if len(sys.argv) > 1 else "results/paper")
+    except InputError as err:  # a folder that is not a results folder: one line, no traceback
+        raise SystemExit(f"error: {err}") from None

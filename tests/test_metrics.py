@@ -465,6 +465,21 @@ def test_learned_table_joins_folders_and_compares_every_policy_with_one(tmp_path
     assert "variant" not in out.split("mean ORI AUC over the 3 paper worlds")[1].split("\n\n")[0]
 
 
+@pytest.mark.parametrize("script", ["paper_table.py", "compare_sessions.py", "learned_table.py"])
+def test_the_table_scripts_refuse_a_folder_that_is_not_results_in_one_line(script, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "metrics.csv").write_text("garbage\n")  # paper_table and compare_sessions: tracebacks
+    args = [str(tmp_path)] * (2 if script == "compare_sessions.py" else 1)
+    done = subprocess.run([sys.executable, str(Path(__file__).parents[1] / "scripts" / script), *args],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr == f"error: {tmp_path / 'metrics.csv'}: columns: missing world, policy, detector, seed, " \
+                          "time_s, metric, value\n"
+
+
 def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it_cannot_read(tmp_path):
     from rosmeery_jax.scoring.plots import plot_results
 
