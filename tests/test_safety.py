@@ -75,6 +75,18 @@ def test_evaluate_never_replaces_a_sessions_or_an_earlier_evaluations_tables(ses
     assert not named.exists()
 
 
+def test_an_input_error_crosses_a_process_whole():
+    """A Ray task's InputError reaches the driver pickled: it must rebuild, else Ray reports
+    a failure to deserialise instead of the line."""
+    import pickle
+
+    from rosmeery_jax.core.errors import InputError
+
+    err = pickle.loads(pickle.dumps(InputError("run.toml", "policies", "'p.py:P' drove seed 0")))
+    assert type(err) is InputError and str(err) == "run.toml: policies: 'p.py:P' drove seed 0"
+    assert (err.source, err.where, err.problem) == ("run.toml", "policies", "'p.py:P' drove seed 0")
+
+
 def test_generate_never_replaces_an_edited_world(tmp_path, capsys):
     out = tmp_path / "worlds"
     args = ["worlds", "generate", "--kind", "office", "--seed", "4", "--count", "2", "--out", str(out)]

@@ -20,6 +20,9 @@ class InputError(ValueError):
         location = f"{self.source}: {where}" if where else self.source
         super().__init__(f"{location}: {problem}".replace("\n", " "))
 
+    def __reduce__(self):  # pickled whole, as a Ray task's error reaches the driver
+        return type(self), (self.source, self.where, self.problem)
+
 
 def shown(cell) -> str:
     """A value from a user's table as the file has it: text quoted, a number as written

@@ -109,7 +109,13 @@ def simulate_on_cluster(cfg, todo: list[tuple[str, str]], out: Path, address: st
         done, _ = ray.wait(list(pending), num_returns=1)
         for ref in done:
             pending.pop(ref)
-            files, timing = ray.get(ref)
+            try:
+                files, timing = ray.get(ref)
+            except InputError as err:  # a plugin's error in a task: its own line, not Ray's traceback
+                for other in pending:
+                    ray.cancel(other)
+                cause = getattr(err, "cause", err)  # Ray's error wraps the task's own
+                raise (cause if isinstance(cause, InputError) else err) from None
             last = [k for k in files if k.endswith(".metrics.csv")]
             for rel in sorted(files, key=lambda k: k in last):  # the metrics file marks the run done
                 write_atomic(out / rel, files[rel])
