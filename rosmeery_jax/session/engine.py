@@ -557,7 +557,7 @@ def _raise_failed(jobs: list[Future]) -> None:
             job.result()
 
 
-def check_poses(group: Group, first_step: int, poses: np.ndarray) -> None:
+def _check_poses(group: Group, first_step: int, poses: np.ndarray) -> None:
     """One line naming the run, seed and time of the first real robot whose pose is not a
     number in ``poses`` (B, steps, 3), steps from ``first_step`` + 1: a policy that sends a
     target that is not finite puts it there, and every later figure of the run would be void."""
@@ -660,7 +660,7 @@ class _Detection:
         """Chunk c: fetch it, detect its frames, rebuild the log's label fields."""
         logs, track = jax.tree.map(np.asarray, logs), jax.tree.map(np.asarray, track)
         dets, plan = None, self.plan
-        check_poses(self.group, c * plan.per_call * plan.decide_every, track.pose)
+        _check_poses(self.group, c * plan.per_call * plan.decide_every, track.pose)
         if self.detectors is not None:
             t0 = time.perf_counter()
             if self.ready is not None:
