@@ -149,6 +149,26 @@ def test_padding_is_inert_and_worlds_stack():
     assert (lo[h:] == 0).all() and (lo[:, w:] == 0).all() and (lo[:h, :w] != 0).any()
 
 
+def test_a_pose_that_is_not_finite_stops_the_session_naming_the_first_run_seed_and_time():
+    from types import SimpleNamespace
+
+    from rosmeery_jax.core.errors import InputError
+
+    world = lambda name: SimpleNamespace(world=SimpleNamespace(name=name))  # noqa: E731
+    runs = [SimpleNamespace(spec="random", world=0, rows=np.array([0, 1])),
+            SimpleNamespace(spec="mine.py:P", world=1, rows=np.array([2, 3]))]
+    group = SimpleNamespace(real=np.array([True, True, True, True, False]), seed=np.array([0, 1, 0, 1, 0]),
+                            runs=runs, envs=[world("kitchen"), world("lab")], env=SimpleNamespace(dt=0.1))
+    poses = np.zeros((5, 10, 3))
+    poses[4, 0] = np.nan  # a padding row: never read
+    engine._check_poses(group, 30, poses)
+    poses[3, 6:, 1] = np.nan
+    poses[1, 8:, 2] = np.inf
+    with pytest.raises(InputError, match=r"^config: policies: 'mine.py:P' drove seed 1 in lab to a pose that is "
+                                         r"not finite at t = 3.7 s \(a velocity command"):
+        engine._check_poses(group, 30, poses)  # the earliest: step 30 + 6 + 1
+
+
 def test_relabel_counts_a_frame_from_the_step_after_it():
     steps, n = 6, 2  # two decisions of 3 steps: frames after step 3 and step 6
     logs = ObjectLog(*(np.zeros((1, steps, n), np.float32) for _ in range(6)))

@@ -66,8 +66,14 @@ def test_target_enclosed_on_the_map_is_unreachable_at_once():
     assert not np.asarray(state.reach)[nav.coarse.cell(jnp.array([1.5, 1.5]))]
     inside, _ = step(state, jnp.array([1.5, 1.5, 0.0]), jnp.bool_(True))
     assert STATUS_NAMES[int(inside.status)] == "unreachable"
-    outside, cmd = step(state, jnp.array([0.5, 2.5, 0.0]), jnp.bool_(True))
+    outside, cmd = step(state, jnp.array([0.5, 1.5, 0.0]), jnp.bool_(True))  # beside the square
     assert STATUS_NAMES[int(outside.status)] == "moving"
+    # Off the map, or not a finite pose: unreachable at once, and the robot does not move. An
+    # off-map goal was clipped to the map's edge and driven towards; a NaN one made the pose NaN.
+    for target in ([1e10, 0.0, 0.0], [-1e38, 0.0, 0.0], [0.5, 2.5, 0.0], [jnp.inf, 0.0, 0.0],
+                   [jnp.nan, 0.0, 0.0], [0.5, 1.5, jnp.nan]):
+        off, cmd = step(state, jnp.array(target), jnp.bool_(True))
+        assert STATUS_NAMES[int(off.status)] == "unreachable" and not np.asarray(cmd).any(), target
 
 
 def _held(nav, pose, targets, new):

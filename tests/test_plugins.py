@@ -188,10 +188,6 @@ BROKEN = {
               "        return s.pose[:2], p\n", "shape (2,)", ""),
     "nan": ("import jax.numpy as jnp\nfrom rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n"
             "    def decide(self, s, p, k):\n        return s.pose * jnp.nan, p\n", "not finite", ""),
-    # passes the first decision, then sends NaN: its robots' poses and figures were NaN, exit 0
-    "nan_later": ("import jax.numpy as jnp\nfrom rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n"
-                  "    def decide(self, s, p, k):\n        return jnp.where(s.t > 20, jnp.nan, s.pose + 0.5), p\n",
-                  "drove seed 0 in small_office to a pose that is not a number at t = 3.1 s", ""),
     "untraceable": ("from rosmeery_jax import Policy\nclass P(Policy):\n    name = 'p'\n"
                     "    def decide(self, s, p, k):\n        if s.pose[0] > 0:\n            pass\n"
                     "        return s.pose, p\n", "cannot run under JAX", ""),

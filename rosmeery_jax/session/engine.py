@@ -558,9 +558,10 @@ def _raise_failed(jobs: list[Future]) -> None:
 
 
 def _check_poses(group: Group, first_step: int, poses: np.ndarray) -> None:
-    """One line naming the run, seed and time of the first real robot whose pose is not a
-    number in ``poses`` (B, steps, 3), steps from ``first_step`` + 1: a policy that sends a
-    target that is not finite puts it there, and every later figure of the run would be void."""
+    """One line naming the run, seed and time of the first real robot whose pose is not
+    finite in ``poses`` (B, steps, 3), steps from ``first_step`` + 1: every later figure of
+    its run would be void. A target that is not finite is unreachable (``sim.navigation``),
+    but a velocity command that is not finite moves the robot there."""
     bad = ~np.isfinite(poses).all(axis=-1) & group.real[:, None]
     if not bad.any():
         return
@@ -568,8 +569,9 @@ def _check_poses(group: Group, first_step: int, poses: np.ndarray) -> None:
     row, step = hits[np.argmin(hits[:, 1])]
     run = next(r for r in group.runs if row in r.rows)
     raise InputError("config", "policies", f"{run.spec!r} drove seed {group.seed[row]} in "
-                     f"{group.envs[run.world].world.name} to a pose that is not a number at "
-                     f"t = {(first_step + step + 1) * group.env.dt:.1f} s (a target that is not finite does this)")
+                     f"{group.envs[run.world].world.name} to a pose that is not finite at "
+                     f"t = {(first_step + step + 1) * group.env.dt:.1f} s "
+                     "(a velocity command that is not finite does this)")
 
 
 def _start(group: Group, plan: Plan, capture: bool, data, blocks, keys: Keys, empty: tuple) -> Start:

@@ -30,7 +30,8 @@ no-motion clock runs on when the policy sends a new target mid-drive, so a polic
 re-targets every second cannot keep a wedged robot pushing without a recovery.
 
 Status, reported in the state so policies can react: MOVING, RECOVERING, REACHED, STUCK,
-UNREACHABLE (target blocked or enclosed, or no path once the wave had time to arrive),
+UNREACHABLE (target off the map or not a finite pose, blocked or enclosed, or no path
+once the wave had time to arrive),
 TIMEOUT (``timeout`` seconds without reaching). IDLE before any target.
 """
 
@@ -44,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.sim import grid
-from rosmeery_jax.sim.occupancy import GridGeometry
+from rosmeery_jax.sim.occupancy import GridGeometry, in_extent
 
 IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT, RECOVERING = range(7)
 STATUS_NAMES = ("idle", "moving", "reached", "stuck", "unreachable", "timeout", "recovering")
@@ -229,8 +230,11 @@ class Navigator:
         cfg = self.cfg
         open_, cost = self.open_cells(nav, pose, occupied)
         nav = self._flood(nav, pose, open_)
-        goal_ij = self.coarse.cell(nav.target[:2])
+        goal_ij = self.coarse.cell(nav.target[:2])  # clipped into the map: an off-map goal needs its own test
         enclosed = ~open_[goal_ij] | ~nav.reach[goal_ij]
+        # Off the planner's map (its partial blocks at the far edges count: targets are drawn
+        # at their centres), or not finite (NaN xy is in no extent).
+        off_map = ~(in_extent(self.coarse, nav.target[:2]) & jnp.isfinite(nav.target[2]))
         field = self.sweep(nav.field, ~open_, cost, goal_ij)
         c = self._control(nav, pose, field)
 
@@ -255,9 +259,9 @@ class Navigator:
         boxed = self._boxed(open_, pose)
         retry = nav.tries < cfg.recoveries
         status = jnp.select(
-            [~active, c.reached, recovering & ~recovered, boxed & retry, boxed, enclosed | no_path,
+            [~active, off_map, c.reached, recovering & ~recovered, boxed & retry, boxed, enclosed | no_path,
              elapsed > self.timeout_steps, no_progress & retry, no_progress],
-            [nav.status, REACHED, RECOVERING, RECOVERING, STUCK, UNREACHABLE, TIMEOUT, RECOVERING, STUCK],
+            [nav.status, UNREACHABLE, REACHED, RECOVERING, RECOVERING, STUCK, UNREACHABLE, TIMEOUT, RECOVERING, STUCK],
             MOVING).astype(jnp.int32)
         starts = (status == RECOVERING) & (~recovering | recovered)
         recovery = jnp.where((status == RECOVERING) & ~starts, recovery, 0)
