@@ -134,6 +134,29 @@ def test_a_log_and_truth_that_disagree_are_refused_not_broadcast():
         metrics.compute(log, {"ps_G": truth.ps_G})
 
 
+def test_a_metric_plugin_that_fails_on_the_sessions_log_is_one_line_naming_it(tmp_path):
+    """Checked on a log of 3 steps when registered, a metric may fail on the session's: it
+    raises (a traceback from the session) or gives a curve of another length."""
+    from rosmeery_jax.core.errors import InputError
+
+    plugin = tmp_path / "late_metrics.py"
+    plugin.write_text("def raises_late(log, truth):\n    if log.ps.shape[-2] != 3:\n"
+                      "        raise ValueError('only three steps')\n    return log.ps.sum(-1)\n\n"
+                      "def three_only(log, truth):\n    return log.ps.sum(-1)[:3]\n")
+    log, truth = _table_log()  # 2 steps
+    metrics.resolve([f"{plugin}:raises_late", f"{plugin}:three_only"])  # both pass the check on 3 steps
+    head = f"config: metrics: plugin '{plugin}:"
+    with pytest.raises(InputError) as raised:
+        metrics.compute(log, truth, ["ori", "raises_late"])
+    assert str(raised.value) == head + "raises_late' failed in its curve of 2 steps: ValueError: only three " \
+                                      "steps (late_metrics.py, line 3, in raises_late)"
+    long = ObjectLog(*(np.concatenate([a, a, a]) for a in log))  # 6 steps
+    with pytest.raises(InputError) as raised:
+        metrics.compute(long, truth, ["ori", "three_only"])
+    assert str(raised.value) == head + "three_only' gave a curve of shape (3,) for a log of (6,) steps: one " \
+                                      "value per step is needed"
+
+
 def test_metrics_match_hand_arithmetic():
     log, truth = _table_log()
     c = metrics.compute(log, truth)

@@ -31,6 +31,7 @@ from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
 REGISTRY: dict[str, MetricFn] = {}
+PLUGIN_SPECS: dict[str, str] = {}  # name -> the plugin entry that registered it (named in its errors)
 DEFAULT_METRICS = ("ori", "cori", "cori_any", "opi", "opi_strict")
 
 
@@ -124,6 +125,7 @@ def _register_plugin(spec: str) -> str:
         raise InputError("config", "metrics", f"plugin {spec!r} must return one float per step, shape (T,); "
                          f"for T = 3 it gave {getattr(curve, 'shape', type(curve).__name__)}")
     REGISTRY[name] = fn
+    PLUGIN_SPECS[name] = spec
     return name
 
 
@@ -133,7 +135,16 @@ def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> d
     log, truth = _arrays(log, truth)
     names = resolve(names)
     curves = _curves(log, truth, names)  # a jitted dict comes back in sorted key order
+    for n in names:  # checked on T = 3 steps when registered: a curve may depend on T
+        if np.shape(curves[n]) != log.ps.shape[:-1]:
+            raise InputError("config", "metrics", f"{_named(n)} gave a curve of shape {np.shape(curves[n])} for a log "
+                             f"of {log.ps.shape[:-1]} steps: one value per step is needed")
     return {n: np.asarray(curves[n], np.float64) for n in names}
+
+
+def _named(name: str) -> str:
+    """A metric as its errors name it: the plugin entry, or the name it was registered by."""
+    return f"plugin {PLUGIN_SPECS[name]!r}" if name in PLUGIN_SPECS else f"metric {name!r}"
 
 
 def _arrays(log, truth) -> tuple[ObjectLog, GroundTruthTable]:
@@ -159,7 +170,16 @@ def _arrays(log, truth) -> tuple[ObjectLog, GroundTruthTable]:
 
 @partial(jax.jit, static_argnums=2)
 def _curves(log: ObjectLog, truth: GroundTruthTable, names: tuple[str, ...]) -> dict:
-    return {n: REGISTRY[n](log, truth) for n in names}
+    return {n: _curve(n, log, truth) for n in names}
+
+
+def _curve(name: str, log: ObjectLog, truth: GroundTruthTable):
+    """One metric's curve; a metric of yours that raises is one line naming it and its line
+    (it passed the check on a log of 3 steps, and may fail on the session's)."""
+    if name in DEFAULT_METRICS:
+        return REGISTRY[name](log, truth)
+    with plugins.raised_by(PLUGIN_SPECS.get(name, name), "metrics", f"its curve of {log.ps.shape[-2]} steps"):
+        return REGISTRY[name](log, truth)
 
 
 def summarize(times: np.ndarray, curve: np.ndarray) -> dict[str, float]:
