@@ -134,6 +134,27 @@ def test_a_session_on_a_two_worker_cluster_equals_the_local_run_though_a_worker_
     _same_results(local, out)
 
 
+def test_a_shards_input_error_is_its_own_line_on_the_driver(cluster, tmp_path):
+    """Ray wraps a task's error in its own, with the worker's traceback: the command shows
+    the task's line (it was 68 lines), and InputError must survive the trip."""
+    from types import SimpleNamespace
+
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.session.cluster import simulate_on_cluster
+
+    def failing_shard(cfg, world, policy, cache):  # local: pickled by value for the worker
+        """A shard whose run fails on the worker with bad input (a plugin failing mid-run)."""
+        raise InputError("config", "metrics", f"plugin 'm.py:late' failed in its curve of 5 steps ({policy})")
+
+    bar = SimpleNamespace(update=lambda n: None)
+    with pytest.raises(InputError) as raised:
+        simulate_on_cluster(SimpleNamespace(duration=1.0), [("room", "random")], tmp_path, cluster, bar, True,
+                            failing_shard)
+    assert type(raised.value) is InputError
+    assert str(raised.value) == "config: metrics: plugin 'm.py:late' failed in its curve of 5 steps (random)"
+    assert not any(tmp_path.iterdir())
+
+
 def test_without_ray_the_flag_names_the_extra(world, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
     out = tmp_path / "o"
