@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.errors import one_line
 from rosmeery_jax.scoring import results
 
 KEYS = ["world", "policy", "mapper", "metric"]
@@ -72,7 +72,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except InputError as err:  # a folder that is not a results folder: one line, no traceback
-        raise SystemExit(f"error: {err}") from None
+    one_line(main)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.errors import one_line
 from rosmeery_jax.scoring import results, stats
 from rosmeery_jax.scoring.metrics import summarize
 
@@ -154,7 +154,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except InputError as err:  # a folder that is not a results folder: one line, no traceback
-        raise SystemExit(f"error: {err}") from None
+    one_line(main)

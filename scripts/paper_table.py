@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.errors import one_line
 from rosmeery_jax.scoring import results, stats
 
 TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Small Office",
@@ -86,7 +86,4 @@ def main(folder: str) -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv[1] if len(sys.argv) > 1 else "results/paper")
-    except InputError as err:  # a folder that is not a results folder: one line, no traceback
-        raise SystemExit(f"error: {err}") from None
+    one_line(main, sys.argv[1] if len(sys.argv) > 1 else "results/paper")

@@ -24,6 +24,15 @@ class InputError(ValueError):
         return type(self), (self.source, self.where, self.problem)
 
 
+def one_line(main, *args):
+    """Run a script's ``main(*args)``: bad input ends it with one line on stderr and exit
+    status 1, not a traceback."""
+    try:
+        return main(*args)
+    except InputError as err:
+        raise SystemExit(f"error: {err}") from None
+
+
 def shown(cell) -> str:
     """A value from a user's table as the file has it: text quoted, a number as written
     (``1e+308``, not numpy's ``np.float64(1e+308)``)."""
