@@ -155,6 +155,16 @@ def test_a_metric_plugin_that_fails_on_the_sessions_log_is_one_line_naming_it(tm
         metrics.compute(long, truth, ["ori", "three_only"])
     assert str(raised.value) == head + "three_only' gave a curve of shape (3,) for a log of (6,) steps: one " \
                                       "value per step is needed"
+    # One registered in Python is named as registered, in both errors alike.
+    @metrics.register("late_in_python")
+    def _late(log, truth):
+        if log.ps.shape[-2] != 3:
+            raise IndexError("only three steps")
+        return log.ps.sum(-1)
+
+    with pytest.raises(InputError, match=r"^config: metrics: metric 'late_in_python' failed in its curve of 2 "
+                                         r"steps: IndexError"):
+        metrics.compute(log, truth, ["late_in_python"])
 
 
 def test_metrics_match_hand_arithmetic():

@@ -65,15 +65,16 @@ def _module(where: str, spec: str, source: str, field: str):
 
 
 @contextmanager
-def raised_by(spec: str, field: str, doing: str):
+def raised_by(spec: str, field: str, doing: str, who: str | None = None):
     """An exception of a plugin's code while it runs (not ours: an InputError passes) as one
-    InputError naming the config ``field``, the plugin, what it was doing and its line."""
+    InputError naming the config ``field``, the plugin (``who``: how to name it, when not by
+    its entry ``spec``), what it was doing and its line."""
     try:
         yield
     except InputError:
         raise
     except Exception as err:
-        raise InputError("config", field, f"plugin {spec!r} failed in {doing}: {describe(err)}") from None
+        raise InputError("config", field, f"{who or f'plugin {spec!r}'} failed in {doing}: {describe(err)}") from None
 
 
 def describe(err: Exception) -> str:

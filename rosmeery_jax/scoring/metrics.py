@@ -178,7 +178,7 @@ def _curve(name: str, log: ObjectLog, truth: GroundTruthTable):
     (it passed the check on a log of 3 steps, and may fail on the session's)."""
     if name in DEFAULT_METRICS:
         return REGISTRY[name](log, truth)
-    with plugins.raised_by(PLUGIN_SPECS.get(name, name), "metrics", f"its curve of {log.ps.shape[-2]} steps"):
+    with plugins.raised_by(name, "metrics", f"its curve of {log.ps.shape[-2]} steps", _named(name)):
         return REGISTRY[name](log, truth)
 
 
