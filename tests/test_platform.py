@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import replace
 
 import jax
@@ -219,6 +220,26 @@ def test_too_few_nearest_proxies_is_refused():
 
     with pytest.raises(InputError, match="robot__near_proxies.*at least robot__max_pairs"):
         make("small_office", robot__near_proxies=4)
+
+
+@pytest.mark.parametrize("mode, good, bad", [("target", (3,), [(1,), (), (1, 3), (2,)]),
+                                             ("velocity", (2,), [(3,), (1,), ()])])
+def test_an_action_of_another_shape_is_refused_when_traced(mode, good, bad):
+    """A (1,) or scalar target broadcast over the pose, and a (3,) velocity ran on its first
+    two values: refused by the step's trace, under jit and vmap alike (no run-time cost)."""
+    env = make("kitchen", action_mode=mode)
+    state = jax.eval_shape(env.reset, jax.random.key(0))
+    assert jax.eval_shape(env.step, state, jnp.zeros(good)).pose.shape == (3,)
+    for shape in bad:
+        with pytest.raises(TypeError, match=rf"'{mode}' action is .*shape {re.escape(str(good))} per env .*not "
+                                            rf"{re.escape(str(shape))}"):
+            jax.eval_shape(env.step, state, jnp.zeros(shape))
+    with pytest.raises(TypeError, match="not NoneType"):
+        jax.eval_shape(env.step, state, None)
+    batch = jax.tree.map(lambda a: jax.ShapeDtypeStruct((4, *a.shape), a.dtype), state)
+    with pytest.raises(TypeError, match=r"not \(4,"):  # a batch's actions stepped without vmap
+        jax.eval_shape(env.step, state, jnp.zeros((4, *good)))
+    assert jax.eval_shape(jax.vmap(env.step), batch, jnp.zeros((4, *good))).pose.shape == (4, 3)
 
 
 def test_same_key_same_trajectory_and_no_recompile():

@@ -134,14 +134,27 @@ class Env:
     def navigate(self, state: State, action: jax.Array) -> tuple[NavState, jax.Array]:
         """The velocity command (v, w) for ``action``: a target pose for the navigator (its
         state updated; a new pose starts a new navigation), or the command itself."""
-        nav = state.nav
+        nav, action = state.nav, self._action(action)
         if self.config.action_mode != "target":
-            return nav, jnp.asarray(action, jnp.float32)
-        target = jnp.asarray(action, jnp.float32)
+            return nav, action
+        target = action
         new = (nav.status == IDLE) | jnp.any(target != nav.target)
         nav = self.navigator.set_target(nav, target, new)
         occupied = occupancy.classify(state.logodds, self.config.mapping) == occupancy.OCCUPIED
         return self.navigator.step(nav, state.pose, occupied)
+
+    def _action(self, action) -> jax.Array:
+        """``action`` as float32 of its mode's shape, or a TypeError when tracing (a (1,) or
+        scalar action broadcast over the target pose, a (3,) one ran as a velocity)."""
+        size = 3 if self.config.action_mode == "target" else 2
+        shape = getattr(action, "shape", None) if action is not None else None
+        if shape is None and isinstance(action, (list, tuple)):
+            shape = jnp.shape(action)
+        if shape != (size,):
+            what = "(x, y, yaw)" if size == 3 else "(v, w)"
+            raise TypeError(f"Env.step: a {self.config.action_mode!r} action is {what}, shape ({size},) per env "
+                            f"(vmap for a batch), not {shape if shape is not None else type(action).__name__}")
+        return jnp.asarray(action, jnp.float32)
 
     def move(self, physics: mjx.Data, cmd: jax.Array) -> tuple[mjx.Data, jax.Array]:
         """The physics substeps under ``cmd``; the new MJX data and pose (3,)."""
