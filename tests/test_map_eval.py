@@ -66,7 +66,7 @@ def test_a_perfect_map_scores_one_and_a_denser_copy_scores_the_same(world, tmp_p
     assert m2["ori"] == 1.0
 
 
-def test_evaluate_takes_a_world_file_and_refuses_no_maps_and_a_bad_tolerance(world, tmp_path):
+def test_evaluate_takes_a_world_file_and_map_files_and_refuses_no_maps_and_a_bad_tolerance(world, tmp_path):
     from rosmeery_jax.core.errors import InputError
     from rosmeery_jax.scoring.evaluate import evaluate
 
@@ -76,6 +76,12 @@ def test_evaluate_takes_a_world_file_and_refuses_no_maps_and_a_bad_tolerance(wor
     assert by_file == evaluate(world, [m])[3] and by_file["ori"] > 0
     with pytest.raises(InputError, match="maps: is empty"):
         evaluate(world, [])
+    assert evaluate(world, m.path)[3] == evaluate(world, [str(m.path)])[3] == by_file  # its file, alone or listed
+    with pytest.raises(InputError, match=r"nope\.json: file: not found"):
+        evaluate(world, tmp_path / "nope.ply")  # a path was taken letter by letter (an AttributeError)
+    for bad in (None, 3, [m, 3]):
+        with pytest.raises(TypeError, match="evaluate: maps must be"):
+            evaluate(world, bad)
     for bad in (0.0, -1.0, float("nan"), "0.05"):
         with pytest.raises(InputError, match="tolerance: .* must be a distance > 0"):
             evaluate(world, [m], tolerance=bad)

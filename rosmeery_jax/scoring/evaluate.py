@@ -289,16 +289,33 @@ def check_tolerance(tolerance, source: str, where: str) -> None:
         raise InputError(source, where, f"{tolerance!r} must be a distance > 0 (m)")
 
 
+def _read_maps(maps, taxonomy) -> list[SemanticMap]:
+    """``maps`` as a non-empty list of SemanticMap: files read, anything else a TypeError (a
+    path's letters were taken as maps, an AttributeError)."""
+    if isinstance(maps, (str, os.PathLike, SemanticMap)):
+        maps = [maps]
+    try:
+        maps = list(maps)
+    except TypeError:
+        raise TypeError(f"evaluate: maps must be a list of maps or PLY files, not {type(maps).__name__}") from None
+    if not maps:
+        raise InputError("evaluate", "maps", "is empty: give at least one map")
+    for m in maps:
+        if not isinstance(m, (str, os.PathLike, SemanticMap)):
+            raise TypeError(f"evaluate: maps must be maps read by read_map or PLY files, not {type(m).__name__}")
+    return [read_map(m, taxonomy) if isinstance(m, (str, os.PathLike)) else m for m in maps]
+
+
 def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external"):
     """Score maps of one run (curves over their ``time_s``, else their order).
 
     Returns (metrics table, objects table of the last map, per-class table, summary dict),
     the first two in the session's formats (policy = ``name``, detector = "own", seed 0).
-    ``world``: a World, or a name or file :func:`load_world` takes."""
+    ``world``: a World, or a name or file :func:`load_world` takes; ``maps``: maps read by
+    :func:`read_map`, or their PLY files (one file alone as well)."""
     if isinstance(world, (str, os.PathLike)):
         world = load_world(world)
-    if not maps:
-        raise InputError("evaluate", "maps", "is empty: give at least one map")
+    maps = _read_maps(maps, world.taxonomy)
     check_tolerance(tolerance, "evaluate", "tolerance")
     times = [m.time_s if m.time_s is not None else float(k) for k, m in enumerate(maps)]
     timed = [m.time_s is not None for m in maps]
