@@ -526,4 +526,6 @@ def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it
         plot_results(df.drop(columns=["world", "metric"]), tmp_path / "q")
     with pytest.raises(ValueError, match="has no rows"):
         plot_results(df.iloc[:0], tmp_path / "q")
+    with pytest.raises(TypeError, match=r"plot_results: a results table \(load_results\(folder\)\), not str"):
+        plot_results(str(tmp_path), tmp_path / "q")  # a folder for its table (an AttributeError)
     assert not (tmp_path / "q").exists()

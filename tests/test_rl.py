@@ -215,6 +215,10 @@ def test_bad_config_is_refused(worlds):
         ExplorationEnv(bank, replace(CFG, reward="speed"))
     with pytest.raises(ValueError, match=r"^ExplorationEnv: config\.candidates: 0 must be a whole number"):
         ExplorationEnv(bank, replace(CFG, candidates=0))
+    with pytest.raises(TypeError, match=r"^ExplorationEnv takes a WorldBank \(world_bank\(names\)\), not str"):
+        ExplorationEnv(worlds[0])  # a world's name (an AttributeError)
+    with pytest.raises(TypeError, match=r"^ExplorationEnv takes an RLConfig, not dict"):
+        ExplorationEnv(bank, {"candidates": 4})
 
 
 @pytest.mark.parametrize("text, needle", [

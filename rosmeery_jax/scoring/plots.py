@@ -52,6 +52,8 @@ def plot_curves(df: pd.DataFrame, world: str, metric: str, ax=None):
 def plot_results(df: pd.DataFrame, directory: str | Path) -> list[Path]:
     """Write ``<world>_<metric>.png`` for every world and metric in df into directory
     (``df`` as :func:`load_results` gives it; ``mapper`` may be left out)."""
+    if not isinstance(df, pd.DataFrame):
+        raise TypeError(f"plot_results: a results table (load_results(folder)), not {type(df).__name__}")
     missing = [c for c in METRIC_COLUMNS if c not in df.columns and c != "mapper"]
     if missing or df.empty:
         raise ValueError(f"plot_results: the table {'lacks ' + ', '.join(missing) if missing else 'has no rows'} "
