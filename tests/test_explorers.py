@@ -143,6 +143,8 @@ def test_no_policy_reads_hidden_ground_truth(midrun, name):
 
     assert set(POLICIES) == {"random", "frontier", "frontier_nearest", "semantic_nbv", "gradient_nbv", "learned"}
     env, state = midrun
+    with pytest.raises(TypeError, match=r"^make_policy: env must be an Env .*not str"):
+        make_policy(name, "kitchen")  # a world's name was taken, and failed at the first decision
     policy = make_policy(name, env)
     key = jax.random.key(3)
     pstate = policy.init(key)

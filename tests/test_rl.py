@@ -507,6 +507,9 @@ def test_a_python_built_training_config_is_checked_before_anything_is_written(tm
     with pytest.raises(InputError, match=re.escape(needle)):
         ppo.train(replace(ppo.TrainConfig(), **change), tmp_path / "o", progress=False)
     assert not (tmp_path / "o").exists()
+    with pytest.raises(TypeError, match=r"^train takes a TrainConfig \(load_train_config\(path\)\), not dict"):
+        ppo.train({"worlds": ["kitchen"]}, tmp_path / "o")  # an AttributeError
+    assert not (tmp_path / "o").exists()
 
 
 def test_an_episode_longer_than_int32_control_steps_is_refused():

@@ -105,6 +105,8 @@ def _prepare(values: dict, source: str) -> dict:
 
 
 def _check(cfg: TrainConfig, source: str) -> None:
+    if not isinstance(cfg, TrainConfig):
+        raise TypeError(f"train takes a TrainConfig (load_train_config(path)), not {type(cfg).__name__}")
     if isinstance(cfg.worlds, str) or not cfg.worlds or not all(isinstance(w, str) and w for w in cfg.worlds):
         raise InputError(source, "worlds", f"{cfg.worlds!r} must be a non-empty list of world names")
     if not isinstance(cfg.env, dict):
