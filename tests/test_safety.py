@@ -294,7 +294,8 @@ def test_plot_never_writes_outside_its_folder(tmp_path, capsys):
     assert main(["plot", str(shared)]) == 2
     _one_line(capsys, "metrics.csv", "row 2, column world", "plain name")
     assert _tree(tmp_path) == before and not (tmp_path / "escaped_ori.png").exists()
-    for column, value, needle in (("seed", 1.5, "1.5 is not a seed"), ("value", "inf", "inf is not a finite number")):
+    for column, value, needle in (("seed", 1.5, "1.5 is not a seed"), ("value", "inf", "inf is not a finite number"),
+                                  ("policy", None, "is empty")):  # an empty name cell was an AttributeError
         pd.DataFrame([{**row, "world": "w", column: value}], columns=METRIC_COLUMNS).to_csv(shared / "metrics.csv",
                                                                                           index=False)
         assert main(["plot", str(shared)]) == 2  # a seed 1.5 was read as seed 1

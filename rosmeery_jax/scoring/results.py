@@ -84,8 +84,8 @@ def object_frame(world, log, *, policy: str, detector: str, seed: int, mapper: s
 
 def plain_name(name: str) -> bool:
     """Whether ``name`` can be one file name's part in this folder: no separator, no leading
-    dot (``..``), no control character."""
-    return bool(name) and not name.startswith(".") and not any(c in name for c in "/\\") and \
+    dot (``..``), no control character; not an empty cell (NaN)."""
+    return isinstance(name, str) and bool(name) and not name.startswith(".") and not any(c in name for c in "/\\") and \
         all(c.isprintable() for c in name)
 
 
@@ -124,8 +124,10 @@ def load(directory: str | Path) -> pd.DataFrame:
     for c in NAME_COLUMNS:
         bad = [i for i, v in enumerate(df[c].astype(str)) if not plain_name(v)]
         if bad:
-            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", f"{shown(df[c].iloc[bad[0]])} is not a plain name "
-                             "(names in a results table become file names: no folders, no leading dot)")
+            cell = df[c].iloc[bad[0]]
+            raise InputError(str(path), f"row {bad[0] + 2}, column {c}", "is empty" if pd.isna(cell) else
+                             f"{shown(cell)} is not a plain name (names in a results table become file names: no "
+                             "folders, no leading dot)")
     for c in ("seed", "time_s", "value"):
         values = numbers(df, path, c, seeds=c == "seed")
         df[c] = values.astype(int) if c == "seed" else values
