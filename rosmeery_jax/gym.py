@@ -214,16 +214,12 @@ class VectorEnv(gymnasium.vector.VectorEnv):
     def step(self, actions):
         if self.state is None:
             raise RuntimeError("call reset() before step()")
+        actions = jnp.asarray(_checked(actions, self.action_space.shape, "actions"))  # on a reset step too
         if self._done.any():  # next-step autoreset: every robot finished (one horizon), all start again
             self._episode += 1
             obs = self._start(jax.vmap(jax.random.fold_in, in_axes=(0, None))(self._keys, self._episode))
             zeros = np.zeros(self.num_envs)
             return obs, zeros, zeros.astype(bool), zeros.astype(bool), {}
-        actions = np.asarray(actions, np.float32)
-        if actions.shape != self.action_space.shape or not np.isfinite(actions).all():
-            raise ValueError(f"actions of shape {actions.shape} must be finite numbers of shape "
-                             f"{self.action_space.shape}")
-        actions = jnp.asarray(actions)
         self.t += 1
         self.state, obs, new, recorded = self._step(jnp.asarray(self.world), self.state, actions,
                                                     jnp.full(self.num_envs, self.t, jnp.int32))
@@ -260,6 +256,14 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         return np.asarray(self.state.pose)
 
 
+def _checked(actions, shape: tuple, what: str) -> np.ndarray:
+    """``actions`` as float32 of ``shape``, every value finite, or a ValueError."""
+    actions = np.asarray(actions, np.float32)
+    if actions.shape != shape or not np.isfinite(actions).all():
+        raise ValueError(f"{what} of shape {actions.shape} must be finite numbers of shape {shape}")
+    return actions
+
+
 class Env(gymnasium.Env):
     """One robot (module docstring): a :class:`VectorEnv` of one, unbatched."""
 
@@ -276,7 +280,8 @@ class Env(gymnasium.Env):
         return _first(obs), info
 
     def step(self, action):
-        obs, reward, terminated, truncated, info = self.vec.step(np.asarray(action, np.float32)[None])
+        action = _checked(action, self.action_space.shape, "an action")
+        obs, reward, terminated, truncated, info = self.vec.step(action[None])
         return _first(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
 
     def submit_map(self, m: MapState) -> dict:

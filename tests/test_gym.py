@@ -47,8 +47,8 @@ def test_a_non_finite_or_misshapen_action_and_a_seed_beyond_int32_are_refused(en
     of 2**80 an OverflowError inside JAX."""
     env.reset(seed=0)
     state = env.vec.state
-    for bad, needle in ((np.float32([np.nan, 0, 0]), r"shape \(1, 3\) must be finite"),
-                        (np.float32([1, 0]), r"shape \(1, 2\) must be finite numbers of shape \(1, 3\)")):
+    for bad, needle in ((np.float32([np.nan, 0, 0]), r"^an action of shape \(3,\) must be finite"),
+                        (np.float32([1, 0]), r"^an action of shape \(2,\) must be finite numbers of shape \(3,\)$")):
         with pytest.raises(ValueError, match=needle):
             env.step(bad)
     assert env.vec.state is state and env.vec.t == 0  # nothing stepped
@@ -71,6 +71,10 @@ def test_observations_are_what_the_robot_perceives_and_episodes_end_at_the_durat
         rewards.append(reward)
     assert sum(rewards) > 0 and min(rewards) >= 0  # ORI only grows while the robot looks around
     assert (obs["occupancy"] == 0).any() and (obs["occupancy"] == 1).any()  # its own map: free and walls
+    with pytest.raises(ValueError, match="must be finite"):  # the autoreset step checks its action too
+        env.step(np.float32([np.nan, 0, 0]))
+    obs, reward, *_ = env.step(np.float32([0, 0, 0]))  # the reset step itself
+    assert reward == 0.0 and obs["time"][0] == 0.0
 
 
 @pytest.mark.parametrize("duration", [3.05, 0.4])
