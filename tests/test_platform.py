@@ -234,7 +234,7 @@ def test_an_action_of_another_shape_is_refused_when_traced(mode, good, bad):
         with pytest.raises(TypeError, match=rf"'{mode}' action is .*shape {re.escape(str(good))} per env .*not "
                                             rf"{re.escape(str(shape))}"):
             jax.eval_shape(env.step, state, jnp.zeros(shape))
-    with pytest.raises(TypeError, match="not NoneType"):
+    with pytest.raises(TypeError, match="not None"):
         jax.eval_shape(env.step, state, None)
     batch = jax.tree.map(lambda a: jax.ShapeDtypeStruct((4, *a.shape), a.dtype), state)
     with pytest.raises(TypeError, match=r"not \(4,"):  # a batch's actions stepped without vmap

@@ -147,14 +147,12 @@ class Env:
         """``action`` as float32 of its mode's shape, or a TypeError when tracing (a (1,) or
         scalar action broadcast over the target pose, a (3,) one ran as a velocity)."""
         size = 3 if self.config.action_mode == "target" else 2
-        shape = getattr(action, "shape", None) if action is not None else None
-        if shape is None and isinstance(action, (list, tuple)):
-            shape = jnp.shape(action)
-        if shape != (size,):
+        array = None if action is None else jnp.asarray(action, jnp.float32)  # a list (of tracers too), a scalar
+        if array is None or array.shape != (size,):
             what = "(x, y, yaw)" if size == 3 else "(v, w)"
             raise TypeError(f"Env.step: a {self.config.action_mode!r} action is {what}, shape ({size},) per env "
-                            f"(vmap for a batch), not {shape if shape is not None else type(action).__name__}")
-        return jnp.asarray(action, jnp.float32)
+                            f"(vmap for a batch), not {'None' if array is None else array.shape}")
+        return array
 
     def move(self, physics: mjx.Data, cmd: jax.Array) -> tuple[mjx.Data, jax.Array]:
         """The physics substeps under ``cmd``; the new MJX data and pose (3,)."""

@@ -73,7 +73,8 @@ class ExplorationEnv(environment.Environment):
     vmap ``reset`` / ``step`` over keys for a batch."""
 
     def __init__(self, bank: WorldBank, config: RLConfig = RLConfig()):
-        for arg, kind, what in ((bank, WorldBank, "a WorldBank (world_bank(names))"), (config, RLConfig, "an RLConfig")):
+        for arg, kind, what in ((bank, WorldBank, "a WorldBank (world_bank(names))"),
+                                (config, RLConfig, "an RLConfig")):
             if not isinstance(arg, kind):
                 raise TypeError(f"ExplorationEnv takes {what}, not {type(arg).__name__}")
         check_rl(config, "ExplorationEnv", "config.")  # an InputError, a ValueError
