@@ -325,6 +325,30 @@ def test_a_built_in_metric_cannot_be_replaced_but_your_own_can_be_re_registered(
     assert metrics.REGISTRY["half_ori"] is _half_ori
 
 
+def test_a_metric_registered_in_python_is_checked_before_a_session(tmp_path):
+    """A non-function was registered (a TypeError after the session's simulation), and so
+    was one that cannot trace (the session simulated, then failed on it)."""
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.session.config import SessionConfig
+
+    with pytest.raises(TypeError, match=r"register_metric\('not_a_fn'\) decorates a function .*not int"):
+        metrics.register("not_a_fn")(3)
+    assert "not_a_fn" not in metrics.REGISTRY
+
+    @metrics.register("untraceable")
+    def _untraceable(log, truth):
+        return np.asarray(log.ps).sum(-1)  # numpy on a tracer
+
+    cfg = SessionConfig(worlds=("kitchen",), policies=("random",), seeds=1, duration=1.0, detector="off",
+                        metrics=("ori", "untraceable"), out=str(tmp_path / "o"))
+    with pytest.raises(InputError, match=r"^config: metrics: metric 'untraceable' cannot run under JAX on an "
+                                         r"object log: TracerArrayConversionError"):
+        cfg.validate()
+    assert not (tmp_path / "o").exists()
+    metrics.register("untraceable")(lambda log, truth: log.ps.sum(-1))  # mended in the notebook: checked again
+    assert metrics.resolve(["untraceable"]) == ("untraceable",)
+
+
 @pytest.fixture(scope="module")
 def replay_dir(tmp_path_factory):
     """`rosmeery replay` on a turn on the spot in the Small Office, with a user metric."""

@@ -32,6 +32,7 @@ from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
 REGISTRY: dict[str, MetricFn] = {}
 PLUGIN_SPECS: dict[str, str] = {}  # name -> the plugin entry that registered it (named in its errors)
+CHECKED: dict[str, MetricFn] = {}  # name -> the function registered in Python that passed _check_curve
 DEFAULT_METRICS = ("ori", "cori", "cori_any", "opi", "opi_strict")
 
 
@@ -44,6 +45,9 @@ def register(name: str) -> Callable[[MetricFn], MetricFn]:
     def add(fn: MetricFn) -> MetricFn:
         if name in DEFAULT_METRICS and name in REGISTRY:  # your own may be re-registered (a notebook cell re-run)
             raise InputError("register_metric", "name", f"{name!r} is a built-in metric: name yours otherwise")
+        if not callable(fn):
+            raise TypeError(f"register_metric({name!r}) decorates a function fn(log, truth) -> curve, not "
+                            f"{type(fn).__name__}")
         REGISTRY[name] = fn
         return fn
 
@@ -100,33 +104,41 @@ def resolve(names) -> tuple[str, ...]:
         if n not in REGISTRY:
             raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))}; "
                              "or a plugin FILE.py:function)")
+        if n not in DEFAULT_METRICS and n not in PLUGIN_SPECS and CHECKED.get(n) is not REGISTRY[n]:
+            _check_curve(REGISTRY[n], _named(n))  # registered in Python: checked before a session, once
+            CHECKED[n] = REGISTRY[n]
         out.append(n)
     return tuple(out)
 
 
 def _register_plugin(spec: str) -> str:
-    """Load the metric function ``spec`` names, check it on a small log (T = 3 steps, N = 2
-    objects: it must trace under JAX and give a curve (3,) of floats), register it."""
+    """Load the metric function ``spec`` names, check it (:func:`_check_curve`), register it."""
     fn = plugins.load(spec, "config", "metrics")
     name = spec.rsplit(":", 1)[1]
     if not callable(fn):
         raise InputError("config", "metrics", f"plugin {spec!r} is not a function fn(log, truth) -> curve")
     if name in REGISTRY and REGISTRY[name] is not fn:
         raise InputError("config", "metrics", f"plugin {spec!r}: a metric named {name!r} exists already")
+    _check_curve(fn, f"plugin {spec!r}")
+    REGISTRY[name] = fn
+    PLUGIN_SPECS[name] = spec
+    return name
+
+
+def _check_curve(fn, who: str) -> None:
+    """``fn`` traces under JAX on a small log (T = 3 steps, N = 2 objects) and gives a curve
+    (3,) of floats, or one InputError naming it as ``who``."""
     f32, i32 = jax.ShapeDtypeStruct((3, 2), jnp.float32), jax.ShapeDtypeStruct((3, 2), jnp.int32)
     log = ObjectLog(f32, f32, f32, i32, i32, i32)
     truth = GroundTruthTable(np.ones(2, np.float32), np.ones(2, np.int32), np.zeros(2, np.int32))
     try:
         curve = jax.eval_shape(lambda lg: fn(lg, truth), log)
     except Exception as err:
-        raise InputError("config", "metrics", f"plugin {spec!r} cannot run under JAX on an object log: "
+        raise InputError("config", "metrics", f"{who} cannot run under JAX on an object log: "
                          f"{type(err).__name__}: {str(err).splitlines()[0][:200] if str(err) else ''}") from None
     if not hasattr(curve, "shape") or curve.shape != (3,) or not jnp.issubdtype(curve.dtype, jnp.floating):
-        raise InputError("config", "metrics", f"plugin {spec!r} must return one float per step, shape (T,); "
+        raise InputError("config", "metrics", f"{who} must return one float per step, shape (T,); "
                          f"for T = 3 it gave {getattr(curve, 'shape', type(curve).__name__)}")
-    REGISTRY[name] = fn
-    PLUGIN_SPECS[name] = spec
-    return name
 
 
 def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:
