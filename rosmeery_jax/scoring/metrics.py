@@ -32,7 +32,7 @@ from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
 REGISTRY: dict[str, MetricFn] = {}
 PLUGIN_SPECS: dict[str, str] = {}  # name -> the plugin entry that registered it (named in its errors)
-CHECKED: dict[str, MetricFn] = {}  # name -> the function registered in Python that passed _check_curve
+CHECKED: dict[str, MetricFn] = {}  # name -> the function that passed _check_curve (a plugin, or yours)
 DEFAULT_METRICS = ("ori", "cori", "cori_any", "opi", "opi_strict")
 
 
@@ -104,8 +104,8 @@ def resolve(names) -> tuple[str, ...]:
         if n not in REGISTRY:
             raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))}; "
                              "or a plugin FILE.py:function)")
-        if n not in DEFAULT_METRICS and n not in PLUGIN_SPECS and CHECKED.get(n) is not REGISTRY[n]:
-            _check_curve(REGISTRY[n], _named(n))  # registered in Python: checked before a session, once
+        if n not in DEFAULT_METRICS and CHECKED.get(n) is not REGISTRY[n]:  # registered in Python: checked once
+            _check_curve(REGISTRY[n], _named(n))
             CHECKED[n] = REGISTRY[n]
         out.append(n)
     return tuple(out)
@@ -120,7 +120,7 @@ def _register_plugin(spec: str) -> str:
     if name in REGISTRY and REGISTRY[name] is not fn:
         raise InputError("config", "metrics", f"plugin {spec!r}: a metric named {name!r} exists already")
     _check_curve(fn, f"plugin {spec!r}")
-    REGISTRY[name] = fn
+    REGISTRY[name] = CHECKED[name] = fn
     PLUGIN_SPECS[name] = spec
     return name
 
