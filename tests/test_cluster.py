@@ -181,7 +181,7 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
     from rosmeery_jax.session.engine import build_groups
 
     for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
-        group = build_groups([(world[0], p) for p in policies], {}, False, 3, 10, 100, devices)[0]
+        group = build_groups([(world[0], p) for p in policies], {}, False, range(3), 10, 100, devices)[0]
         assert len(group.blocks) == blocks and group.size == blocks * BLOCK
         assert group.real.sum() == 3 * len(policies)  # padding envs are never real
         assert [tuple(b) for b in group.blocks[:len(policies)]] == [(q, 0) for q in range(len(policies))]
@@ -197,7 +197,7 @@ def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(wor
     # (policies, seeds) -> (devices used, blocks): seeds <= 5 fill one block per run
     for policies, seeds, used, blocks in ((["frontier"], 3, 1, 1), (["frontier", "random"], 3, 2, 2),
                                           (["frontier", "random"], 7, 3, 6)):
-        group = build_groups([(world[0], p) for p in policies], {}, False, seeds, 10, 100)[0]
+        group = build_groups([(world[0], p) for p in policies], {}, False, range(seeds), 10, 100)[0]
         assert (group.devices, len(group.blocks)) == (used, blocks)
         assert group.real.sum() == seeds * len(policies)
 

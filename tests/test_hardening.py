@@ -144,6 +144,9 @@ def test_a_session_checks_a_config_nobody_validated_and_only_once(tmp_path, monk
     assert calls == ["config"]
     with pytest.raises(TypeError, match="Session takes a SessionConfig, not dict"):  # an AttributeError
         Session({"worlds": ["small_office"]})
+    with pytest.raises(TypeError, match="resume takes True or False, not 'no'"):  # "no" was true
+        Session(good).run(resume="no")
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("field, value, needle", [

@@ -34,6 +34,8 @@ def _lines(path):
 def test_the_sequence_has_the_tum_layout(rec):
     seq = rec / "seed1"
     assert sorted(p.name for p in rec.iterdir()) == ["record.json", "seed1", "session"]
+    session = json.loads((rec / "session" / "config.json").read_text())["session"]
+    assert (session["first_seed"], session["seeds"]) == (1, 1)  # seed 1 alone was simulated, not seeds 0-1
     rgb, depth = _lines(seq / "rgb.txt"), _lines(seq / "depth.txt")
     assert [r[0] for r in rgb] == [f"{0.2 * k:.6f}" for k in range(51)]  # 5 Hz over 10 s, both ends
     assert [d[0] for d in depth] == [r[0] for r in rgb] and depth[3][1] == "depth/0.600000.png"

@@ -101,6 +101,8 @@ def test_plot_command_redraws(session_dir, capsys):
     ("detect_every = 3\n", "detect_every"),  # not a divisor of decide_every (10)
     ("detect_every = -1\n", "detect_every"),
     ("detect_every = 5\ndetector = 'off'\n", "detect_every"),  # frames for no detector
+    ("first_seed = -1\n", "first_seed"),
+    ("first_seed = 2147483647\nseeds = 2\n", "first_seed"),  # its last seed past int32 keys
 ])
 def test_bad_config_is_one_line_naming_file_and_field(tmp_path, capsys, toml, field):
     path = tmp_path / "session.toml"

@@ -185,12 +185,13 @@ def _cmd_replay(args) -> int:
 
 def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
-                      duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
+                      first_seed=args.first_seed, duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
                       conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
                       detector_runtime=args.detector_runtime, detector_period_s=args.detector_period_s,
                       mappers=args.mapper, devices=args.devices, digest=args.digest or None)
-    print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {cfg.seeds} seeds x "
-          f"{cfg.duration:g} s -> {cfg.out}")
+    seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
+    print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
+          f"{cfg.out}")
     out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
     _print_summary(out)
     return 0
@@ -531,6 +532,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"{','.join(d.worlds)})")
     p.add_argument("--policies", metavar="P,Q", help=f"default: {','.join(d.policies)}")
     p.add_argument("--seeds", type=int, metavar="N", help=f"runs per world and policy, batched (default {d.seeds})")
+    p.add_argument("--first-seed", type=int, metavar="S", help="the runs are seeds S..S+N-1 (default 0): a seed's "
+                   "run is the same in any session, so a sweep splits over machines")
     p.add_argument("--duration", type=float, metavar="S", help=f"simulated seconds per run (default {d.duration:g})")
     p.add_argument("--detector", help=f"yolo (the shipped YOLO-v5n), oracle (simulated from ground truth) or off "
                    f"(ground-truth labels of observed objects); default {d.detector}")

@@ -81,20 +81,21 @@ def check(cfg: RecordConfig, out: Path, resume: bool, dt: float) -> None:
 def record(world: str, policy: str, seeds: int | list[int], duration: float, out: str | Path,
            cfg: RecordConfig = RecordConfig(), resume: bool = False, progress: bool = True) -> list[Path]:
     """Record the runs of ``policy`` in ``world`` for ``seeds`` (a count: seeds 0..n-1, or a
-    list of seeds) into ``out`` (module docstring); returns the seed folders. Seeds 0 to the
-    largest are simulated in one batch (a seed's run does not depend on its batch-mates)."""
+    list of seeds) into ``out`` (module docstring); returns the seed folders. The smallest
+    seed to the largest are simulated in one batch (a seed's run does not depend on its
+    batch-mates)."""
     out = Path(out)
-    count = seeds if isinstance(seeds, int) else max(seeds, default=-1) + 1  # seeds 0..count-1 simulated
-    if count < 1 or not isinstance(seeds, int) and min(seeds) < 0:
+    wanted = range(seeds) if isinstance(seeds, int) else sorted(set(seeds))  # a range: not listed before the
+    if not wanted or wanted[0] < 0:  # session's memory check
         raise InputError("command line", "--seeds", f"{seeds!r}: name at least one seed, none negative")
     dt = SessionConfig().dt
     check(cfg, out, resume, dt)
     settings = {"world": world, "policy": policy, "duration": duration, **asdict(cfg)}
     _check_settings(out, settings)
-    session = SessionConfig(worlds=(world,), policies=(policy,), seeds=count, duration=duration, detector="off",
-                            decide_every=cfg.decide_every, sample_s=dt, out=str(out / "session"))
+    session = SessionConfig(worlds=(world,), policies=(policy,), seeds=wanted[-1] - wanted[0] + 1,
+                            first_seed=wanted[0], duration=duration, detector="off", decide_every=cfg.decide_every,
+                            sample_s=dt, out=str(out / "session"))
     session = session.validate("command line")  # a count this machine's memory holds, before it is listed
-    wanted = list(range(seeds)) if isinstance(seeds, int) else sorted(set(seeds))
     if not (out / SETTINGS).exists():
         write_atomic(out / SETTINGS, json.dumps(settings, indent=2))
     folders = [out / f"seed{k}" for k in wanted]

@@ -40,9 +40,9 @@ class Policy(ABC):
         """Env settings the policy entry ``spec`` needs in the world named ``world``."""
         return {}
 
-    def batch_size(self, seeds: int) -> int:
-        """How many batch entries the policy runs (the session's seeds by default)."""
-        return seeds
+    def seeds(self, first: int, count: int) -> range:
+        """The seeds the policy runs, one batch entry each: the session's by default."""
+        return range(first, first + count)
 
     def init(self, key: jax.Array) -> Any:
         return jnp.zeros(())

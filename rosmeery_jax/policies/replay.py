@@ -68,8 +68,9 @@ class ReplayPolicy(Policy):
         env = recs[0].header.get("env", {}) if recs else {}
         return {**env, "start_yaw": "spawn", "action_mode": "velocity"}
 
-    def batch_size(self, seeds: int) -> int:
-        return len(self.recordings)
+    def seeds(self, first: int, count: int) -> range:
+        """Its recordings, numbered from 0 whatever the session's seeds."""
+        return range(len(self.recordings))
 
     def init_batch(self, keys):
         """Commands (B, T, 2) (zeros past a recording's end and for padding entries) and a

@@ -68,9 +68,11 @@ def _longest_stuck(xy: np.ndarray, driving: np.ndarray, dt: float) -> float:
     return float(seconds(best * dt))
 
 
-def frame(status: np.ndarray, poses: np.ndarray, dt: float, **tags) -> pd.DataFrame:
-    """Rows of :func:`account` for every seed: status (S, T + 1), poses (S, T + 1, 3)."""
-    return pd.DataFrame([{**tags, "seed": s, **account(status[s], poses[s], dt)} for s in range(len(status))])
+def frame(status: np.ndarray, poses: np.ndarray, dt: float, seeds=None, **tags) -> pd.DataFrame:
+    """Rows of :func:`account` for every seed: status (S, T + 1), poses (S, T + 1, 3); seeds
+    (S,) their numbers (default 0 .. S - 1)."""
+    seeds = range(len(status)) if seeds is None else seeds
+    return pd.DataFrame([{**tags, "seed": s, **account(status[i], poses[i], dt)} for i, s in enumerate(seeds)])
 
 
 def summary(df: pd.DataFrame) -> str:

@@ -30,6 +30,7 @@ from rosmeery_jax.rl.network import load_policy
 from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.mapper import BUILT_IN, check_mapper, mapper_label
+from rosmeery_jax.scoring.results import MAX_SEED
 from rosmeery_jax.session.engine import BLOCK
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.generate import expand_names
@@ -42,7 +43,7 @@ CAMERA_BYTES_PER_PIXEL = 64  # depth, labels and the ray kernel's per-pixel work
 SWEEP_BYTES_PER_PIXEL = 12  # a step's depth held for a mapper: float32, on device, on the host, as sent
 FRAME_BYTES_PER_PIXEL = 16  # a detector frame held for the worker: RGB, labels, depth, with copies
 # Settings that change results: resume refuses a change to any of them.
-RESULT_FIELDS = ("seeds", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
+RESULT_FIELDS = ("seeds", "first_seed", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
                  "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime")
 
 
@@ -51,6 +52,8 @@ class SessionConfig:
     worlds: tuple[str, ...] = ("kitchen", "laboratory", "small_office", "large_office")
     policies: tuple[str, ...] = ("frontier", "random")
     seeds: int = 5
+    first_seed: int = 0  # the runs are seeds first_seed .. first_seed + seeds - 1; a seed's run is the
+    # same whatever else runs, so a sweep can be split over machines (seeds 0-4 here, 5-9 there)
     duration: float = 300.0  # simulated seconds per run
     detector: str = "yolo"  # "yolo" (YOLO-v5n), "oracle" (simulated from ground truth), "off"
     conf_threshold: float = 0.25  # detections below it are dropped
@@ -89,6 +92,11 @@ class SessionConfig:
     def env_config(self) -> EnvConfig:
         """The env configuration of the session's robots (its ``env`` overrides applied)."""
         return EnvConfig.from_table(self.env)
+
+    @property
+    def seed_range(self) -> range:
+        """The seeds of every run: first_seed .. first_seed + seeds - 1."""
+        return range(self.first_seed, self.first_seed + self.seeds)
 
     @property
     def dt(self) -> float:
@@ -176,6 +184,9 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
     for name in ("seeds", "decide_every"):
         if getattr(cfg, name) < 1:
             raise InputError(source, name, f"{getattr(cfg, name)!r} must be a whole number >= 1")
+    if not 0 <= cfg.first_seed <= MAX_SEED + 1 - cfg.seeds:
+        raise InputError(source, "first_seed", f"{cfg.first_seed!r} must be a whole number in [0, "
+                         f"{MAX_SEED + 1 - cfg.seeds}] (the last seed, first_seed + seeds - 1, at most 2**31 - 1)")
     if cfg.detect_every < 0 or cfg.decide_every % max(cfg.detect_every, 1):
         raise InputError(source, "detect_every", f"{cfg.detect_every!r} must be 0 (one frame per decision) or a "
                          f"divisor of decide_every ({cfg.decide_every})")

@@ -78,6 +78,7 @@ class Run(NamedTuple):
     rows: np.ndarray
     host_policy: Any  # the policy built for this world (recordings, start checks)
     spec: str  # the policy entry, as the config names it
+    seeds: range  # one per row: the session's, or a replay's recordings numbered from 0
 
 
 @dataclass
@@ -116,12 +117,13 @@ class _Rows:
     real: list = field(default_factory=list)
     blocks: list = field(default_factory=list)
 
-    def add_block_run(self, policy: int, world: int, size: int) -> np.ndarray:
-        """Rows for ``size`` envs of one run, padded to whole blocks; returns the real rows."""
+    def add_block_run(self, policy: int, world: int, seeds: range) -> np.ndarray:
+        """Rows for one run's ``seeds``, padded to whole blocks; returns the real rows."""
+        size = len(seeds)
         rows = np.arange(len(self.world), len(self.world) + size)
         padded = -(-size // BLOCK) * BLOCK
         self.world += [world] * padded
-        self.seed += list(range(padded))
+        self.seed += [(seeds.start + i) % 2**31 for i in range(padded)]  # padding continues them (int32 keys)
         self.real += [True] * size + [False] * (padded - size)
         self.blocks += [(policy, world)] * (padded // BLOCK)
         return rows
@@ -135,7 +137,7 @@ class _Rows:
         self.real += [False] * BLOCK
 
 
-def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: int,
+def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: range,
                  decide_every: int, total_steps: int, devices: int = 0) -> list[Group]:
     """The groups of (world spec, policy spec) pairs; runs with no entries are left out.
     ``devices`` 0 uses every device JAX has, or one per block when there are fewer blocks;
@@ -152,7 +154,8 @@ def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: boo
     return [g for g in groups if g.runs]
 
 
-def _group(config: EnvConfig, members: list, seeds: int, decide_every: int, total_steps: int, devices: int) -> Group:
+def _group(config: EnvConfig, members: list, seeds: range, decide_every: int, total_steps: int,
+           devices: int) -> Group:
     """One group: its worlds as one padded bank, its policies, its runs laid out in blocks."""
     specs = list(dict.fromkeys(w for w, _ in members))
     bank = world_bank(specs, config)
@@ -166,10 +169,10 @@ def _group(config: EnvConfig, members: list, seeds: int, decide_every: int, tota
                 continue
             w = specs.index(world)
             host = make_policy(spec, envs[w], decide_every, total_steps)
-            b = host.batch_size(seeds)
-            if b:  # else a replay with no recording in this world
-                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows.add_block_run(q, w, b), host,
-                                spec))
+            mine = host.seeds(seeds.start, len(seeds))
+            if mine:  # else a replay with no recording in this world
+                runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows.add_block_run(q, w, mine),
+                                host, spec, mine))
     used = devices or max(1, min(len(jax.devices()), len(rows.blocks)))  # auto: no device without a real block
     for _ in range((-len(rows.blocks)) % used if runs else 0):  # whole blocks per device
         rows.add_padding_block()

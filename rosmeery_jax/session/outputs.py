@@ -42,7 +42,7 @@ def run_name(world: str, policy: str) -> str:
 
 
 class RunResult(NamedTuple):
-    """One run's simulation, per seed (S, in seed order): env (its world's); policy, the
+    """One run's simulation, per seed (S, in seed order): seeds (S,) their numbers; env (its world's); policy, the
     results' label; logs ObjectLog (S, T, N) one row every ``log_every`` steps; track
     (S, steps + 1, ...) pose and navigation status at every step; knowledge: the final labelled knowledge (S, ...); mapped: per mapper
     entry, one ``engine.Mapped`` per seed (None without mappers)."""
@@ -55,6 +55,7 @@ class RunResult(NamedTuple):
     mapped: dict | None
     log_every: int
     digests: pd.DataFrame | None = None  # seed, chunk, time_s and a digest per part (session.digest)
+    seeds: range | None = None  # None: 0 .. S - 1
 
 
 def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: dict) -> None:
@@ -71,10 +72,11 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     counted = frames_before(cfg, step[keep])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
-    for seed in range(len(poses)):  # per seed, so a seed's numbers never depend on the batch shape
-        log = jax.tree.map(lambda a: a[seed], logs)
+    seeds = run.seeds or range(len(poses))
+    for i, seed in enumerate(seeds):  # per seed, so a seed's numbers never depend on the batch shape
+        log = jax.tree.map(lambda a: a[i], logs)
         if "oracle" in cfg.mappers:
-            k = jax.tree.map(lambda a: np.asarray(a)[seed], run.knowledge)
+            k = jax.tree.map(lambda a: np.asarray(a)[i], run.knowledge)
             k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
                                                                                 "conf_any")})
             write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
@@ -87,7 +89,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             if spec == "oracle":
                 continue
             label = mapper_label(spec)
-            done = run.mapped[spec][seed]
+            done = run.mapped[spec][i]
             mlog = ObjectLog(*(np.stack(a) for a in zip(*(done.logs[c] for c in counted))))  # (K, N)
             c = metrics.compute(mlog, env.truth, cfg.metrics)
             curves.append(results.metric_frame(c, times[keep], seed=seed, mapper=label, **tags))
@@ -95,8 +97,8 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
                                                 policy=policy, detector=cfg.detector))
             _write_mapper_map(env, done.final, out / "maps" / f"{name}__seed{seed}__{label}", times[-1])
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
-                                   "time_s": results.seconds(times[keep]), "x": poses[seed, step[keep], 0],
-                                   "y": poses[seed, step[keep], 1], "yaw": poses[seed, step[keep], 2]}))
+                                   "time_s": results.seconds(times[keep]), "x": poses[i, step[keep], 0],
+                                   "y": poses[i, step[keep], 1], "yaw": poses[i, step[keep], 2]}))
     runs = out / "runs"
     results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{name}.objects.csv")
     write_atomic(runs / f"{name}.timing.json", json.dumps(
@@ -104,7 +106,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         indent=2))
     results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
     if env.config.action_mode == "target":
-        results.write_csv(navigation.frame(run.track.status, poses, env.dt, world=world.name, policy=policy),
+        results.write_csv(navigation.frame(run.track.status, poses, env.dt, seeds, world=world.name, policy=policy),
                           runs / f"{name}.navigation.csv")
     if run.digests is not None:
         results.write_csv(run.digests, runs / f"{name}.digest.csv")

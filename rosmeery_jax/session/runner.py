@@ -61,6 +61,8 @@ class Session:
     def run(self, resume: bool = False) -> Path:
         """Run every unfinished (world, policy) pair in one batch per env configuration, or
         one Ray task each, write each run's files, then the merged tables and plots."""
+        if not isinstance(resume, (bool, np.bool_)):
+            raise TypeError(f"Session.run: resume takes True or False, not {resume!r}")
         cfg = self.cfg
         out = Path(cfg.out)
         if self.cluster is not None:  # before anything is written
@@ -102,8 +104,8 @@ class Session:
         cfg = self.cfg
         total = decisions(cfg)
         agents = [(w, p) for w, p in todo if p.startswith(AGENT)]
-        groups = engine.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off", cfg.seeds,
-                                     cfg.decide_every, total * cfg.decide_every, cfg.devices)
+        groups = engine.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off",
+                                     cfg.seed_range, cfg.decide_every, total * cfg.decide_every, cfg.devices)
         bar = _bar((len(groups) + len(agents)) * cfg.duration, self.progress)
         timings = []
         for world, spec in agents:  # host-side agents, one run at a time through the vector env
@@ -138,9 +140,9 @@ def _result(group, run, sim) -> RunResult:
         env = group.envs[run.world]
         digests = pd.DataFrame([{"seed": seed, "chunk": c, "time_s": float(results.seconds((c + 1) * span * env.dt)),
                                  **{k: v[r] for k, v in part.items()}}
-                                for seed, r in enumerate(rows) for c, part in enumerate(sim.digests)])
+                                for seed, r in zip(run.seeds, rows) for c, part in enumerate(sim.digests)])
     return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), pick(sim.track),
-                     pick(sim.knowledge), mapped, sim.log_every, digests)
+                     pick(sim.knowledge), mapped, sim.log_every, digests, run.seeds)
 
 
 def prepare_devices(cfg: SessionConfig) -> None:
