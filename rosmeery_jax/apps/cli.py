@@ -185,10 +185,11 @@ def _cmd_replay(args) -> int:
 
 def _cmd_run(args) -> int:
     cfg = load_config(args.config, worlds=args.worlds, policies=args.policies, seeds=args.seeds,
-                      first_seed=args.first_seed, duration=args.duration, detector=args.detector, out=args.out, metrics=args.metrics,
-                      conf_threshold=args.conf_threshold, weights=args.weights, chunk_s=args.chunk_s,
-                      detector_runtime=args.detector_runtime, detector_period_s=args.detector_period_s,
-                      mappers=args.mapper, devices=args.devices, digest=args.digest or None)
+                      first_seed=args.first_seed, duration=args.duration, detector=args.detector, out=args.out,
+                      metrics=args.metrics, conf_threshold=args.conf_threshold, weights=args.weights,
+                      chunk_s=args.chunk_s, detector_runtime=args.detector_runtime,
+                      detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
+                      digest=args.digest or None)
     seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
           f"{cfg.out}")

@@ -47,7 +47,7 @@ def run_agent(cfg: SessionConfig, world: str, spec: str, bar) -> tuple[RunResult
         t1 = t1 or time.perf_counter()  # the first decision compiled the step
     logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), *logs)
     result = RunResult(vec.bank.env, agent.name, logs, jax.tree.map(lambda *a: np.concatenate(a, axis=1), *track),
-                       jax.tree.map(np.asarray, vec.knowledge()), None, log_every(cfg), seeds=cfg.seed_range)
+                       jax.tree.map(np.asarray, vec.knowledge()), None, log_every(cfg), cfg.seed_range)
     steps = cfg.seeds * (decisions(cfg) - 1) * cfg.decide_every  # timed: the decisions after the first
     return result, {"envs": cfg.seeds, "env_steps": steps, "sim_s": time.perf_counter() - t1,
                     "compile_s": t1 - t0, "wall_s": time.perf_counter() - t0, "compiles": 1}

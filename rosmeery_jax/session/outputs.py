@@ -42,10 +42,10 @@ def run_name(world: str, policy: str) -> str:
 
 
 class RunResult(NamedTuple):
-    """One run's simulation, per seed (S, in seed order): seeds (S,) their numbers; env (its world's); policy, the
+    """One run's simulation, per seed (S, in seed order): env (its world's); policy, the
     results' label; logs ObjectLog (S, T, N) one row every ``log_every`` steps; track
     (S, steps + 1, ...) pose and navigation status at every step; knowledge: the final labelled knowledge (S, ...); mapped: per mapper
-    entry, one ``engine.Mapped`` per seed (None without mappers)."""
+    entry, one ``engine.Mapped`` per seed (None without mappers); seeds (S,) their numbers."""
 
     env: Any
     policy: str
@@ -54,8 +54,8 @@ class RunResult(NamedTuple):
     knowledge: Any
     mapped: dict | None
     log_every: int
+    seeds: range
     digests: pd.DataFrame | None = None  # seed, chunk, time_s and a digest per part (session.digest)
-    seeds: range | None = None  # None: 0 .. S - 1
 
 
 def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: dict) -> None:
@@ -72,8 +72,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     counted = frames_before(cfg, step[keep])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     curves, objects, paths = [], [], []
-    seeds = run.seeds or range(len(poses))
-    for i, seed in enumerate(seeds):  # per seed, so a seed's numbers never depend on the batch shape
+    for i, seed in enumerate(run.seeds):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[i], logs)
         if "oracle" in cfg.mappers:
             k = jax.tree.map(lambda a: np.asarray(a)[i], run.knowledge)
@@ -106,7 +105,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         indent=2))
     results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
     if env.config.action_mode == "target":
-        results.write_csv(navigation.frame(run.track.status, poses, env.dt, seeds, world=world.name, policy=policy),
+        results.write_csv(navigation.frame(run.track.status, poses, env.dt, run.seeds, world=world.name, policy=policy),
                           runs / f"{name}.navigation.csv")
     if run.digests is not None:
         results.write_csv(run.digests, runs / f"{name}.digest.csv")
