@@ -91,6 +91,21 @@ def test_a_run_without_a_detector_is_identical_to_itself(tmp_path):
                                     "detections differ"]
 
 
+def test_a_seed_only_one_folder_holds_is_named_so(tmp_path):
+    """Another seed count or first seed: each seed of one side alone is 'only in' it (it was
+    'identical over 0 chunks', and the other side's were not named)."""
+    row = "{s},0,2.0,2aa2,0192,a8ea,\n"
+    head, path_head = "seed,chunk,time_s,physics,map,knowledge,detections\n", "seed,time_s,x,y,yaw\n"
+    a = _folder(tmp_path / "a", head + "".join(row.format(s=s) for s in (0, 1, 10)))
+    b = _folder(tmp_path / "b", head + "".join(row.format(s=s) for s in (1, 2)))
+    assert digest.compare(a, b) == [f"w__random seed 0: only in {a}", f"w__random seed 2: only in {b}",
+                                    f"w__random seed 10: only in {a}", "w__random seed 1: identical over 1 chunks"]
+    c = _folder(tmp_path / "c", None, path_head + "0,1.0,0,0,0\n1,1.0,0,0,0\n")
+    d = _folder(tmp_path / "d", None, path_head + "1,1.0,0,0,0\n")
+    assert digest.compare(c, d) == [f"w__random seed 0: only in {c}",
+                                    "w__random seed 1: the same path at every sampled time (no digests to compare)"]
+
+
 @pytest.mark.parametrize("digest_text, path_text, needle", [
     ("garbage\n", None, "w__random.digest.csv: columns: missing seed, chunk"),  # an AttributeError
     ("seed,chunk,time_s,physics,map,knowledge,detections\n0,x,2.0,a,b,c,\n", None, "row 2, column chunk: 'x' is not"),

@@ -59,8 +59,14 @@ def compare(a: str | Path, b: str | Path) -> list[str]:
             lines.append(f"{run}: only in {a if run in in_a else b}")
             continue
         digest = [f / "runs" / f"{run}.digest.csv" for f in (a, b)]
-        lines += _by_digest(run, *digest) if all(p.is_file() for p in digest) else _by_path(run, a, b)
+        lines += _by_digest(run, a, b) if all(p.is_file() for p in digest) else _by_path(run, a, b)
     return lines
+
+
+def _one_side(run: str, seeds_a, seeds_b, a: Path, b: Path) -> list[str]:
+    """A line for each seed that only one folder holds (another seed count or first seed)."""
+    return [f"{run} seed {s}: only in {a if s in set(seeds_a) else b}"
+            for s in sorted(set(seeds_a) ^ set(seeds_b), key=int)]
 
 
 def _finished(folder: Path) -> set[str]:
@@ -81,10 +87,10 @@ def _digests(path: Path) -> pd.DataFrame:
     return df
 
 
-def _by_digest(run: str, x: Path, y: Path) -> list[str]:
-    da, db = (_digests(p) for p in (x, y))
-    out = []
-    for seed, ga in da.groupby("seed", sort=True):
+def _by_digest(run: str, a: Path, b: Path) -> list[str]:
+    da, db = (_digests(f / "runs" / f"{run}.digest.csv") for f in (a, b))
+    out = _one_side(run, da.seed, db.seed, a, b)
+    for seed, ga in sorted(da[da.seed.isin(db.seed)].groupby("seed"), key=lambda g: int(g[0])):
         gb = db[db.seed == seed]
         m = ga.merge(gb, on=["seed", "chunk", "time_s"], suffixes=("_a", "_b"))
         differ = [[p for p in PARTS if r[f"{p}_a"] != r[f"{p}_b"]] for _, r in m.iterrows()]
@@ -113,7 +119,7 @@ def _by_path(run: str, a: Path, b: Path) -> list[str]:
     ta, tb = (_path(f / "runs" / f"{run}.trajectory.csv") for f in (a, b))
     key = ["seed", "time_s"]
     m = ta.merge(tb, on=key, suffixes=("_a", "_b")).sort_values(key)
-    out = []
+    out = _one_side(run, ta.seed, tb.seed, a, b)
     for seed, g in m.groupby("seed"):
         d = np.abs(g[["x_a", "y_a", "yaw_a"]].to_numpy() - g[["x_b", "y_b", "yaw_b"]].to_numpy()).max(1)
         k = np.flatnonzero(d > 0)
