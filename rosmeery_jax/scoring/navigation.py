@@ -68,10 +68,9 @@ def _longest_stuck(xy: np.ndarray, driving: np.ndarray, dt: float) -> float:
     return float(seconds(best * dt))
 
 
-def frame(status: np.ndarray, poses: np.ndarray, dt: float, seeds=None, **tags) -> pd.DataFrame:
+def frame(status: np.ndarray, poses: np.ndarray, dt: float, seeds, **tags) -> pd.DataFrame:
     """Rows of :func:`account` for every seed: status (S, T + 1), poses (S, T + 1, 3); seeds
-    (S,) their numbers (default 0 .. S - 1)."""
-    seeds = range(len(status)) if seeds is None else seeds
+    (S,) their numbers."""
     return pd.DataFrame([{**tags, "seed": s, **account(status[i], poses[i], dt)} for i, s in enumerate(seeds)])
 
 

@@ -66,7 +66,7 @@ def compare(a: str | Path, b: str | Path) -> list[str]:
 def _one_side(run: str, seeds_a, seeds_b, a: Path, b: Path) -> list[str]:
     """A line for each seed that only one folder holds (another seed count or first seed)."""
     return [f"{run} seed {s}: only in {a if s in set(seeds_a) else b}"
-            for s in sorted(set(seeds_a) ^ set(seeds_b), key=int)]
+            for s in sorted(set(seeds_a) ^ set(seeds_b), key=float)]
 
 
 def _finished(folder: Path) -> set[str]:
@@ -90,7 +90,7 @@ def _digests(path: Path) -> pd.DataFrame:
 def _by_digest(run: str, a: Path, b: Path) -> list[str]:
     da, db = (_digests(f / "runs" / f"{run}.digest.csv") for f in (a, b))
     out = _one_side(run, da.seed, db.seed, a, b)
-    for seed, ga in sorted(da[da.seed.isin(db.seed)].groupby("seed"), key=lambda g: int(g[0])):
+    for seed, ga in sorted(da[da.seed.isin(db.seed)].groupby("seed"), key=lambda g: float(g[0])):
         gb = db[db.seed == seed]
         m = ga.merge(gb, on=["seed", "chunk", "time_s"], suffixes=("_a", "_b"))
         differ = [[p for p in PARTS if r[f"{p}_a"] != r[f"{p}_b"]] for _, r in m.iterrows()]
