@@ -40,9 +40,9 @@ class Policy(ABC):
         """Env settings the policy entry ``spec`` needs in the world named ``world``."""
         return {}
 
-    def seeds(self, first: int, count: int) -> range:
+    def seeds(self, session: range) -> range:
         """The seeds the policy runs, one batch entry each: the session's by default."""
-        return range(first, first + count)
+        return session
 
     def init(self, key: jax.Array) -> Any:
         return jnp.zeros(())

@@ -68,7 +68,7 @@ class ReplayPolicy(Policy):
         env = recs[0].header.get("env", {}) if recs else {}
         return {**env, "start_yaw": "spawn", "action_mode": "velocity"}
 
-    def seeds(self, first: int, count: int) -> range:
+    def seeds(self, session: range) -> range:
         """Its recordings, numbered from 0 whatever the session's seeds."""
         return range(len(self.recordings))
 

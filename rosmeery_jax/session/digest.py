@@ -65,8 +65,8 @@ def compare(a: str | Path, b: str | Path) -> list[str]:
 
 def _one_side(run: str, seeds_a, seeds_b, a: Path, b: Path) -> list[str]:
     """A line for each seed that only one folder holds (another seed count or first seed)."""
-    return [f"{run} seed {s}: only in {a if s in set(seeds_a) else b}"
-            for s in sorted(set(seeds_a) ^ set(seeds_b), key=float)]
+    in_a, in_b = set(seeds_a), set(seeds_b)
+    return [f"{run} seed {s}: only in {a if s in in_a else b}" for s in sorted(in_a ^ in_b, key=float)]
 
 
 def _finished(folder: Path) -> set[str]:

@@ -169,7 +169,7 @@ def _group(config: EnvConfig, members: list, seeds: range, decide_every: int, to
                 continue
             w = specs.index(world)
             host = make_policy(spec, envs[w], decide_every, total_steps)
-            mine = host.seeds(seeds.start, len(seeds))
+            mine = host.seeds(seeds)
             if mine:  # else a replay with no recording in this world
                 runs.append(Run(f"{envs[w].world.name}__{policies[q].name}", w, q, rows.add_block_run(q, w, mine),
                                 host, spec, mine))
