@@ -16,7 +16,7 @@ import pytest
 
 from conftest import room_xml, suite_xla_flags
 from rosmeery_jax.apps.cli import main
-from rosmeery_jax.session.engine import BLOCK
+from rosmeery_jax.session.batch import BLOCK
 
 BODIES = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -178,7 +178,7 @@ def test_devices_split_the_batch_over_host_devices_and_change_nothing(world, loc
 
 
 def test_padding_blocks_give_each_device_a_whole_share(world):
-    from rosmeery_jax.session.engine import build_groups
+    from rosmeery_jax.session.batch import build_groups
 
     for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
         group = build_groups([(world[0], p) for p in policies], {}, False, range(3), 10, 100, devices)[0]
@@ -190,7 +190,7 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
 def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(world, monkeypatch):
     import jax
 
-    from rosmeery_jax.session.engine import build_groups
+    from rosmeery_jax.session.batch import build_groups
 
     one = jax.devices()[:1]
     monkeypatch.setattr(jax, "devices", lambda *a: one * 3)  # three devices, as far as counting goes

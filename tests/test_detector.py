@@ -448,7 +448,7 @@ def test_yolo_sees_each_distinct_image_once_and_remembers_the_latest():
 def test_detect_runs_one_pass_per_shared_network_and_returns_each_row_its_frames():
     from types import SimpleNamespace
 
-    from rosmeery_jax.session import engine
+    from rosmeery_jax.session import program, worker
 
     class Net:
         """Raw detections encode the frame (its first pixel); finish tags them with the world."""
@@ -474,7 +474,7 @@ def test_detect_runs_one_pass_per_shared_network_and_returns_each_row_its_frames
     rgb = np.zeros((b, f, 4, 4, 3), np.uint8)
     rgb[..., 0, 0, 0] = (np.arange(b)[:, None] * 10 + np.arange(f)).astype(np.uint8)
     dets = {0: Net(0, "yolo"), 1: Net(1, "yolo"), 2: Net(2, None)}
-    obj, label, conf, box = engine._detect(group, dets, engine.Frames(rgb, np.zeros((b, f, 4, 4), np.int16), None), 0)
+    obj, label, conf, box = worker._detect(group, dets, program.Frames(rgb, np.zeros((b, f, 4, 4), np.int16), None), 0)
     assert Net.calls == 2  # worlds 0 and 1 share one pass; world 2 has its own
     for r in range(b):
         if group.real[r]:

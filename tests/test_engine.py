@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.session import engine
+from rosmeery_jax.session import worker
 
 from rosmeery_jax.scoring import results
 from rosmeery_jax.apps.cli import compilation_cache, main
@@ -186,24 +186,24 @@ def test_a_pose_that_is_not_finite_stops_the_session_naming_the_first_run_seed_a
                             runs=runs, envs=[world("kitchen"), world("lab")], env=SimpleNamespace(dt=0.1))
     poses = np.zeros((5, 10, 3))
     poses[4, 0] = np.nan  # a padding row: never read
-    engine._check_poses(group, 30, poses)
+    worker._check_poses(group, 30, poses)
     poses[3, 6:, 1] = np.nan
     poses[1, 8:, 2] = np.inf
     with pytest.raises(InputError, match=r"^config: policies: 'mine.py:P' drove seed 1 in lab to a pose that is "
                                          r"not finite at t = 3.7 s \(a velocity command"):
-        engine._check_poses(group, 30, poses)  # the earliest: step 30 + 6 + 1
+        worker._check_poses(group, 30, poses)  # the earliest: step 30 + 6 + 1
 
 
 def test_relabel_counts_a_frame_from_the_step_after_it():
     steps, n = 6, 2  # two decisions of 3 steps: frames after step 3 and step 6
     logs = ObjectLog(*(np.zeros((1, steps, n), np.float32) for _ in range(6)))
     per_frame = tuple(np.array([[[1, 1], [2, 2]]], np.float32) for _ in range(5))  # (B, F, N)
-    out = engine._relabel(logs, per_frame, 3)
+    out = worker._relabel(logs, per_frame, 3)
     assert out.label[0, :, 0].tolist() == [0, 0, 0, 1, 1, 1]  # frame 1 of this chunk lands in the next
     assert out.ps[0].sum() == 0  # coverage untouched
     # Logged once per decision (after steps 3 and 6): frame 0 counts from step 4, so row 2 has it.
     rows = ObjectLog(*(np.zeros((1, 2, n), np.float32) for _ in range(6)))
-    assert engine._relabel(rows, per_frame, 3, log_every=3).label[0, :, 0].tolist() == [0, 1]
+    assert worker._relabel(rows, per_frame, 3, log_every=3).label[0, :, 0].tolist() == [0, 1]
 
 
 def test_compilation_cache_folder(monkeypatch, tmp_path):

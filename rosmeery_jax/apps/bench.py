@@ -45,7 +45,7 @@ from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.config import env_bytes
-from rosmeery_jax.session.engine import Replicas
+from rosmeery_jax.session.program import Replicas
 from rosmeery_jax.sim import grid
 from rosmeery_jax.sim.sensors import camera_rays, depth_seg, laser, laser_dirs
 
@@ -135,7 +135,7 @@ def _rollout_fn(env, steps: int):
 def env_throughput(env, batch: int, cfg: BenchConfig, devices: int = 1) -> dict:
     """Full-step env-steps/s and compile time at one batch size, the batch split evenly over
     ``devices`` (each runs the one-device program on its share, as sessions do:
-    ``engine.Replicas``); also returns the final state."""
+    ``program.Replicas``); also returns the final state."""
     keys = jax.random.split(jax.random.key(cfg.seed), batch)
     state = xla.jit(jax.vmap(env.reset))(keys)
     targets = jnp.asarray(random_targets(env.world, batch, cfg.seed))

@@ -6,7 +6,7 @@ returns the run's files; the driver writes them atomically into the results fold
 metrics file last, as a local session does), so workers need no shared filesystem and a
 half-finished shard leaves nothing behind. A shard's results are bitwise those of the same
 run inside a local session: a run does not depend on the other runs of its batch nor on
-the padding (rosmeery_jax.session.engine). Ray retries a shard whose worker dies (``RETRIES``);
+the padding (rosmeery_jax.session.batch). Ray retries a shard whose worker dies (``RETRIES``);
 ``--resume`` skips finished runs as locally. docs/cluster.md covers set-up and costs.
 """
 

@@ -31,7 +31,7 @@ from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.scoring import metrics
 from rosmeery_jax.scoring.mapper import BUILT_IN, check_mapper, mapper_label
 from rosmeery_jax.scoring.results import MAX_SEED
-from rosmeery_jax.session.engine import BLOCK
+from rosmeery_jax.session.batch import BLOCK
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.generate import expand_names
 

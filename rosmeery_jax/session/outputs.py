@@ -45,7 +45,7 @@ class RunResult(NamedTuple):
     """One run's simulation, per seed (S, in seed order): env (its world's); policy, the
     results' label; logs ObjectLog (S, T, N) one row every ``log_every`` steps; track
     (S, steps + 1, ...) pose and navigation status at every step; knowledge: the final labelled knowledge (S, ...); mapped: per mapper
-    entry, one ``engine.Mapped`` per seed (None without mappers); seeds (S,) their numbers."""
+    entry, one ``worker.Mapped`` per seed (None without mappers); seeds (S,) their numbers."""
 
     env: Any
     policy: str

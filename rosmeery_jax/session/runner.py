@@ -1,15 +1,15 @@
 """The benchmark session: worlds x policies x seeds x duration.
 
 Every unfinished (world, policy) pair of a session is simulated in one batch per env
-configuration (:mod:`.engine`: worlds as padded data, one compiled chunk function, the
-detector in a worker thread), and each *run* (one world and policy, all its seeds) is then
+configuration (:mod:`.batch`: worlds as padded data; :mod:`.program`: one compiled chunk
+function; :mod:`.engine` steps it, :mod:`.worker` detects and maps beside it), and each *run* (one world and policy, all its seeds) is then
 written atomically (:mod:`.outputs`), or each run is sent to a Ray worker
 (:mod:`.cluster`).
 
 Everything is validated before anything is written (:mod:`.config`). ``--resume`` skips
 finished runs and refuses a changed configuration or changed input files (:mod:`.folder`);
 without it an existing results folder is refused rather than overwritten. A seed's curves
-are bitwise the same whatever runs beside it (engine: blocks) and whatever ``chunk_s`` is.
+are bitwise the same whatever runs beside it (batch: blocks) and whatever ``chunk_s`` is.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atom
 from rosmeery_jax.detector.detections import make_detector
 from rosmeery_jax.gym import AGENT
 from rosmeery_jax.scoring import results
-from rosmeery_jax.session import cluster, engine
+from rosmeery_jax.session import batch, cluster, engine, program
 from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import (SessionConfig, decisions, frame_steps, frames_before, log_every, per_call,
                                          sampled_rows)
@@ -104,7 +104,7 @@ class Session:
         cfg = self.cfg
         total = decisions(cfg)
         agents = [(w, p) for w, p in todo if p.startswith(AGENT)]
-        groups = engine.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off",
+        groups = batch.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off",
                                      cfg.seed_range, cfg.decide_every, total * cfg.decide_every, cfg.devices)
         bar = _bar((len(groups) + len(agents)) * cfg.duration, self.progress)
         timings = []
@@ -116,7 +116,7 @@ class Session:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
             steps = sampled_rows(cfg) * log_every(cfg)
-            plan = engine.Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
+            plan = program.Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
                                tuple(m for m in cfg.mappers if m != "oracle"),
                                frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)

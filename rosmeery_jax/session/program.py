@@ -1,0 +1,306 @@
+"""The compiled functions of a group (:mod:`rosmeery_jax.session.batch`): reset, the
+chunk of decisions, the label update.
+
+**One block program.** ``lax.map`` runs one ``vmap``ped block program over the group's
+blocks of ``BLOCK`` envs (:func:`blocked`). The block's policy is chosen with
+``lax.switch`` on a per-block index, so only that policy's decision runs (a per-env index
+under ``vmap`` would run every policy for every env).
+
+**Several devices.** With ``devices`` N > 1 (GPUs, or host devices made from the CPU's
+cores) the blocks are split evenly over the devices (padding blocks make the count a
+multiple of N) and every device runs the one-device block program on its share, all at
+once (:class:`Replicas`). An SPMD program (``jax.shard_map``) was tried and dropped: XLA
+fuses a partitioned program differently, so a robot's numbers changed with N.
+
+Shapes: B envs in a group (a multiple of BLOCK), N objects (padded), F frames per chunk,
+D detections per frame.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from rosmeery_jax.core import xla
+from rosmeery_jax.env import Env, Track
+from rosmeery_jax.env import world_data as wd
+from rosmeery_jax.scoring.mapper import mapper_class
+from rosmeery_jax.scoring.perceived import PerceivedMapper
+from rosmeery_jax.session.batch import BLOCK, Group
+from rosmeery_jax.sim.knowledge import ObjectLog
+
+def blocked(fn, devices: int = 1):
+    """jit of ``fn(shared, block, *env_args)`` over B = k * BLOCK envs: ``shared`` goes to
+    every env, ``block`` (k, ...) one row per block (the same for its envs, so not batched
+    inside it), ``env_args`` (B, ...) one row per env. vmap over a block, ``lax.map`` over
+    blocks (module docstring); with ``devices`` > 1, as :class:`Replicas`."""
+
+    def run(shared, block_arg, *env_args):
+        blocks = jax.tree.map(lambda a: a.reshape(a.shape[0] // BLOCK, BLOCK, *a.shape[1:]), env_args)
+        out = jax.lax.map(lambda x: jax.vmap(fn, in_axes=(None, None) + (0,) * len(env_args))(shared, x[0], *x[1]),
+                          (block_arg, blocks))
+        return jax.tree.map(lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:]), out)
+
+    return xla.jit(run) if devices == 1 else Replicas(xla.jit(run), devices)
+
+
+def shardings(devices: int) -> tuple[NamedSharding, NamedSharding]:
+    """(whole, split): a copy on each of the first ``devices`` devices, and the leading
+    (batch or block) axis split evenly over them."""
+    mesh = Mesh(np.asarray(jax.devices()[:devices]), ("d",))
+    return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("d"))
+
+
+class Replicas:
+    """A blocked function on N devices: each runs the one-device program on its share of
+    the blocks, all at once (JAX dispatches asynchronously). Called like the jitted function
+    with ``(shared, block_arg, *env_args)``; arguments are placed as global arrays (``shared``
+    whole on every device, the rest split over the leading axis) and results come back
+    split the same way, so one call's results feed the next without a copy. Follows jax's
+    ahead-of-time interface: ``lower(*args).compile()`` compiles every device's copy at once."""
+
+    def __init__(self, jitted, devices: int, executables: list | None = None):
+        self.jitted, self.devices, self.executables = jitted, devices, executables
+        self.whole, self.split = shardings(devices)
+
+    def _per_device(self, shared, block_arg, env_args) -> list[tuple]:
+        """Each device's arguments: its copy of ``shared``, its share of the rest."""
+        shared = jax.device_put(shared, self.whole)
+        rest = jax.device_put((block_arg, env_args), self.split)
+
+        def local(tree, device):
+            return jax.tree.map(lambda a: next(s.data for s in a.addressable_shards if s.device == device), tree)
+
+        return [(local(shared, d), local(rest[0], d), *local(rest[1], d)) for d in self.split.mesh.devices.flat]
+
+    def lower(self, shared, block_arg, *env_args) -> "_Lowered":
+        return _Lowered(self, self._per_device(shared, block_arg, env_args))
+
+    def __call__(self, shared, block_arg, *env_args):
+        calls = self.executables or [self.jitted] * self.devices
+        outs = [f(*args) for f, args in zip(calls, self._per_device(shared, block_arg, env_args))]
+        return jax.tree.map(lambda *parts: jax.make_array_from_single_device_arrays(
+            (sum(p.shape[0] for p in parts), *parts[0].shape[1:]), self.split, list(parts)), *outs)
+
+
+class _Lowered(NamedTuple):
+    """:meth:`Replicas.lower`'s result: every device's arguments, compiled together."""
+
+    replicas: Replicas
+    args: list
+
+    def compile(self) -> Replicas:
+        r = self.replicas
+        with ThreadPoolExecutor(r.devices) as pool:  # XLA compiles without the GIL
+            return Replicas(r.jitted, r.devices, list(pool.map(lambda a: r.jitted.lower(*a).compile(), self.args)))
+
+
+def in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[Env, list]:
+    """The template env and policies, bound to the world of ``block`` (policy, world) (inside
+    a trace; the block's envs share it, so it is not batched under their vmap)."""
+    env = group.env.with_data(wd.pick(stacked, block[1]))
+    return env, [p.bind(env) for p in group.policies]
+
+
+def reset_fn(group: Group):
+    """(stacked, blocks, key (B,)) -> State (B, ...)."""
+
+    def one(stacked, block, key):
+        env, _ = in_world(group, stacked, block)
+        return env.reset(key)
+
+    return blocked(one, group.devices)
+
+
+class Plan(NamedTuple):
+    """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
+    ``decide_every`` control steps per decision, a detector frame every ``frame_steps``
+    steps (a divisor of ``decide_every``), a log row every ``log_every`` steps (a divisor of
+    ``frame_steps``); ``mappers``: the mapper entries fed every detector frame per env
+    (needs detectors), their maps scored after each frame count in ``score_at``."""
+
+    total: int
+    per_call: int
+    decide_every: int
+    frame_steps: int
+    log_every: int = 1
+    mappers: tuple[str, ...] = ()
+    score_at: frozenset = frozenset()
+    digest: bool = False  # a digest of each env's state after every chunk (session.digest)
+
+    @property
+    def frames_per(self) -> int:
+        """Detector frames per decision."""
+        return self.decide_every // self.frame_steps
+
+    @property
+    def frames_per_call(self) -> int:
+        """Detector frames per jitted call."""
+        return self.per_call * self.frames_per
+
+    @property
+    def perceive(self) -> bool:
+        """Whether frames carry their depth (a mapper reads it)."""
+        return bool(self.mappers)
+
+    @property
+    def sweep(self) -> bool:
+        """Whether frames carry the depth of every step (a mapper overrides ``add_depth``)."""
+        return any(mapper_cls(spec).reads_depth() for spec in self.mappers)
+
+    @property
+    def spans(self) -> int:
+        """Logged spans per detector frame period."""
+        return self.frame_steps // self.log_every
+
+
+def mapper_cls(spec: str) -> type:
+    """A mapper entry's class: the built-in perceived mapper or a plugin."""
+    return PerceivedMapper if spec == "perceived" else mapper_class(spec)
+
+
+class Frames(NamedTuple):
+    """The detector frames, one every ``frame_steps`` control steps, per env: rgb (F, Hr,
+    Wr, 3) uint8, labels (F, Hr, Wr) int16, depth (F, Hr, Wr) float32 (None unless a mapper
+    runs); and sweep (F, frame_steps, h, w) float32, the depth camera after every step of
+    the frame's period (None unless a mapper reads it)."""
+
+    rgb: jax.Array
+    labels: jax.Array
+    depth: jax.Array | None
+    sweep: jax.Array | None = None
+
+
+class Chunk(NamedTuple):
+    """One call of the chunk function, per env: the state, policy states and key after it,
+    logs (per_call * decide_every / log_every, N), track (per_call * decide_every, ...),
+    frames (per_call * frames_per, ...) or None."""
+
+    state: Any
+    pstates: tuple
+    key: jax.Array
+    logs: ObjectLog
+    track: Track
+    frames: Frames | None
+
+
+def chunk_fn(group: Group, plan: Plan, capture: bool):
+    """One env per call of the returned function (blocked): fold the pending detections
+    (F, D) into the knowledge, then ``plan.per_call`` decisions (:func:`_decision`).
+    Returns a :class:`Chunk`; frames only with ``capture``, their depth only with
+    ``plan.perceive``."""
+    if plan.decide_every % plan.frame_steps or plan.frame_steps % plan.log_every:
+        raise ValueError(f"log_every {plan.log_every} must divide the frame period {plan.frame_steps}, and the "
+                         f"frame period decide_every {plan.decide_every}")
+
+    def one(stacked, block, state, pstates, key, pending):
+        env, policies = in_world(group, stacked, block)
+        if capture:
+            state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
+        decide = _decision(env, policies, block[0], plan, capture)
+        (state, pstates, key), ((logs, track), frames) = jax.lax.scan(decide, (state, pstates, key), None,
+                                                                      length=plan.per_call)
+        flat = lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])  # noqa: E731 (decision, within it)
+        return Chunk(state, pstates, key, *jax.tree.map(flat, (logs, track, frames)))
+
+    return blocked(one, group.devices)
+
+
+def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool):
+    """The scan body of one decision: block policy ``q`` decides (``lax.switch``, so only
+    its own decision runs), then ``decide_every`` env steps, logged every ``log_every``;
+    with ``capture``, a frame after every ``frame_steps`` of them. Returns logs
+    (decide_every / log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
+    per_step = policies[0].per_step
+    sweep = plan.sweep
+
+    def branch(i):
+        def decide(s, pss, k):
+            action, new = policies[i].decide(s, pss[i], k)
+            return action, pss[:i] + (new,) + pss[i + 1:]
+        return decide
+
+    def step(s, a, action):
+        s = env.step(s, a if per_step else action)
+        return s, (Track.of(s), s.depth if sweep else None)
+
+    def span(s, a, action):  # log_every steps, then the log: the per-object log took 7 % of a
+        # paper session's step when taken every step, and metrics are written every sample_s
+        s, track = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
+        return s, (env.log(s), track)
+
+    def period(s, a, action):  # frame_steps steps, then the detector frame
+        s, (logs, (track, depths)) = jax.lax.scan(lambda s, a: span(s, a, action), s, a, length=plan.spans)
+        frame = None
+        if capture:
+            img, dep, lab = env.camera_rgbd(s)
+            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
+                           depths.reshape(plan.frame_steps, *depths.shape[2:]) if sweep else None)
+        return s, ((logs, track), frame)
+
+    def steps(s, action):
+        """The decision's steps, ``frames_per`` periods of them: logs (decide_every /
+        log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
+        shape = (plan.frames_per, plan.spans, plan.log_every)
+        actions = jax.tree.map(lambda a: a.reshape(*shape, *a.shape[1:]), action) if per_step else None
+        if plan.frames_per == 1:  # the default, one frame per decision: no scan of one around the
+            # period, which XLA is free to compile differently
+            s, out = period(s, jax.tree.map(lambda a: a[0], actions), action)
+            out = jax.tree.map(lambda a: a[None], out)
+        else:
+            s, out = jax.lax.scan(lambda s, a: period(s, a, action), s, actions, length=plan.frames_per)
+        (logs, track), frames = out  # (frames_per, spans, ...), frames (frames_per, ...)
+        logs = jax.tree.map(lambda a: a.reshape(plan.frames_per * plan.spans, *a.shape[2:]), logs)
+        track = jax.tree.map(lambda a: a.reshape(plan.decide_every, *a.shape[3:]), track)
+        return s, ((logs, track), frames)
+
+    def decide(carry, _):
+        s, pss, k = carry
+        k, sub = jax.random.split(k)
+        if len(policies) == 1:
+            action, pss = branch(0)(s, pss, sub)
+        else:
+            action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
+        s, out = steps(s, action)
+        return (s, pss, k), out
+
+    return decide
+
+
+def attach_frames(env: Env, knowledge, obj, label, conf):
+    """Fold detections (F, D) into ``knowledge`` frame by frame, in frame order."""
+
+    def body(k, d):
+        return env.sk.attach(k, *d), None
+
+    return jax.lax.scan(body, knowledge, (obj, label, conf))[0]
+
+
+def label_fn(group: Group):
+    """(stacked, blocks, labels, obj, label, conf (B, F, D)) -> labels after the frames and
+    the log's label fields after each frame (B, F, N) each."""
+
+    def one(stacked, block, k, obj, label, conf):
+        env, _ = in_world(group, stacked, block)
+
+        def body(k, d):
+            k = env.sk.attach(k, *d)
+            return k, env.sk.label_fields(k)
+
+        return jax.lax.scan(body, k, (obj, label, conf))
+
+    return blocked(one, group.devices)
+
+
+class Compiled(NamedTuple):
+    reset: Any
+    chunk: Any
+    label: Any
+    log: Any
+    knowledge: Any
+
