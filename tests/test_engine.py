@@ -130,7 +130,8 @@ def test_results_do_not_depend_on_chunk_s(room, tmp_path):
 
 def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     """Seeds 1-2 run alone (--first-seed 1) are seeds 1-2 of a session of seeds 0-2, bitwise,
-    in every file that names a seed; a resume may not move the seeds. (The chunking test's
+    in every file that names a seed; a resume may not move the seeds; joined with seed 0
+    alone (``rosmeery join``), they are the 0-2 session's files. (The chunking test's
     program: loaded from the compilation cache.)"""
     off = ("--detector", "off", "--chunk-s", "20")
     whole = _run(tmp_path / "whole", room, "frontier", 3, *off)
@@ -151,6 +152,23 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     assert main(["run", "--worlds", room, "--policies", "frontier", "--seeds", "2", "--duration", "20", "--quiet",
                  *off, "--out", str(tmp_path / "part"), "--resume"]) == 2
     assert "first_seed" in capsys.readouterr().err
+    # Seed 0 alone, joined with seeds 1-2 (given out of order): the files of the 0-2 session.
+    _run(tmp_path / "zero", room, "frontier", 1, *off)
+    assert main(["join", str(tmp_path / "part"), str(tmp_path / "zero"), "--out", str(tmp_path / "joined")]) == 0
+    files = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if p.is_file()  # noqa: E731
+                             and not p.name.endswith((".png", "timing.json", "config.json")))
+    whole_dir, joined = tmp_path / "whole", tmp_path / "joined"
+    assert files(joined) == files(whole_dir) and len(files(whole_dir)) == 14  # 4 tables, 4 run files, 6 map files
+    for name in files(whole_dir):
+        assert (joined / name).read_bytes() == (whole_dir / name).read_bytes(), name
+    session = lambda d: {k: v for k, v in json.loads((d / "config.json").read_text())["session"].items()  # noqa: E731
+                         if k != "out"}
+    assert session(joined) == session(whole_dir)
+    assert main(["run", "--worlds", room, "--policies", "frontier", "--seeds", "3", "--duration", "20", "--quiet",
+                 *off, "--out", str(joined), "--resume"]) == 0  # one session's folder: nothing left to run
+    assert [p["first_seed"] for p in json.loads((joined / "config.json").read_text())["joined"]] == [0, 1]
+    assert sorted(p.name for p in (joined / "plots").glob("*.png")) == sorted(
+        p.name for p in (whole_dir / "plots").glob("*.png"))
 
 
 def test_padding_is_inert_and_worlds_stack():

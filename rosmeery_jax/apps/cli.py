@@ -35,6 +35,7 @@ from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
 from rosmeery_jax.core.xla import MEMORY_SHARE, compilation_cache, cores, host_devices, memory_bytes
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
+from rosmeery_jax.session.join import join
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import picture_format, save_world_picture
 from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
@@ -422,6 +423,14 @@ def _cmd_diff(args) -> int:
     return 0
 
 
+def _cmd_join(args) -> int:
+    out = join(args.parts, args.out)
+    session = json.loads((out / "config.json").read_text())["session"]
+    first, count = session["first_seed"], session["seeds"]
+    print(f"joined {len(args.parts)} folders: seeds {first}-{first + count - 1} -> {out}")
+    return 0
+
+
 def _cmd_plot(args) -> int:
     d = Path(args.dir)
     df = results.load(d)
@@ -452,6 +461,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("a", metavar="DIR_A")
     p.add_argument("b", metavar="DIR_B")
     p.set_defaults(func=_cmd_diff)
+    p = sub.add_parser("join", help="join the parts of a sweep split by --first-seed into one results folder, "
+                       "as one session of all their seeds would have written it (docs/sessions.md)")
+    p.add_argument("parts", nargs="+", metavar="DIR", help="finished sessions of the same settings, seeds following "
+                   "each other")
+    p.add_argument("--out", required=True, metavar="DIR", help="the joined folder (new or empty)")
+    p.set_defaults(func=_cmd_join)
     return parser
 
 

@@ -94,6 +94,8 @@ def check_out(cfg: SessionConfig, resume: bool) -> Claim:
                 raise InputError(str(saved), f"inputs.{kind}", f"{name} has changed since the session started: "
                                  "resume would mix results of two versions")
     record["inputs"] = _merged(old["inputs"], record["inputs"])
+    if "joined" in old:  # a folder of joined parts (session.join) keeps saying so
+        record["joined"] = old["joined"]
     return Claim(record, False)
 
 
