@@ -160,7 +160,8 @@ def load_transform(path: Path):
 def load_procedural_name(path: Path):
     """A procedural world's name (the file's text), expanded, parsed and generated."""
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.world.generate import expand_names, generate, parse_name
+    from rosmeery_jax.world.generate import generate
+    from rosmeery_jax.world.procedural import expand_names, parse_name
 
     try:
         text = path.read_text(encoding="utf-8")

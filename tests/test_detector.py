@@ -343,7 +343,7 @@ def test_the_default_detector_was_trained_on_generated_worlds_only():
     import json
 
     from rosmeery_jax.detector.detections import WEIGHTS
-    from rosmeery_jax.world.generate import parse_name
+    from rosmeery_jax.world.procedural import parse_name
 
     assert DEFAULT_WEIGHTS == WEIGHTS["procedural"] and DEFAULT_WEIGHTS.is_file()
     meta = torch.load(DEFAULT_WEIGHTS, weights_only=True)["meta"]

@@ -19,9 +19,8 @@ from scipy import ndimage
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world import load_world
-from rosmeery_jax.world.generate import (
-    KINDS, GenerationError, GenOptions, check_options, expand_names, generate, parse_name, write_world,
-)
+from rosmeery_jax.world.generate import KINDS, GenerationError, GenOptions, check_options, generate
+from rosmeery_jax.world.procedural import expand_names, parse_name, write_world
 from rosmeery_jax.world.recipes import ROOMS, room_types
 
 # sha256 of `procedural:office:0`'s file. It changes only with the generator's VERSION: a

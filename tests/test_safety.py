@@ -108,7 +108,7 @@ def test_generate_never_replaces_an_edited_world(tmp_path, capsys):
 def test_an_edited_world_in_the_procedural_cache_is_refused(tmp_path, capsys, monkeypatch):
     from rosmeery_jax.core.errors import InputError
     from rosmeery_jax.world import load_world
-    from rosmeery_jax.world.generate import cache_dir
+    from rosmeery_jax.world.procedural import cache_dir
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     load_world("procedural:kitchen:7")

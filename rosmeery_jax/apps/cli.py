@@ -38,8 +38,8 @@ from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import picture_format, save_world_picture
-from rosmeery_jax.world.generate import (MAX_WORLDS, GenOptions, check_options, check_unchanged, expand_names,
-                                         generate, write_world)
+from rosmeery_jax.world.generate import GenOptions, check_options, generate
+from rosmeery_jax.world.procedural import MAX_WORLDS, check_unchanged, expand_names, write_world
 from rosmeery_jax.world.stats import stats_table, summary, world_names_in
 
 

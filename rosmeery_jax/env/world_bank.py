@@ -18,7 +18,7 @@ from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.environment import Env
 from rosmeery_jax.world import World, WorldConfig, load_world
-from rosmeery_jax.world.generate import expand_names
+from rosmeery_jax.world.procedural import expand_names
 
 
 class WorldBank(NamedTuple):

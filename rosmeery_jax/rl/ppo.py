@@ -45,7 +45,7 @@ from rosmeery_jax.rl.env import ExplorationEnv
 from rosmeery_jax.rl.task import RLConfig, check_rl
 from rosmeery_jax.rl.network import ActorCritic, save_policy
 from rosmeery_jax.scoring.plots import learning_curve
-from rosmeery_jax.world.generate import expand_names
+from rosmeery_jax.world.procedural import expand_names
 
 
 ENV_BYTES = 2.5e6  # one env's state, as a session's (docs/performance.md)

@@ -33,7 +33,7 @@ from rosmeery_jax.scoring.mapper import BUILT_IN, check_mapper, mapper_label
 from rosmeery_jax.scoring.results import MAX_SEED
 from rosmeery_jax.session.batch import BLOCK
 from rosmeery_jax.world import load_world, world_names
-from rosmeery_jax.world.generate import expand_names
+from rosmeery_jax.world.procedural import PREFIX as PROCEDURAL, expand_names
 
 DETECTORS = ("yolo", "oracle", "off")
 LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
@@ -223,7 +223,7 @@ def _check_devices(cfg: SessionConfig, worlds, source: str) -> None:
 
 def _check_world_name(name: str) -> None:
     """A name that is neither a built-in world nor an existing file is the config's error."""
-    if name not in world_names() and not Path(name).is_file() and not name.startswith("procedural:"):
+    if name not in world_names() and not Path(name).is_file() and not name.startswith(PROCEDURAL):
         raise InputError("config", "worlds", f"{name!r} is neither a built-in world ({', '.join(world_names())}) "
                          "nor an MJCF file nor procedural:KIND:SEED")
 

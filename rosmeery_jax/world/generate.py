@@ -2,9 +2,8 @@
 
 ``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
 world file in the format of ``rosmeery_jax/world/builtin/`` (it loads with ``load_world``). The
-name ``procedural:KIND:SEED[:option=value]...`` (:data:`NAME_FORM` lists the options)
-works wherever a world name does: the file is generated on first use into a cache folder
-(:func:`procedural_path`).
+names ``procedural:KIND:SEED[:option=value]...`` and their cached files:
+:mod:`rosmeery_jax.world.procedural`.
 
 How a world is made (all lengths whole centimetres, so the text is exact):
 
@@ -39,17 +38,13 @@ that cannot hold what was asked raises :class:`GenerationError` naming what was 
 from __future__ import annotations
 
 import math
-import os
-import re
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.world import furniture as F
 from rosmeery_jax.world.mjcf import Body, Wall, world_xml
 from rosmeery_jax.world.recipes import (
@@ -66,7 +61,6 @@ from rosmeery_jax.world.recipes import (
 
 KINDS = tuple(KIND_ROOMS)
 VERSION = 1  # bump when the same options would give a different file
-PREFIX = "procedural:"
 
 WALL_T, WALL_H = 10, 250  # cm
 MIN_SIDE = 220  # cm: the shortest room side
@@ -758,93 +752,3 @@ def _check(size, rooms, cuts, doors, items) -> tuple[int, int, float] | None:
         if not cells.any() or near[cells].min() > VIEW:
             return None
     return int(round(xy[0, i, j])), int(round(xy[1, i, j])), 0.0
-
-
-# ----------------------------------------------------------------------------- names and files
-
-
-_NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")  # options after the seed, ":"-separated
-# the options a procedural name takes, each with the letter NAME_FORM shows for its value
-_NAME_OPTIONS = {"rooms": "R", "objects": "K", "clutter": "X", "tuck": "X", "turn": "D", "islands": "X", "spare": "X"}
-NAME_FORM = "procedural:KIND:SEED" + "".join(f"[:{k}={v}]" for k, v in _NAME_OPTIONS.items())
-
-
-def parse_name(text: str) -> GenOptions:
-    """A name of the form :data:`NAME_FORM` as options (InputError if bad)."""
-    m = _NAME.match(text)
-    if not m:
-        raise InputError(text, "", f"a procedural world is named {NAME_FORM}")
-    kind, seed, extra = m.groups()
-    opts: dict = {}
-    for item in filter(None, (extra or "").split(":")):
-        key, _, value = item.partition("=")
-        if key not in _NAME_OPTIONS:
-            *most, last = _NAME_OPTIONS
-            raise InputError(text, key, f"unknown option ({', '.join(most)} or {last})")
-        if key in opts:
-            raise InputError(text, key, "given twice")
-        try:
-            opts[key] = int(value) if key in ("rooms", "objects") else float(value)
-        except ValueError:
-            raise InputError(text, key, f"{value!r} is not a number") from None
-    if not seed.isdigit():
-        raise InputError(text, "seed", f"{seed!r} is not a non-negative integer")
-    options = GenOptions(kind, int(seed), **opts)
-    check_options(options, text)
-    return options
-
-
-MAX_WORLDS = 10_000  # worlds one command may name (a world bank of 10,000 small worlds fits in memory)
-
-
-def expand_names(names) -> list[str]:
-    """World names with seed ranges expanded: ``procedural:office:0-99`` is 100 worlds."""
-    out = []
-    for name in names:
-        m = _NAME.match(name)
-        rng = re.fullmatch(r"(\d+)-(\d+)", m.group(2)) if m else None
-        if rng is None:
-            out.append(name)
-            continue
-        lo, hi = int(rng.group(1)), int(rng.group(2))
-        if hi < lo:
-            raise InputError(name, "seed", f"empty range {lo}-{hi}")
-        if hi - lo + 1 + len(out) > MAX_WORLDS:  # refused by its size, before any is expanded
-            raise InputError(name, "seed", f"{lo}-{hi} is {hi - lo + 1:,} worlds: at most {MAX_WORLDS:,} in all")
-        tail = f":{m.group(3)}" if m.group(3) else ""
-        out += [f"{PREFIX}{m.group(1)}:{s}{tail}" for s in range(lo, hi + 1)]
-    return out
-
-
-def cache_dir() -> Path:
-    """Where named procedural worlds are written on first use."""
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "rosmeery-jax" / "worlds" / f"v{VERSION}"
-
-
-def write_world(layout: Layout, folder: Path) -> Path:
-    """Write ``layout`` to ``folder/<name>.xml`` atomically. A file already there is kept
-    when it is this world, and refused (one InputError) when it differs: an edited world is
-    never replaced."""
-    path = Path(folder) / f"{layout.options.name}.xml"
-    text = layout.xml()
-    check_unchanged(path, text)
-    return path if path.is_file() else write_atomic(path, text)
-
-
-def check_unchanged(path: Path, text: str) -> None:
-    """Refuse ``path`` if it exists and is not ``text`` (edited since it was generated, or
-    another world of that name)."""
-    try:
-        same = not path.exists() or path.read_text(encoding="utf-8") == text
-    except (OSError, UnicodeDecodeError):
-        same = False
-    if not same:
-        raise InputError(str(path), "file", "differs from the world this generator makes under that name (edited "
-                         "since?): it is never replaced; move it away, or write elsewhere")
-
-
-def procedural_path(text: str) -> Path:
-    """The file of procedural world ``text``, generated into :func:`cache_dir` on first use."""
-    options = parse_name(text)
-    return write_world(generate(options), cache_dir())  # a cached file is checked against a fresh one

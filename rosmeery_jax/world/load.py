@@ -27,7 +27,7 @@ import numpy as np
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world.freespace import FreeSpace, build_free_space
-from rosmeery_jax.world.generate import procedural_path
+from rosmeery_jax.world.procedural import PREFIX, procedural_path
 from rosmeery_jax.world.scene import WALL, Scene
 from rosmeery_jax.world.surface import SurfaceSamples, observable_samples
 from rosmeery_jax.world.taxonomy import Predicate, Taxonomy, load_taxonomy
@@ -144,7 +144,7 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
     """A built-in world name, a procedural name (``procedural:KIND:SEED``), or a path to a
     user's MJCF file."""
     text = str(name_or_path)
-    if text.startswith("procedural:"):  # generated on first use (rosmeery_jax/world/generate.py)
+    if text.startswith(PREFIX):  # generated on first use (rosmeery_jax/world/procedural.py)
 
         return procedural_path(text)
     if "/" not in text and not text.endswith(".xml"):

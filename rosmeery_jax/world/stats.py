@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.world.generate import expand_names
+from rosmeery_jax.world.procedural import expand_names
 from rosmeery_jax.world.load import World, load_world
 
 COLUMNS = ["world", "objects", "categories", "boxes", "floor_m2", "reachable_m2", "objects_per_10m2", "samples"]
