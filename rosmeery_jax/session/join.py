@@ -129,15 +129,24 @@ def _write(parts: list[Part], scratch: Path, out: Path) -> None:
     (scratch / "maps").mkdir()
     for part in parts:
         for path in sorted((part.folder / "maps").glob("*")) if (part.folder / "maps").is_dir() else []:
-            shutil.copy2(path, scratch / "maps" / path.name)
+            if path.is_file():
+                shutil.copy2(path, scratch / "maps" / path.name)
     merge(scratch)
     _sum_timing([part.folder / "timing.json" for part in parts], scratch / "timing.json")
     seeds = range(parts[0].seeds.start, parts[-1].seeds.stop)
     record = {**parts[0].record, "session": {**parts[0].record["session"], "first_seed": seeds.start,
                                              "seeds": len(seeds), "out": str(out)},
-              "joined": [{"folder": str(p.folder), "first_seed": p.seeds.start, "seeds": len(p.seeds),
-                          "versions": p.record.get("versions")} for p in parts]}
+              "joined": [entry for p in parts for entry in _provenance(p)]}
     write_atomic(scratch / RECORD, json.dumps(record, indent=2))
+
+
+def _provenance(part: Part) -> list[dict]:
+    """What ``joined`` lists of a part: its folder, seeds and versions; a part that was joined
+    itself, its own parts."""
+    if isinstance(part.record.get("joined"), list):
+        return part.record["joined"]
+    return [{"folder": str(part.folder), "first_seed": part.seeds.start, "seeds": len(part.seeds),
+             "versions": part.record.get("versions")}]
 
 
 def _concat(paths: list[Path], dest: Path) -> None:
