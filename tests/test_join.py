@@ -39,9 +39,8 @@ def _part(folder: Path, first: int, seeds: int, **change) -> Path:
     rows = [f"small_office,random,oracle,{s},{t},ori,{s / 100 + t / 10},oracle" for s in range(first, first + seeds)
             for t in (0, 1)]
     (folder / "runs" / f"{RUN}.metrics.csv").write_text("\n".join([HEADER, *rows]) + "\n")
-    (folder / "runs" / f"{RUN}.navigation.csv").write_text(
-        "\n".join(["world,policy,seed,moving_s", *(f"small_office,random,{s},{s}.5" for s in range(first, first + seeds))])
-        + "\n")
+    nav = [f"small_office,random,{s},{s}.5" for s in range(first, first + seeds)]
+    (folder / "runs" / f"{RUN}.navigation.csv").write_text("\n".join(["world,policy,seed,moving_s", *nav]) + "\n")
     (folder / "runs" / f"{RUN}.timing.json").write_text(json.dumps({"env_steps": 10 * seeds, "wall_s": 2.0,
                                                                     "env_steps_per_s": 5.0 * seeds}))
     for s in range(first, first + seeds):

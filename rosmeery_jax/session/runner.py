@@ -2,9 +2,9 @@
 
 Every unfinished (world, policy) pair of a session is simulated in one batch per env
 configuration (:mod:`.batch`: worlds as padded data; :mod:`.program`: one compiled chunk
-function; :mod:`.engine` steps it, :mod:`.worker` detects and maps beside it), and each *run* (one world and policy, all its seeds) is then
-written atomically (:mod:`.outputs`), or each run is sent to a Ray worker
-(:mod:`.cluster`).
+function; :mod:`.engine` steps it, :mod:`.worker` detects and maps beside it), and each
+*run* (one world and policy, all its seeds) is then written atomically (:mod:`.outputs`),
+or each run is sent to a Ray worker (:mod:`.cluster`).
 
 Everything is validated before anything is written (:mod:`.config`). ``--resume`` skips
 finished runs and refuses a changed configuration or changed input files (:mod:`.folder`);
@@ -105,7 +105,7 @@ class Session:
         total = decisions(cfg)
         agents = [(w, p) for w, p in todo if p.startswith(AGENT)]
         groups = batch.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off",
-                                     cfg.seed_range, cfg.decide_every, total * cfg.decide_every, cfg.devices)
+                                    cfg.seed_range, cfg.decide_every, total * cfg.decide_every, cfg.devices)
         bar = _bar((len(groups) + len(agents)) * cfg.duration, self.progress)
         timings = []
         for world, spec in agents:  # host-side agents, one run at a time through the vector env
@@ -117,8 +117,8 @@ class Session:
             t0 = time.perf_counter()
             steps = sampled_rows(cfg) * log_every(cfg)
             plan = program.Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
-                               tuple(m for m in cfg.mappers if m != "oracle"),
-                               frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
+                                tuple(m for m in cfg.mappers if m != "oracle"),
+                                frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}

@@ -145,7 +145,6 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
     user's MJCF file."""
     text = str(name_or_path)
     if text.startswith(PREFIX):  # generated on first use (rosmeery_jax/world/procedural.py)
-
         return procedural_path(text)
     if "/" not in text and not text.endswith(".xml"):
         path = WORLDS_DIR / f"{text}.xml"
