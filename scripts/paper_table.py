@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.core.errors import one_line
+from rosmeery_jax.core.errors import InputError, one_line
 from rosmeery_jax.scoring import results, stats
 
 TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Small Office",
@@ -50,9 +50,19 @@ def comparisons(final: pd.DataFrame, metric: str = "ori") -> None:
                   f"p = {r.p:.4f}  ({r.seeds} seeds): {verdict}")
 
 
+def _check_runs(full: pd.DataFrame, out: Path) -> None:
+    """The paper's worlds and policies are all in the folder."""
+    for key, wanted in (("world", TITLES), ("policy", POLICIES)):
+        missing = [w for w in wanted if w not in set(full[key])]
+        if missing:
+            raise InputError(str(out / "metrics.csv"), key, f"no {missing[0]} rows: the paper table needs the "
+                             f"worlds {', '.join(TITLES)} and the policies {', '.join(POLICIES)}")
+
+
 def main(folder: str) -> None:
     out = Path(folder)
     full = results.load(out)
+    _check_runs(full, out)
     end = full.time_s.max()
     for mapper in sorted(full.mapper.unique()):
         print(f"\nmapper: {mapper}")

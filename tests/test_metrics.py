@@ -537,6 +537,22 @@ def test_the_table_scripts_refuse_a_folder_that_is_not_results_in_one_line(scrip
                           "time_s, metric, value\n"
 
 
+def test_the_paper_table_names_a_paper_world_or_policy_the_folder_lacks(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    rows = [dict(world=w, policy=p, detector="off", seed=s, time_s=t, metric="ori", value=t / 2, mapper="oracle")
+            for w in ("kitchen", "laboratory", "small_office", "large_office") for p in ("frontier", "random")
+            for s in range(3) for t in (0.0, 1.0)]
+    pd.DataFrame(rows).to_csv(tmp_path / "metrics.csv", index=False)  # a traceback (an empty argmax) before
+    done = subprocess.run([sys.executable, str(Path(__file__).parents[1] / "scripts" / "paper_table.py"),
+                           str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr.startswith(f"error: {tmp_path / 'metrics.csv'}: policy: no semantic_nbv rows: the paper "
+                                  "table needs") and done.stderr.count("\n") == 1
+
+
 def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it_cannot_read(tmp_path):
     from rosmeery_jax.scoring.plots import plot_results
 
