@@ -33,6 +33,7 @@ _API = {
     "SessionConfig": ("rosmeery_jax.session", "SessionConfig"),
     "load_config": ("rosmeery_jax.session", "load_config"),
     "load_results": ("rosmeery_jax.scoring.results", "load"),
+    "join_results": ("rosmeery_jax.session.join", "join"),
     "compute_metrics": ("rosmeery_jax.scoring.metrics", "compute"),
     "register_metric": ("rosmeery_jax.scoring.metrics", "register"),
     "summarize": ("rosmeery_jax.scoring.metrics", "summarize"),

@@ -14,6 +14,7 @@ from conftest import one_line_error
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import rosmeery_jax as rj
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.session import SessionConfig, join
@@ -71,9 +72,11 @@ def test_parts_join_in_seed_order_into_one_sessions_folder(tmp_path, capsys):
     assert {p: p.read_bytes() for d in (a, b, c) for p in d.rglob("*") if p.is_file()} == before
     assert not [p for p in tmp_path.rglob(".joined.*")]  # the scratch folder is gone
     assert oct((out / "runs").stat().st_mode & 0o777) == oct(out.parent.stat().st_mode & 0o777)
-    again = tmp_path / "again"  # a joined folder joins like any part; its parts are listed
-    assert main(["join", str(out), str(_part(tmp_path / "d", 5, 1)), "--out", str(again)]) == 0
+    again = tmp_path / "again"  # a joined folder joins like any part (here from Python); its parts are listed
+    assert rj.join_results([out, _part(tmp_path / "d", 5, 1)], again) == again
     assert [p["first_seed"] for p in json.loads((again / "config.json").read_text())["joined"]] == [0, 1, 3, 5]
+    with pytest.raises(TypeError, match="a list of results folders"):
+        rj.join_results(str(out), tmp_path / "never")
     assert len((again / "runs" / f"{RUN}.metrics.csv").read_text().splitlines()) == 1 + 2 * 6
 
 

@@ -43,6 +43,8 @@ class Part(NamedTuple):
 
 def join(folders: list[str | Path], out: str | Path) -> Path:
     """Join the finished sessions in ``folders`` into the new folder ``out``."""
+    if isinstance(folders, (str, Path)):  # its letters would be read as folders
+        raise TypeError(f"join_results: a list of results folders, not one ({folders!r})")
     parts = sorted((_read(Path(f)) for f in folders), key=lambda p: p.seeds.start)
     _check(parts)
     out = require_new(out)
