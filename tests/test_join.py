@@ -42,8 +42,8 @@ def _part(folder: Path, first: int, seeds: int, **change) -> Path:
     (folder / "runs" / f"{RUN}.metrics.csv").write_text("\n".join([HEADER, *rows]) + "\n")
     nav = [f"small_office,random,{s},{s}.5" for s in range(first, first + seeds)]
     (folder / "runs" / f"{RUN}.navigation.csv").write_text("\n".join(["world,policy,seed,moving_s", *nav]) + "\n")
-    (folder / "runs" / f"{RUN}.timing.json").write_text(json.dumps({"env_steps": 10 * seeds, "wall_s": 2.0,
-                                                                    "env_steps_per_s": 5.0 * seeds}))
+    timing = {"env_steps": 10 * seeds, "wall_s": 2.0, "sim_s": 1.0, "env_steps_per_s": 5.0 * seeds}
+    (folder / "runs" / f"{RUN}.timing.json").write_text(json.dumps(timing))
     for s in range(first, first + seeds):
         (folder / "maps" / f"{RUN}__seed{s}.ply").write_text(f"map of seed {s}")
     return folder

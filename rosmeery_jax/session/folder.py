@@ -60,6 +60,12 @@ def input_hashes(cfg: SessionConfig) -> dict:
     return out
 
 
+def saved_settings(session: dict) -> dict:
+    """A ``config.json``'s session settings, as compared on resume and join: a setting added
+    since the folder was written takes its default."""
+    return {**json.loads(json.dumps(asdict(SessionConfig()))), **session}
+
+
 class Claim(NamedTuple):
     """What :func:`check_out` found: the record for config.json, and whether the folder is
     new (nothing of an earlier invocation in it)."""
@@ -79,8 +85,7 @@ def check_out(cfg: SessionConfig, resume: bool) -> Claim:
     saved = Path(cfg.out) / RECORD
     if not isinstance(old.get("session"), dict) or not isinstance(old.get("inputs"), dict):
         raise InputError(str(saved), "file", "not a session config: cannot resume from it")
-    defaults = json.loads(json.dumps(asdict(SessionConfig())))  # a setting added since the folder began: its default
-    require_same(saved, {**defaults, **old["session"]}, record["session"], RESULT_FIELDS)
+    require_same(saved, saved_settings(old["session"]), record["session"], RESULT_FIELDS)
     for key in ("worlds", "policies"):
         dropped = [x for x in old["session"].get(key) or [] if x not in record["session"][key]]
         if dropped:

@@ -19,15 +19,15 @@ import json
 import os
 import shutil
 import tempfile
-from dataclasses import asdict
 from pathlib import Path
 from typing import NamedTuple
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, output_folder, require_new, require_same, write_atomic
 from rosmeery_jax.policies import REPLAY_PREFIX
-from rosmeery_jax.session.config import RESULT_FIELDS, SessionConfig
-from rosmeery_jax.session.outputs import merge
+from rosmeery_jax.session.config import RESULT_FIELDS
+from rosmeery_jax.session.folder import saved_settings
+from rosmeery_jax.session.outputs import merge, rates
 
 SPLIT = ("seeds", "first_seed", "out")  # the settings the parts may differ in (and their versions)
 RATES = ("env_steps_per_s", "sim_env_steps_per_s")  # in timing files: from the sums, not summed
@@ -97,10 +97,9 @@ def _check(parts: list[Part]) -> None:
         raise InputError("join", "folders", "give two results folders or more")
     first = parts[0]
     keys = [k for k in ("worlds", "policies", *RESULT_FIELDS) if k not in SPLIT]
-    defaults = json.loads(json.dumps(asdict(SessionConfig())))  # a setting added since a part ran: its default
     for part in parts[1:]:
         saved = part.folder / RECORD
-        require_same(saved, {**defaults, **first.record["session"]}, {**defaults, **part.record["session"]}, keys)
+        require_same(saved, saved_settings(first.record["session"]), saved_settings(part.record["session"]), keys)
         if part.record["inputs"] != first.record["inputs"]:
             raise InputError(str(saved), "inputs", f"its input files differ from {first.folder / RECORD}'s: "
                              "the parts ran on other worlds, recordings, policies or weights")
@@ -178,10 +177,8 @@ def _sum_timing(paths: list[Path], dest: Path) -> None:
     number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool)  # noqa: E731
     total = {k: sum(t[k] for t in found) for k in found[0]
              if k not in RATES and k != "devices" and all(number(t.get(k)) for t in found)}
-    if "wall_s" in total and "env_steps" in total:
-        total["env_steps_per_s"] = total["env_steps"] / max(total["wall_s"], 1e-9)
-    if "sim_s" in total and "env_steps" in total:
-        total["sim_env_steps_per_s"] = total["env_steps"] / max(total["sim_s"], 1e-9)
+    if {"env_steps", "wall_s", "sim_s"} <= set(total):
+        total.update(rates(total["env_steps"], total["wall_s"], total["sim_s"]))
     if any("groups" in t for t in found):
         total["groups"] = [g for t in found for g in t.get("groups", [])]
     write_atomic(dest, json.dumps({**total, "note": f"the times of {len(found)} joined parts, summed"}, indent=2))

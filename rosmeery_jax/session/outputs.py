@@ -143,6 +143,10 @@ def sum_timing(parts: list[dict], t_start: float) -> dict:
     """This invocation's figures: the groups' (or cluster shards') times summed, and the wall
     time from ``t_start`` to now (set-up, compile, simulation, detection, writing)."""
     total = {k: sum(g.get(k, 0) for g in parts) for k in TIMING_KEYS}
-    wall = time.perf_counter() - t_start
-    return {**total, "wall_s": wall, "env_steps_per_s": total["env_steps"] / wall,
-            "sim_env_steps_per_s": total["env_steps"] / max(total["sim_s"], 1e-9)}
+    return {**total, **rates(total["env_steps"], time.perf_counter() - t_start, total["sim_s"])}
+
+
+def rates(env_steps: float, wall_s: float, sim_s: float) -> dict:
+    """A timing file's wall time and rates: env-steps per second end to end and simulating."""
+    return {"wall_s": wall_s, "env_steps_per_s": env_steps / max(wall_s, 1e-9),
+            "sim_env_steps_per_s": env_steps / max(sim_s, 1e-9)}
