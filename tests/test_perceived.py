@@ -18,7 +18,8 @@ from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
-from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper, _first_claims, _keys, _Rows, _Table
+from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper
+from rosmeery_jax.scoring.voxel_table import KeyTable, Rows, cube_keys, first_claims
 from rosmeery_jax.sim.sensors import rgbd
 from rosmeery_jax.world.taxonomy import load_taxonomy
 from rosmeery_jax.scoring.semantic_map import build_map, write_map
@@ -141,7 +142,7 @@ def test_two_boxes_of_one_frame_never_join_one_instance(scenes):
     env, _ = scenes["apart"]
     m = PerceivedMapper(Camera.of(env.config.camera))
     pts = np.stack(np.meshgrid(np.arange(10) * 0.025, np.arange(10) * 0.025, [0.5]), -1).reshape(-1, 3) + 0.01
-    keys, cells = _keys(pts.T, 0.025), np.unique(_keys(pts.T, 0.05))  # a 25 cm patch: 100 voxels, 25 cells
+    keys, cells = cube_keys(pts.T, 0.025), np.unique(cube_keys(pts.T, 0.05))  # a 25 cm patch: 100 voxels, 25 cells
     first = m._associate(cells, 0, set())
     m._claim(np.array([first]), keys, pts, cells)
     assert m._associate(cells, 0, set()) == first  # another frame's box on the patch joins it
@@ -159,11 +160,11 @@ def test_a_detection_joins_an_instance_of_its_label_on_a_smaller_overlap(scenes)
     part, rest = strip[:10], strip[8:]  # the second box reaches 10 cm into the first part
     for label, joins in ((4, True), (0, False)):
         m = PerceivedMapper(Camera.of(env.config.camera), cfg=cfg)
-        cells = np.unique(_keys(part.T, 0.05))
+        cells = np.unique(cube_keys(part.T, 0.05))
         first = m._associate(cells, 4, set())
-        m._claim(np.array([first]), _keys(part.T, 0.025), part, cells)
+        m._claim(np.array([first]), cube_keys(part.T, 0.025), part, cells)
         m.label[first] = 4  # a desk
-        later = np.unique(_keys(rest.T, 0.05))
+        later = np.unique(cube_keys(rest.T, 0.05))
         held = (m.cells.get(later) == first).mean()  # its two cells and the neighbour's
         assert cfg.same_overlap <= held < cfg.overlap
         assert (m._associate(later, label, set()) == first) == joins
@@ -398,16 +399,16 @@ def test_a_wall_found_later_takes_its_points_out_of_the_map(scenes):
     scorer = OnlineScorer(env.world, 0.05)
     y, z = np.meshgrid(np.arange(20) * 0.025, np.arange(20) * 0.05 + 0.1)
     patch = np.stack([np.full(y.size, -1.97), y.ravel() + 0.01, z.ravel()], -1)  # 0.5 m of a wall, low
-    cells = np.unique(_keys(patch.T, 0.05))
+    cells = np.unique(cube_keys(patch.T, 0.05))
     first = m._associate(cells, 4, set())
     m.views[first] = 1
-    m._claim(np.array([first]), _keys(patch.T, 0.025), patch, cells)
+    m._claim(np.array([first]), cube_keys(patch.T, 0.025), patch, cells)
     before = m.semantic_map()
     assert len(before.points) == len(patch) and scorer.score(before).off_object == 1.0
     other = patch + [0, 0.6, 0]  # a second patch, further along the wall
-    other_cells = np.unique(_keys(other.T, 0.05))
+    other_cells = np.unique(cube_keys(other.T, 0.05))
     unconfirmed = m._associate(other_cells, 4, set())
-    m._claim(np.array([unconfirmed]), _keys(other.T, 0.025), other, other_cells)
+    m._claim(np.array([unconfirmed]), cube_keys(other.T, 0.025), other, other_cells)
     assert unconfirmed != first and len(m.pending[unconfirmed][0]) == len(other)
     high = patch[patch[:, 1] < 0.09][:1] + [0, 0, 2.3]  # the wall above 2.2 m, in the patch's first 10 cm cell
     m._off_walls(*high.T)
@@ -640,9 +641,9 @@ def _patch(x: tuple, y: tuple, z: tuple) -> np.ndarray:
 
 def _seen(m: PerceivedMapper, pts: np.ndarray, label: int) -> int:
     """Fold ``pts`` as one detection of ``label`` seen twice (confirmed); its instance."""
-    cells = np.unique(_keys(pts.T, m.cfg.cell))
+    cells = np.unique(cube_keys(pts.T, m.cfg.cell))
     inst = m._associate(cells, label, set())
-    m._claim(np.array([inst]), _keys(pts.T, m.cfg.voxel), pts, cells)
+    m._claim(np.array([inst]), cube_keys(pts.T, m.cfg.voxel), pts, cells)
     m.label[inst], m.conf[inst], m.views[inst] = label, np.float32(0.9), m.views[inst] + 2
     m._publish(inst)
     return inst
@@ -714,7 +715,7 @@ def test_a_part_merges_when_enough_of_its_points_lie_inside(scenes, x1, merged):
 def test_a_cube_table_answers_as_a_dictionary(sizes, seed):
     """Batches of keys added (past 1,024 the latest move into the sorted array), each looked
     up with as many keys never added."""
-    table, plain = _Table(), {}
+    table, plain = KeyTable(), {}
     rng = np.random.default_rng(seed)
     for k, size in enumerate(sizes):
         keys = np.unique(np.r_[rng.integers(-2 ** 40, 2 ** 40, size), list(plain)[:size // 2]]).astype(np.int64)
@@ -737,11 +738,11 @@ def test_claims_made_together_equal_claims_made_one_after_another(entries):
         for key in sorted(set(keys[mine].tolist()) - taken):
             taken.add(key)
             expect.append(min(i for i in mine if keys[i] == key))  # its first entry of that key
-    assert _first_claims(keys, rank).tolist() == expect
+    assert first_claims(keys, rank).tolist() == expect
 
 
 def test_a_maps_points_handed_out_never_change_as_it_grows():
-    rows = _Rows((3,), np.float64)
+    rows = Rows((3,), np.float64)
     rows.append(np.ones((10, 3)))
     before = rows.rows
     for k in range(2, 8):  # past its capacity several times

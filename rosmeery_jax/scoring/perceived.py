@@ -103,10 +103,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from scipy import ndimage
-
+from rosmeery_jax.scoring.depth_segments import box_owner, depth_rays, segment_owners, segments
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, Frame, Mapper, MapState
-from rosmeery_jax.sim.sensors import camera_rays
+from rosmeery_jax.scoring.voxel_table import NEIGHBOURS, KeyTable, Rows, cube_keys, first_claims
 
 
 @dataclass(frozen=True)
@@ -187,26 +186,26 @@ class PerceivedMapper(Mapper):
         self.cfg = cfg
         camera = self.config = camera.config  # the benchmark's camera settings: mount and rays
         w, h = camera.rgb_width, camera.rgb_height
-        self.rays = _depth_rays(camera, w, h)  # the detector frame's
-        self.sweep_rays = _depth_rays(camera, camera.width, camera.height)  # the depth camera's of every step
+        self.rays = depth_rays(camera, w, h)  # the detector frame's
+        self.sweep_rays = depth_rays(camera, camera.width, camera.height)  # the depth camera's of every step
         self.sweep_cfg = replace(cfg, edge_rel=cfg.edge_rel * camera.focal(w) / camera.focal(camera.width))
         # (its neighbouring pixels lie further apart in angle: the same surface tilt gives a larger depth step)
-        self.owner = _Table()  # voxel key -> instance that claimed it
-        self.cells = _Table()  # coarse cell key -> the first instance seen in it or beside it
-        self.claimed = _Table()  # coarse cell key -> the first instance seen in it
+        self.owner = KeyTable()  # voxel key -> instance that claimed it
+        self.cells = KeyTable()  # coarse cell key -> the first instance seen in it or beside it
+        self.claimed = KeyTable()  # coarse cell key -> the first instance seen in it
         self.pending: list[list[np.ndarray]] = []  # per instance: point batches not in the map yet
         self.views: list[int] = []  # per instance: detections that support it
         self.parent: list[int] = []  # per instance: the instance it was merged into (itself if none)
         self.label: list[int] = []  # per instance: the held label (-1 none) and its confidence (rule 5)
         self.conf: list[float] = []
-        self.points = _Rows((3,), np.float64)  # the map's points, in the order they entered it
-        self.point_instance = _Rows((), np.int64)
-        self.held = _Table()  # plan-view cell key -> 0 where the map holds a point (rule 10)
+        self.points = Rows((3,), np.float64)  # the map's points, in the order they entered it
+        self.point_instance = Rows((), np.int64)
+        self.held = KeyTable()  # plan-view cell key -> 0 where the map holds a point (rule 10)
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self.extent: list[np.ndarray] = []  # per instance: its detections' points' 3D box (2, 3) (rule 7)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
-        self.walls = _Table()  # plan-view cell key -> 0 where a wall stands (rule 10)
+        self.walls = KeyTable()  # plan-view cell key -> 0 where a wall stands (rule 10)
         names = np.array(categories, dtype=object)
         self._bare, self._placed = np.flatnonzero(np.isin(names, cfg.bare)), np.flatnonzero(np.isin(names, cfg.placed))
         self._last: _Seen | None = None  # the latest frame
@@ -289,7 +288,7 @@ class PerceivedMapper(Mapper):
         coarse ``cells`` (C,) (of ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the
         first instance that reaches it, and its first point in that instance's points stays."""
         rank, cell_rank = np.broadcast_to(rank, keys.shape), np.broadcast_to(cell_rank, cells.shape)
-        new = _first_claims(keys, rank)
+        new = first_claims(keys, rank)
         new = new[self.owner.get(keys[new]) < 0]
         self.owner.add(keys[new], insts[rank[new]])
         split = np.searchsorted(rank[new], np.arange(1, len(insts)))  # ordered by instance: one batch each
@@ -297,12 +296,12 @@ class PerceivedMapper(Mapper):
             if len(batch):
                 self.pending[inst].append(batch)
             self._publish(inst)
-        fresh = _first_claims(cells, cell_rank)
+        fresh = first_claims(cells, cell_rank)
         fresh = fresh[self.claimed.get(cells[fresh]) < 0]
         self.claimed.add(cells[fresh], insts[cell_rank[fresh]])
-        near = (cells[fresh][:, None] + _NEIGHBOURS).ravel()  # the fresh cells and their neighbours
-        near_rank = np.repeat(cell_rank[fresh], len(_NEIGHBOURS))
-        first = _first_claims(near, near_rank)
+        near = (cells[fresh][:, None] + NEIGHBOURS).ravel()  # the fresh cells and their neighbours
+        near_rank = np.repeat(cell_rank[fresh], len(NEIGHBOURS))
+        first = first_claims(near, near_rank)
         first = first[self.cells.get(near[first]) < 0]  # the first seen stays
         self.cells.add(near[first], insts[near_rank[first]])
 
@@ -311,7 +310,7 @@ class PerceivedMapper(Mapper):
         points in that instance's cells or next to them."""
         if not len(cloud.part) or not len(self.claimed):
             return
-        cell = _keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
+        cell = cube_keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
         cells, cell_ix = np.unique(cell, return_inverse=True)
         pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
         seg, cell_of = pairs // len(cells), pairs % len(cells)  # each pair's segment and index into cells
@@ -320,7 +319,7 @@ class PerceivedMapper(Mapper):
         held = root[self.claimed.get(cells)][cell_of]  # looked up once per cell, not per pair
         held = np.where(confirmed[held], held, -1)
         beside = root[self.cells.get(cells)][cell_of]  # the instance seen in the cell or next to it
-        segs, insts = _segment_owners(seg, held, len(cloud.size), self.cfg.grow)
+        segs, insts = segment_owners(seg, held, len(cloud.size), self.cfg.grow)
         if not len(segs):
             return
         ids, first, which = np.unique(insts, return_index=True, return_inverse=True)
@@ -332,7 +331,7 @@ class PerceivedMapper(Mapper):
         take = np.flatnonzero(rank >= 0)
         take = take[self._within_reach(ids[order][rank[take]], cloud, take)]
         x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
-        self._claim(ids[order], _keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take],
+        self._claim(ids[order], cube_keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take],
                     rank[take], rank[take])
 
     def _within_reach(self, inst: np.ndarray, cloud: _Cloud, at: np.ndarray) -> np.ndarray:
@@ -360,14 +359,14 @@ class PerceivedMapper(Mapper):
                                              and np.array_equal(last.boxes, boxes))
         if not self._repeat:
             cloud = self._cloud(np.asarray(pose)[None], np.asarray(depth)[None], self.rays, self.cfg)
-            owner = _box_owner(boxes, depth.shape)[cloud.valid[0]]  # (k,) the box each point lies most inside
+            owner = box_owner(boxes, depth.shape)[cloud.valid[0]]  # (k,) the box each point lies most inside
             self._last = last = _Seen(np.array(pose), np.array(depth), np.array(boxes), cloud,
                                       [self._box_voxels(cloud, owner == i) for i in range(len(boxes))])
         return last.voxels
 
     def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> _Cloud:
         """F frames' depth pixels above the floor, in the world frame, cut into segments
-        (each frame's own): pose (F, 3), depth (F, H, W); ``rays`` the frames' (:func:`_depth_rays`)."""
+        (each frame's own): pose (F, 3), depth (F, H, W); ``rays`` the frames' (:func:`depth_rays`)."""
         z = self.config.mount_height + rays[2] * depth
         valid = (depth > 0) & (z >= cfg.floor_z)  # the floor is dropped here
         d = depth[valid]
@@ -381,7 +380,7 @@ class PerceivedMapper(Mapper):
         if not keep.all():
             valid[valid] = keep
             d, x, y, z = d[keep], x[keep], y[keep], z[keep]
-        count, part = _segments(depth, valid, cfg)
+        count, part = segments(depth, valid, cfg.edge_abs, cfg.edge_rel)
         return _Cloud(valid, d, x, y, z, part, np.bincount(part, minlength=count))
 
     def _off_walls(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -400,7 +399,7 @@ class PerceivedMapper(Mapper):
 
     def _plan_cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(k,) the plan-view cell keys (``wall_cell``) of points at x, y (k,) (rule 10)."""
-        return _keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
+        return cube_keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
 
     def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> _Boxed:
         """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
@@ -435,13 +434,13 @@ class PerceivedMapper(Mapper):
         """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
         cell keys, and the first of the points in each voxel, (V, 3) (rule 3)."""
         x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
-        keys, first = np.unique(_keys((x, y, z), self.cfg.voxel), return_index=True)
+        keys, first = np.unique(cube_keys((x, y, z), self.cfg.voxel), return_index=True)
         cells = keys if self.cfg.cell == self.cfg.voxel else self._cells(cloud, take)
         return keys, cells, np.stack([x[first], y[first], z[first]], -1)
 
     def _cells(self, cloud: _Cloud, take: np.ndarray) -> np.ndarray:
         """The distinct coarse cell keys (C,) ascending of the cloud's points ``take`` (k,) (rule 4)."""
-        return np.unique(_keys((cloud.x[take], cloud.y[take], cloud.z[take]), self.cfg.cell))
+        return np.unique(cube_keys((cloud.x[take], cloud.y[take], cloud.z[take]), self.cfg.cell))
 
     def _associate(self, cells: np.ndarray, label: int, taken: set[int]) -> int:
         """The instance a detection joins, from the instances seen in ``cells``, those of its
@@ -510,7 +509,7 @@ class PerceivedMapper(Mapper):
         pts = self.points.rows
         keep = self.walls.get(self._plan_cells(pts[:, 0], pts[:, 1])) < 0
         pts, inst = pts[keep], self.point_instance.rows[keep]
-        self.points, self.point_instance = _Rows.of(pts), _Rows.of(inst)
+        self.points, self.point_instance = Rows.of(pts), Rows.of(inst)
         roots = self._roots()
         root = roots[inst]
         count = np.bincount(root, minlength=len(self.parent))
@@ -582,106 +581,6 @@ class PerceivedMapper(Mapper):
         return ids, box, count, pair
 
 
-class _Rows:
-    """An array that only grows at its end, (n, *shape): appended in amortised constant time
-    per row (the capacity doubles); ``rows`` is a view of the first n rows, which later
-    appends never change."""
-
-    def __init__(self, shape: tuple, dtype):
-        self._buf, self._n = np.zeros((16, *shape), dtype), 0
-
-    @classmethod
-    def of(cls, rows: np.ndarray) -> "_Rows":
-        """A new buffer holding a copy of ``rows`` (n, *shape)."""
-        out = cls(rows.shape[1:], rows.dtype)
-        out.append(rows)
-        return out
-
-    def append(self, rows: np.ndarray) -> None:
-        n = self._n + len(rows)
-        if n > len(self._buf):
-            buf = np.zeros((max(n, 2 * len(self._buf)), *self._buf.shape[1:]), self._buf.dtype)
-            buf[:self._n] = self._buf[:self._n]
-            self._buf = buf
-        self._buf[self._n:n] = rows
-        self._n = n
-
-    @property
-    def rows(self) -> np.ndarray:
-        return self._buf[:self._n]
-
-
-# key offsets of a cube and its 26 neighbours (the bit layout of _keys)
-_NEIGHBOURS = np.array([(dx << 42) + (dy << 21) + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)],
-                       np.int64)
-
-
-def _depth_rays(camera, w: int, h: int) -> tuple:
-    """The camera's rays at w x h pixels scaled so that a point is ray * depth: x (forward),
-    y, z (H, W) each, in the camera's level frame."""
-    rays = camera_rays(camera, w, h)  # (H*W, 3) camera frame, unit
-    axis = np.array([np.cos(camera.pitch), 0.0, -np.sin(camera.pitch)])
-    rays = (rays / (rays @ axis)[:, None]).reshape(h, w, 3)
-    return tuple(np.ascontiguousarray(rays[..., i]) for i in range(3))
-
-
-class _Table:
-    """Cube keys to instances, looked up many keys at once. Keys are held in two sorted
-    arrays, each searched in one vectorised call: most in the main one, the latest in a
-    small one, merged into the main one once they are many (so an add costs a copy of the
-    small one, not of the whole table). Most keys a frame looks up are in no table (walls
-    and furniture no detection named): a bitmap of the keys' hashes (256 KiB) answers those
-    at once."""
-
-    _BITS = 18
-
-    def __init__(self):
-        self._main, self._latest = _Sorted.empty(), _Sorted.empty()
-        self._seen = np.zeros(1 << self._BITS, bool)
-
-    def __len__(self) -> int:
-        return len(self._main.keys) + len(self._latest.keys)
-
-    def _hash(self, keys: np.ndarray) -> np.ndarray:
-        return (keys.view(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - self._BITS)  # Fibonacci hashing
-
-    def get(self, keys: np.ndarray) -> np.ndarray:
-        """(K,) the instances the table holds for int64 ``keys`` (K,), -1 where it holds none."""
-        out = np.full(len(keys), -1, np.int64)
-        maybe = np.flatnonzero(self._seen[self._hash(keys)])
-        for held, insts in (self._main, self._latest):  # each _Sorted: keys, their instances
-            if len(held) and len(maybe):
-                at = np.minimum(np.searchsorted(held, keys[maybe]), len(held) - 1)
-                found = held[at] == keys[maybe]
-                out[maybe[found]] = insts[at[found]]
-                maybe = maybe[~found]
-        return out
-
-    def add(self, keys: np.ndarray, insts: np.ndarray) -> None:
-        """Record instances ``insts`` (K,) for distinct int64 ``keys`` (K,), none of them in the table yet."""
-        self._seen[self._hash(keys)] = True
-        self._latest = self._latest.insert(keys, insts)
-        if len(self._latest.keys) > max(1024, len(self._main.keys) // 16):
-            self._main, self._latest = self._main.insert(*self._latest), _Sorted.empty()
-
-
-class _Sorted(NamedTuple):
-    """Keys (K,) ascending and their instances (K,)."""
-
-    keys: np.ndarray
-    insts: np.ndarray
-
-    @classmethod
-    def empty(cls) -> "_Sorted":
-        return cls(np.zeros(0, np.int64), np.zeros(0, np.int64))
-
-    def insert(self, keys: np.ndarray, insts: np.ndarray) -> "_Sorted":
-        """These with ``keys`` (K,), none of them held yet, and their ``insts`` (K,) added."""
-        order = np.argsort(keys)
-        at = np.searchsorted(self.keys, keys[order])
-        return _Sorted(np.insert(self.keys, at, keys[order]), np.insert(self.insts, at, insts[order]))
-
-
 def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The box (2, D) holding boxes a and b (2, D) (lower corner, upper corner)."""
     return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
@@ -690,80 +589,3 @@ def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _widened(box: np.ndarray, margin: float) -> np.ndarray:
     """Boxes (..., 2, D) (lower corner, upper corner) grown by ``margin`` on every side."""
     return box + np.array([[-margin], [margin]])
-
-
-def _keys(xyz: tuple, size: float) -> np.ndarray:
-    """Cube keys of points: 21 bits per axis (a 100 km cube at 5 cm)."""
-    cell = [np.floor(a / size).astype(np.int64) + (1 << 20) for a in xyz]
-    return (cell[0] << 42) | (cell[1] << 21) | cell[2]
-
-
-def _box_owner(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) index of the box each pixel lies most inside (rule 1), -1 outside every box.
-    Each box is measured over its own rows and columns only."""
-    h, w = shape
-    owner = np.full(shape, -1, np.int64)
-    best = np.full(shape, np.inf)
-    for i, (x1, y1, x2, y2) in enumerate(np.asarray(boxes, np.float64)):
-        rows = np.s_[int(np.clip(np.floor(y1), 0, h)):int(np.clip(np.ceil(y2) + 1, 0, h))]
-        cols = np.s_[int(np.clip(np.floor(x1), 0, w)):int(np.clip(np.ceil(x2) + 1, 0, w))]
-        v = np.arange(h)[rows, None] + 0.5  # pixel centres in the boxes' corner coordinates
-        u = np.arange(w)[None, cols] + 0.5
-        inside = np.maximum(np.abs(u - (x1 + x2) / 2) / max((x2 - x1) / 2, 1e-6),
-                            np.abs(v - (y1 + y2) / 2) / max((y2 - y1) / 2, 1e-6))
-        take = (inside <= 1) & (inside < best[rows, cols])
-        owner[rows, cols][take], best[rows, cols][take] = i, inside[take]
-    return owner
-
-
-def _first_claims(keys: np.ndarray, rank: np.ndarray) -> np.ndarray:
-    """Of entries with keys (K,) and ranks (K,), the first of the lowest rank for each key:
-    their indices, ordered by rank, then key."""
-    if not len(keys) or (rank == rank[0]).all():  # one rank: one sort
-        return np.unique(keys, return_index=True)[1]
-    o = np.lexsort((rank, keys))  # by key, then rank, then index (stable)
-    first = o[np.r_[True, keys[o][1:] != keys[o][:-1]]]
-    return first[np.lexsort((keys[first], rank[first]))]
-
-
-def _segments(d: np.ndarray, valid: np.ndarray, cfg: PerceivedConfig) -> tuple[int, np.ndarray]:
-    """The ``valid`` depth pixels of frames ``d`` (F, h, w) cut at depth discontinuities
-    (4-neighbours further apart than ``edge_abs + edge_rel * depth``): the segment count and
-    each valid pixel's segment (k,), in row-major order, numbered in the order of their
-    first pixel; no segment spans two frames.
-
-    The pixels and the links between them are one image of (2h - 1, 2w - 1) cells a frame
-    (pixels at even places, a link between two pixels on the cell between them), so the
-    segments are the image's 4-connected components (``scipy.ndimage.label``: 2.7x faster
-    on the depth camera's frames than scipy's connected components of a graph of the links)."""
-    f, h, w = d.shape
-    grid = np.zeros((f, 2 * h - 1, 2 * w - 1), bool)
-    grid[:, ::2, ::2] = valid
-    for a, b, link in ((np.s_[..., :-1], np.s_[..., 1:], np.s_[:, ::2, 1::2]),
-                       (np.s_[:, :-1, :], np.s_[:, 1:, :], np.s_[:, 1::2, ::2])):
-        da, db = d[a], d[b]  # right and down neighbours
-        grid[link] = valid[a] & valid[b] & (np.abs(da - db) <= cfg.edge_abs + cfg.edge_rel * np.minimum(da, db))
-    label, count = ndimage.label(grid, _WITHIN_FRAME)
-    return count, label[:, ::2, ::2][valid] - 1
-
-
-_WITHIN_FRAME = np.zeros((3, 3, 3), bool)  # 4-neighbours within a frame, none across
-_WITHIN_FRAME[1] = ndimage.generate_binary_structure(2, 1)
-
-
-def _segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rule 7's segments, ascending, and the instance each grows: from each of a frame's
-    distinct (segment, cell) pairs, seg (Q,) its segment and held (Q,) the instance holding
-    the cell (-1 none), the segments of which one instance holds at least ``share`` of the cells."""
-    cells = np.bincount(seg, minlength=count)
-    on = held >= 0
-    if not on.any():
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    width = int(held.max()) + 1
-    pair, n = np.unique(seg[on] * width + held[on], return_counts=True)
-    s, inst = pair // width, pair % width
-    order = np.lexsort((-n, s))  # per segment, the instance holding most first
-    s, inst, n = s[order], inst[order], n[order]
-    first = np.r_[True, s[1:] != s[:-1]]
-    keep = first & (n >= share * cells[s])
-    return s[keep], inst[keep]

@@ -111,7 +111,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
                 if plan.digest:  # waits for the chunk: a debugging aid, not for timed runs
                     digests.append(digest.of_state(state))
     except BaseException:  # Ctrl-C or an error: queued detections are dropped, not waited for
-        worker.pool.shutdown(wait=False, cancel_futures=True)
+        worker.abandon()
         raise
     done = [j.result() for j in jobs]
     worker.close()
@@ -159,18 +159,11 @@ def _collect(group: Group, start: Start, state, data, blocks, track0, done: list
     logs = jax.tree.map(lambda *a: np.concatenate(a, axis=1), first, *[d.logs for d in done])
     track = jax.tree.map(lambda *a: np.concatenate(a, axis=1), jax.tree.map(lambda a: a[:, None], track0),
                          *[d.track for d in done])
-    knowledge = start.fns.knowledge(data, blocks, state)
-    if worker.detectors is not None:
-        lab = worker.labels
-        knowledge = knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
-                                       conf_any=lab.conf_any)
+    knowledge = worker.labelled(start.fns.knowledge(data, blocks, state))
     keep = group.real
-    mapped = None
-    if worker.mappers:
-        real = [m for m in worker.mappers if m is not None]
-        mapped = {spec: [m[spec] for m in real] for spec in worker.plan.mappers}
     return Simulation(jax.tree.map(lambda a: a[keep], logs), jax.tree.map(lambda a: a[keep], track),
-                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, mapped, worker.plan.log_every)
+                      jax.tree.map(lambda a: np.asarray(a)[keep], knowledge), timing, worker.maps(),
+                      worker.plan.log_every)
 
 
 def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: Keys, empty):

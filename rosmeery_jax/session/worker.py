@@ -108,6 +108,26 @@ class Worker:
     def close(self) -> None:
         self.pool.shutdown()
 
+    def abandon(self) -> None:
+        """Drop the chunks not yet detected (Ctrl-C or an error), without waiting for them."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+    def labelled(self, knowledge):
+        """The final knowledge (B envs) with the detector's labels in place of the ground
+        truth's; unchanged without detectors."""
+        if self.detectors is None:
+            return knowledge
+        lab = self.labels
+        return knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
+                                  conf_any=lab.conf_any)
+
+    def maps(self) -> dict | None:
+        """Per mapper entry, the real envs' :class:`Mapped` in row order; None without mappers."""
+        if not self.mappers:
+            return None
+        real = [m for m in self.mappers if m is not None]
+        return {spec: [m[spec] for m in real] for spec in self.plan.mappers}
+
     def _finish(self, c: int, logs, track, frames) -> Finished:
         """Chunk c: fetch it, detect its frames, rebuild the log's label fields."""
         logs, track = jax.tree.map(np.asarray, logs), jax.tree.map(np.asarray, track)
