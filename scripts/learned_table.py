@@ -60,7 +60,7 @@ def table(runs: pd.DataFrame, policies: list[str]) -> None:
             final = g.groupby("policy").final.mean()
             ran = [p for p in policies if p in auc]  # a measure may run some worlds only
             cells = dict(zip(ran, stats.bold_cells(
-                auc, ran, lambda p, ci: f"{ci.mean:.3f} [{ci.low:.3f}, {ci.high:.3f}] ({final[p]:.2f})")))
+                auc, ran, lambda p, ci: f"{ci.mean:.3f} {ci.bounds('.3f')} ({final[p]:.2f})")))
             print(f"| {label(w)} | " + " | ".join(cells.get(p, "-") for p in policies) + " |")
         if worlds:
             sets = runs[runs.world.isin(worlds)].groupby("policy")
@@ -76,7 +76,7 @@ def paired(runs: pd.DataFrame, a: str, b: str) -> None:
     for w, g in runs.groupby("world", sort=False):
         auc = g.pivot_table(index="seed", columns="policy", values="auc")
         r = stats.paired(auc[a], auc[b])
-        print(f"  {w:<26}{r.diff.mean:+.3f} [{r.diff.low:+.3f}, {r.diff.high:+.3f}]  p = {r.p:.4f}"
+        print(f"  {w:<26}{r.diff.mean:+.3f} {r.diff.bounds('+.3f')}  p = {r.p:.4f}"
               f"  {'significant' if r.significant else 'no difference shown'} at 95 % ({r.seeds} seeds)")
 
 

@@ -33,7 +33,7 @@ def table(final: pd.DataFrame) -> None:
     for w, title in TITLES.items():
         for m in ("ori", "cori", "opi"):
             seeds = _per_seed(final, w, m)
-            cells = stats.bold_cells(seeds, POLICIES, lambda p, ci: f"{ci.mean:.2f} [{ci.low:.2f}, {ci.high:.2f}]")
+            cells = stats.bold_cells(seeds, POLICIES, lambda p, ci: f"{ci.mean:.2f} {ci.bounds()}")
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
 
 
@@ -46,8 +46,8 @@ def comparisons(final: pd.DataFrame, metric: str = "ori") -> None:
         for a, b in ((a, b) for i, a in enumerate(POLICIES) for b in POLICIES[i + 1:]):
             r = stats.paired(seeds[a], seeds[b])
             verdict = (f"{b if r.diff.mean > 0 else a} ahead" if r.significant else "no difference shown")
-            print(f"  {title:<13}{b:>13} - {a:<13}{r.diff.mean:+.3f} [{r.diff.low:+.3f}, {r.diff.high:+.3f}]  "
-                  f"p = {r.p:.4f}  ({r.seeds} seeds): {verdict}")
+            print(f"  {title:<13}{b:>13} - {a:<13}{r.diff.mean:+.3f} {r.diff.bounds('+.3f')}  "
+                  f"p = {r.p:.4f}  ({r.seeds} seed{'s' * (r.seeds != 1)}): {verdict}")
 
 
 def _check_runs(full: pd.DataFrame, out: Path) -> None:
@@ -63,6 +63,10 @@ def main(folder: str) -> None:
     out = Path(folder)
     full = results.load(out)
     _check_runs(full, out)
+    fewest, needed = int(full.groupby(["world", "policy"]).seed.nunique().min()), stats.seeds_needed()
+    if fewest < needed:
+        print(f"note: {fewest} seed{'s' * (fewest > 1)} in the smallest run group: an interval needs 3, and a "
+              f"paired test {needed} to show a difference at 95 %")
     end = full.time_s.max()
     for mapper in sorted(full.mapper.unique()):
         print(f"\nmapper: {mapper}")

@@ -553,6 +553,26 @@ def test_the_paper_table_names_a_paper_world_or_policy_the_folder_lacks(tmp_path
                                   "table needs") and done.stderr.count("\n") == 1
 
 
+def test_the_paper_table_of_one_seed_says_it_has_no_intervals_and_why(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    worlds, policies = ("kitchen", "laboratory", "small_office", "large_office"), ("frontier", "random", "semantic_nbv")
+    rows = [dict(world=w, policy=p, detector="off", seed=0, time_s=t, metric=m, value=t / (2 + k), mapper="oracle")
+            for w in worlds for k, p in enumerate(policies) for t in (0.0, 1.0) for m in ("ori", "cori", "opi")]
+    pd.DataFrame(rows).to_csv(tmp_path / "metrics.csv", index=False)
+    track = [dict(world=w, policy=p, seed=0, time_s=t, x=t, y=0.0) for w in worlds for p in policies for t in (0, 1)]
+    pd.DataFrame(track).to_csv(tmp_path / "trajectories.csv", index=False)
+    done = subprocess.run([sys.executable, str(Path(__file__).parents[1] / "scripts" / "paper_table.py"),
+                           str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("note: 1 seed in the smallest run group: an interval needs 3, and a paired test 6")
+    assert "| Kitchen | ORI | **0.50 [< 3 seeds]** | **0.33 [< 3 seeds]** | **0.25 [< 3 seeds]** |" in done.stdout
+    assert "random - frontier     -0.167 [< 3 seeds]  p = 1.0000  (1 seed): no difference shown" in done.stdout
+    assert "nan" not in done.stdout.lower()  # "[nan, nan]" and a zero-width difference interval before
+
+
 def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it_cannot_read(tmp_path):
     from rosmeery_jax.scoring.plots import plot_results
 

@@ -35,6 +35,21 @@ def test_the_interval_holds_the_mean_and_is_reproducible():
     assert wide.high - wide.low > a.high - a.low  # more spread, a wider interval
 
 
+def test_a_paired_difference_of_under_three_seeds_has_no_interval_as_a_mean_has_none():
+    one = stats.paired([0.5], [0.6])  # a zero-width interval [+0.1, +0.1] before
+    assert one.diff.mean == pytest.approx(0.1) and np.isnan(one.diff.low) and np.isnan(one.diff.high)
+    assert one.p == 1.0 and not one.significant
+    assert np.isnan(stats.paired([0.5, 0.5], [0.6, 0.6]).diff.low)  # two equal differences: still too few
+    assert stats.paired([0.5] * 3, [0.6] * 3).diff == pytest.approx((0.1, 0.1, 0.1))  # three: the mean itself
+
+
+def test_an_interval_prints_its_bounds_or_why_it_has_none():
+    assert stats.Interval(0.5, 0.41, 0.6).bounds() == "[0.41, 0.60]"
+    assert stats.Interval(0.1, -0.02, 0.25).bounds("+.3f") == "[-0.020, +0.250]"
+    assert stats.interval([0.4, 0.5]).bounds() == "[< 3 seeds]"
+    assert stats.interval([0.4, float("nan"), 0.5]).bounds() == "[NaN values]"
+
+
 def test_a_paired_difference_is_signed_b_minus_a():
     r = stats.paired([0.5, 0.6, 0.55, 0.7, 0.52, 0.5], [0.6, 0.71, 0.65, 0.8, 0.62, 0.58])
     assert r.diff.mean == pytest.approx(0.09833, abs=1e-4) and r.diff.low > 0 and r.significant and r.seeds == 6

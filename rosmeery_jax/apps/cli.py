@@ -208,8 +208,7 @@ def _print_summary(out: Path) -> None:
         final = stats.interval([x["final"] for x in per_seed])
         auc = sum(x["auc"] for x in per_seed) / len(per_seed)
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
-        ci = f"[{final.low:.3f}, {final.high:.3f}]" if final.low == final.low else "[< 3 seeds]"  # NaN: too few
-        print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} {ci:<16}{auc:>8.3f}{t90:>8.1f}")
+        print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} {final.bounds('.3f'):<16}{auc:>8.3f}{t90:>8.1f}")
     if (out / "navigation.csv").exists():
         print(navigation.summary(pd.read_csv(out / "navigation.csv")))
     if (out / "timing.json").exists():

@@ -34,6 +34,13 @@ class Interval(NamedTuple):
     low: float
     high: float
 
+    def bounds(self, spec: str = ".2f") -> str:
+        """The interval as text, ``[low, high]`` in format ``spec``; ``[< 3 seeds]`` where
+        there is none (NaN bounds: too few seeds, or a NaN value, then also a NaN mean)."""
+        if np.isfinite(self.low) and np.isfinite(self.high):
+            return f"[{self.low:{spec}}, {self.high:{spec}}]"
+        return "[< 3 seeds]" if np.isfinite(self.mean) else "[NaN values]"
+
 
 class Paired(NamedTuple):
     """b - a by seed: the mean difference with its interval, the permutation test's p, and
@@ -91,9 +98,8 @@ def paired(a, b, level: float = LEVEL) -> Paired:
         nan = float("nan")
         return Paired(Interval(float(d.mean()) if len(d) else nan, nan, nan), nan, len(d), nan)
     sd = float(d.std(ddof=1)) if len(d) > 1 else float("nan")
-    if len(d) < 2 or np.all(d == d[0]):
-        return Paired(Interval(float(d.mean()), float(d.mean()), float(d.mean())), 1.0 if not d.any() else
-                      2.0 ** (1 - len(d)), len(d), sd)
+    if len(d) < 2 or np.all(d == d[0]):  # every sign pattern as far from 0 (or none): no resampling
+        return Paired(interval(d, level), 1.0 if not d.any() else 2.0 ** (1 - len(d)), len(d), sd)
     test = stats.permutation_test((d,), np.mean, permutation_type="samples", alternative="two-sided",
                                   n_resamples=RESAMPLES, random_state=np.random.default_rng(0))
     return Paired(interval(d, level), float(test.pvalue), len(d), sd)
