@@ -14,130 +14,26 @@ import time
 from pathlib import Path
 
 import jax
-import numpy as np
 import pandas as pd
 
+from rosmeery_jax.apps import detector_commands, world_commands
+from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.record import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new, write_atomic
-from rosmeery_jax.detector import dataset
-from rosmeery_jax.detector import evaluate as detector_eval
 from rosmeery_jax.detector import runtime as runtimes
-from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 from rosmeery_jax.env import make
-from rosmeery_jax.env.config import MAX_PIXELS
 from rosmeery_jax.scoring import evaluate as map_eval
 from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
 from rosmeery_jax.scoring.align import to_world
 from rosmeery_jax.scoring.pose_replay import read_poses, replay
 from rosmeery_jax.scoring.semantic_map import write_semantic_map
-from rosmeery_jax.core.xla import MEMORY_SHARE, compilation_cache, cores, host_devices, memory_bytes
+from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
-from rosmeery_jax.world import load_world, world_names
-from rosmeery_jax.world.draw import picture_format, save_world_picture
-from rosmeery_jax.world.generate import GenOptions, check_options, generate
-from rosmeery_jax.world.procedural import MAX_WORLDS, check_unchanged, expand_names, write_world
-from rosmeery_jax.world.stats import stats_table, summary, world_names_in
-
-
-def _cmd_worlds(args) -> int:
-    if args.pictures and Path(args.pictures).exists() and not Path(args.pictures).is_dir():
-        raise InputError(args.pictures, "--pictures", "is a file, not a folder")
-    worlds = [load_world(n) for n in world_names()]
-    summaries = [w.summary() for w in worlds]
-    for w in worlds if args.pictures else ():  # every picture checked before any is written
-        require_new(Path(args.pictures) / f"{w.name}.png", "--pictures", kind="file")
-    if args.pictures:
-        for w, s in zip(worlds, summaries):
-            s["picture"] = str(save_world_picture(w, Path(args.pictures) / f"{w.name}.png"))
-    if args.json:
-        print(json.dumps(summaries, indent=2))
-        return 0
-    print(f"{'world':<14}{'title':<15}{'objects':>8}{'samples':>9}{'boxes':>7}{'reach m2':>10}  categories")
-    for s in summaries:
-        cats = ", ".join(f"{c} x{k}" for c, k in s["categories"].items())
-        print(f"{s['name']:<14}{s['title']:<15}{s['objects']:>8}{s['samples']:>9}{s['boxes']:>7}"
-              f"{s['reachable_area_m2']:>10.1f}  {cats}")
-    for s in summaries:
-        if "picture" in s:
-            print(f"wrote {s['picture']}")
-    return 0
-
-
-def _gen_options(args, seed: int) -> GenOptions:
-    return GenOptions(args.kind, seed, args.rooms, args.objects, args.clutter, args.tuck, args.turn, args.islands,
-                      args.spare)
-
-
-def _cmd_worlds_generate(args) -> int:
-    if args.count < 1:
-        raise InputError("command line", "--count", f"{args.count}: at least 1")
-    check_options(_gen_options(args, args.seed), "command line")
-    if args.count > MAX_WORLDS:
-        raise InputError("command line", "--count", f"{args.count}: at most {MAX_WORLDS:,} worlds at once")
-    out = Path(args.out)
-    if out.is_symlink() and not out.exists():
-        raise InputError(str(out), "--out", "is a broken or looping symbolic link")
-    if out.exists() and not out.is_dir():
-        raise InputError(str(out), "--out", "exists and is not a folder")
-    t0 = time.perf_counter()
-    layouts = [generate(_gen_options(args, s))
-               for s in range(args.seed, args.seed + args.count)]  # all or nothing: generate, then write
-    gen_s = time.perf_counter() - t0
-    for layout in layouts:  # an edited world in --out refuses the whole command, before any write
-        check_unchanged(out / f"{layout.options.name}.xml", layout.xml())
-    with output_folder(out):
-        paths = [write_world(layout, out) for layout in layouts]
-    total_s = time.perf_counter() - t0
-    print(f"wrote {len(paths)} {args.kind} worlds to {out}/ in {total_s:.2f} s "
-          f"({1000 * gen_s / len(paths):.1f} ms per world to generate, the rest writing)")
-    if args.check:
-        t1 = time.perf_counter()
-        for p in paths:
-            load_world(p)  # a world that fails the loader's validation stops here, in one line
-        print(f"all {len(paths)} pass the loader's validation ({time.perf_counter() - t1:.1f} s)")
-    return 0
-
-
-def _cmd_worlds_stats(args) -> int:
-    if args.rows < 0:
-        raise InputError("command line", "--rows", f"{args.rows} must be a whole number >= 0 (0: the summary only)")
-    names = world_names_in(args.worlds)
-    table, cats = stats_table(names)
-    if args.csv:
-        table.to_csv(sys.stdout, index=False)
-        return 0
-    if len(table) <= args.rows:
-        print(table.to_string(index=False))
-    if len(table) > 1:
-        print(f"\n{len(table)} worlds:")
-        print(summary(table).to_string())
-    print("\ncategories (objects over all worlds): " + ", ".join(f"{c} {n}" for c, n in cats.items()))
-    return 0
-
-
-def _cmd_world_show(args) -> int:
-    if Path(args.out).is_dir():
-        raise InputError(args.out, "--out", "is a folder: name the picture to write (FILE.png)")
-    require_new(args.out, kind="file")  # a picture already there is never replaced
-    picture_format(args.out)
-    world = load_world(args.world)
-    out = save_world_picture(world, args.out)
-    print(f"wrote {out} ({world.title}: {world.truth.num_objects} objects)")
-    return 0
-
-
-def _int_list(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: batch sizes must be >= 1")
-    return values
+from rosmeery_jax.world import load_world
 
 
 def _cmd_bench(args) -> int:
@@ -225,113 +121,10 @@ def _print_summary(out: Path) -> None:
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
 
-def _cmd_detector_dataset(args) -> int:
-    _positive(args, "per_world", "seed")
-    out = require_new(args.out)  # an existing dataset is never mixed with a new one
-    worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
-    for w in worlds:
-        load_world(w)  # a bad name fails here, in one line
-    if not 0 <= args.near <= 1:
-        raise InputError("command line", "--near", f"{args.near} must be a share between 0 and 1")
-    cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed, balance=args.balance,
-                                near=args.near)
-    with output_folder(out):
-        summary = dataset.write(cfg, out, progress=not args.quiet)
-    print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
-          f"{summary['boxes']['train']} / {summary['boxes']['val']} boxes")
-    return 0
-
-
-def _cmd_detector_train(args) -> int:
-    from rosmeery_jax.detector.train import TrainConfig, log_file, train  # torch (the detector extra): only here
-
-    _positive(args, "epochs", "batch", "max_images", "seed")
-    out = require_new(args.out, kind="file")  # earlier weights are never replaced, nor their log
-    require_new(log_file(out), kind="file")
-    for name in ("images/train", "images/val"):
-        if not Path(args.data, name).is_dir():
-            raise InputError(str(Path(args.data, name)), "--data", "not found: make the dataset with "
-                             "`rosmeery detector dataset`")
-    if not 0 <= args.mosaic <= 1:
-        raise InputError("command line", "--mosaic", f"{args.mosaic} is not a share between 0 and 1")
-    cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
-                      max_images=args.max_images or 0, mosaic=args.mosaic)
-    with output_folder(out.parent):
-        best = train(args.data, out, cfg, progress=not args.quiet)
-    print(f"best validation mAP@0.5 {best['map50']:.3f} at epoch {best['epoch']}; wrote {args.out}")
-    return 0
-
-
-def _cmd_detector_export(args) -> int:
-    from rosmeery_jax.detector import checkpoint  # torch (the detector extra): only here
-
-    _positive(args, "batch")
-    out = require_new(args.out, kind="file")
-    try:
-        w, h = (int(v) for v in args.size.lower().split("x"))
-        if not (1 <= w <= MAX_PIXELS and 1 <= h <= MAX_PIXELS):
-            raise ValueError
-    except ValueError:
-        raise InputError("command line", "--size", f"{args.size!r} is not WxH in whole pixels up to {MAX_PIXELS}, "
-                         "e.g. 160x128") from None
-    size = runtimes.padded(h, w)
-    need, have = 4.0 * args.batch * 3 * size[0] * size[1], memory_bytes() * MEMORY_SHARE  # the traced input
-    if need > have:
-        raise InputError("command line", "--batch", f"{args.batch} frames of {size[1]}x{size[0]} need {need / 1e9:,.1f} "
-                         f"GB, more than this machine's {have / 1e9:,.1f} GB allows")
-    model = checkpoint.load(weights_file(args.weights))
-    runtimes.export(model, out, args.batch, *size)
-    print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{size[0]}x{size[1]}")
-    return 0
-
-
-def _positive(args, *names: str) -> None:
-    """Whole-number options that must be >= 1 (a seed from 0 to MAX_SEED, as results hold
-    seeds); None is unset."""
-    for name in names:
-        value, least = getattr(args, name), 0 if name == "seed" else 1
-        if value is not None and value < least:
-            raise InputError("command line", "--" + name.replace("_", "-"), f"{value} must be a whole number >= {least}")
-        if name == "seed" and value is not None and value > results.MAX_SEED:  # an OverflowError in teleop
-            raise InputError("command line", "--seed", f"{value} must be at most {results.MAX_SEED}")
-
-
-def _cmd_detector_eval(args) -> int:
-    from rosmeery_jax.detector.detections import YoloDetector  # torch (the detector extra): only here
-
-    weights = weights_file(args.weights)
-    detector = YoloDetector((), weights, runtime=args.runtime)
-    model = detector.model
-    if args.data:
-        images, rows, _ = dataset.read(args.data, "val")
-        source = f"{args.data} (val)"
-    else:  # the held-out viewpoints of the default dataset, rendered now (deterministic)
-        frames = list(dataset.generate(dataset.DatasetConfig(), splits=("val",), progress=False))
-        images = np.stack([f[3] for f in frames])
-        rows = [f[4] for f in frames]
-        source = "default dataset, held-out viewpoints (rendered now)"
-    r = detector_eval.evaluate(detector.forward(images, **detector_eval.SCORING_NMS), images, rows, model.nc)
-    names = model.names
-    if args.json:
-        print(json.dumps({"weights": str(weights), "runtime": args.runtime, "data": source, "images": len(images),
-                          "map50": r["map50"],
-                          "precision": r["precision"], "recall": r["recall"],
-                          "ap50": {names[c]: v for c, v in r["ap"].items()},
-                          "instances": {names[c]: v for c, v in r["n_gt"].items()}}, indent=2))
-        return 0
-    print(f"weights {weights} ({args.runtime})\ndata {source}: {len(images)} images")
-    print(f"{'class':<16}{'instances':>10}{'AP@0.5':>8}")
-    for c, v in sorted(r["ap"].items(), key=lambda kv: names[kv[0]]):
-        print(f"{names[c]:<16}{r['n_gt'][c]:>10}{v:>8.3f}")
-    print(f"{'all':<16}{sum(r['n_gt'].values()):>10}{r['map50']:>8.3f}   (mAP@0.5; precision {r['precision']:.3f}, "
-          f"recall {r['recall']:.3f} at conf 0.25)")
-    return 0
-
-
 def _cmd_teleop(args) -> int:
     if not 1 <= args.port <= 65535:
         raise InputError("command line", "--port", f"{args.port} is not a TCP port (1-65535)")
-    _positive(args, "seed")
+    positive(args, "seed")
     if not 0 <= args.conf_threshold <= 1:  # as a session's
         raise InputError("command line", "--conf-threshold", f"{args.conf_threshold!r} must be a number in [0, 1]")
     load_world(args.world)  # a bad name fails here, in one line
@@ -444,13 +237,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
     sub = parser.add_subparsers(dest="command", required=True)
     d = SessionConfig()  # the help texts state the defaults of the config classes themselves
-    _worlds_parser(sub, d)
-    _world_parser(sub, d)
+    world_commands.add_worlds(sub)
+    world_commands.add_world(sub)
     _bench_parser(sub, d)
     _replay_parser(sub, d)
     _run_parser(sub, d)
     _record_parser(sub, d)
-    _detector_parser(sub, d)
+    detector_commands.add_detector(sub)
     _teleop_parser(sub, d)
     _evaluate_parser(sub, d)
     _train_parser(sub, d)
@@ -469,51 +262,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _worlds_parser(sub, d: SessionConfig) -> None:
-    p = sub.add_parser("worlds", help="list the built-in worlds with object and sample counts")
-    p.add_argument("--json", action="store_true", help="print one JSON list instead of a table")
-    p.add_argument("--pictures", metavar="DIR", help="also draw every world's top-down map into DIR")
-    p.set_defaults(func=_cmd_worlds)
-    wsub = p.add_subparsers(dest="worlds_command", metavar="{generate,stats}")
-    s = wsub.add_parser("generate", help="write procedural worlds (MJCF, the format of the built-in ones)")
-    s.add_argument("--kind", required=True, help="apartment, office, kitchen or lab")
-    s.add_argument("--seed", type=int, required=True, metavar="S", help="the first seed")
-    s.add_argument("--count", type=int, default=1, metavar="N", help="worlds of seeds S..S+N-1 (default 1)")
-    s.add_argument("--rooms", type=int, metavar="R", help="rooms (default: by kind)")
-    s.add_argument("--objects", type=int, metavar="K", help="objects (default: by kind)")
-    s.add_argument("--clutter", type=float, default=0.2, metavar="X", help="share of small clutter objects (0.2)")
-    s.add_argument("--tuck", type=float, default=0.0, metavar="X",
-                   help="share of chairs pushed in under their desk or table (0)")
-    s.add_argument("--turn", type=float, default=0.0, metavar="DEG",
-                   help="chairs at desks and tables turned by up to DEG degrees either way (0)")
-    s.add_argument("--islands", type=float, default=0.0, metavar="X",
-                   help="share of desk groups set as free-standing rows of desks (0)")
-    s.add_argument("--spare", type=float, default=0.0, metavar="X",
-                   help="share of clutter objects that are a spare chair against a wall (0)")
-    s.add_argument("--out", required=True, metavar="DIR")
-    s.add_argument("--check", action="store_true", help="also load every world with the loader's validation")
-    s.set_defaults(func=_cmd_worlds_generate)
-    s = wsub.add_parser("stats", help="objects, floor and reachable area, categories and samples of worlds")
-    s.add_argument("worlds", nargs="+", metavar="DIR_OR_NAMES", help="folders of world files, names, paths "
-                   "or procedural:KIND:A-B")
-    s.add_argument("--rows", type=int, default=40, metavar="N", help="print per-world rows up to N worlds (40)")
-    s.add_argument("--csv", action="store_true", help="print the per-world table as CSV")
-    s.set_defaults(func=_cmd_worlds_stats)
-
-
-def _world_parser(sub, d: SessionConfig) -> None:
-    p = sub.add_parser("world", help="commands on one world")
-    wsub = p.add_subparsers(dest="world_command", required=True)
-    s = wsub.add_parser("show", help="draw a world's top-down map with labelled objects")
-    s.add_argument("world", metavar="NAME_OR_PATH", help="built-in world name or path to an MJCF file")
-    s.add_argument("--out", required=True, metavar="FILE.png")
-    s.set_defaults(func=_cmd_world_show)
-
-
 def _bench_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("bench", help="env-steps/s by batch size, stage breakdown, and the C MuJoCo peer")
     p.add_argument("--world", default="large_office", metavar="NAME_OR_PATH")
-    p.add_argument("--batches", type=_int_list, default=(1, 16, 64, 256), metavar="B,B,...")
+    p.add_argument("--batches", type=int_list, default=(1, 16, 64, 256), metavar="B,B,...")
     p.add_argument("--steps", type=int, default=20, help="env-steps per timed chunk")
     p.add_argument("--memory-batch", type=int, default=1024, metavar="B",
                    help="also measure peak memory at this batch in a child process (0: skip)")
@@ -554,7 +306,7 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"(ground-truth labels of observed objects); default {d.detector}")
     p.add_argument("--conf-threshold", type=float, metavar="C", help=f"drop detections below C (default "
                    f"{d.conf_threshold:g})")
-    p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo: " + _WEIGHTS_HELP)
+    p.add_argument("--weights", metavar="FILE.pt", help="YOLO-v5 weights for --detector yolo: " + WEIGHTS_HELP)
     p.add_argument("--detector-runtime", choices=runtimes.RUNTIMES, help="where YOLO's network runs (default "
                    f"{d.detector_runtime}; docs/detector.md)")
     p.add_argument("--metrics", metavar="M,N", help=f"active metrics (default: {','.join(d.metrics)})")
@@ -602,52 +354,6 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.set_defaults(func=_cmd_record)
 
 
-_WEIGHTS_HELP = f"a file, or the name of shipped weights: {', '.join(WEIGHTS)} (default: {next(iter(WEIGHTS))})"
-
-
-def _detector_parser(sub, d: SessionConfig) -> None:
-    p = sub.add_parser("detector", help="the YOLO-v5 detector: make its dataset, train, evaluate")
-    dsub = p.add_subparsers(dest="detector_command", required=True)
-    s = dsub.add_parser("dataset", help="render a YOLO-format dataset from the simulator")
-    s.add_argument("--worlds", default="kitchen,laboratory,small_office,large_office", metavar="A,B")
-    s.add_argument("--out", default="data/detector", metavar="DIR")
-    s.add_argument("--per-world", type=int, default=1500, metavar="N", help="viewpoints per world (train + val)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--balance", action="store_true",
-                   help="aim at each object category equally often (more views of rare classes)")
-    s.add_argument("--near", type=float, default=0.0, metavar="X",
-                   help=f"share of the aimed viewpoints standing {dataset.NEAR[0]:g}-{dataset.NEAR[1]:g} m from their "
-                        "object (close, cut-off views; default 0)")
-    s.add_argument("--quiet", action="store_true")
-    s.set_defaults(func=_cmd_detector_dataset)
-    s = dsub.add_parser("train", help="train YOLO-v5 from scratch on a dataset folder (CPU)")
-    s.add_argument("--data", default="data/detector", metavar="DIR")
-    s.add_argument("--out", default="out/detector/yolov5n.pt", metavar="FILE.pt")
-    s.add_argument("--size", default="n", choices=("n", "s"))
-    s.add_argument("--epochs", type=int, default=40)
-    s.add_argument("--batch", type=int, default=32)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--max-images", type=int, metavar="N", help="use only the first N training images (default: all)")
-    s.add_argument("--mosaic", type=float, default=0.0, metavar="P", help="share of training images made a 2 x 2 "
-                   "mosaic of four frames at half size, objects as from twice as far (default 0)")
-    s.add_argument("--quiet", action="store_true")
-    s.set_defaults(func=_cmd_detector_train)
-    s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
-    s.add_argument("--weights", metavar="FILE.pt", help=_WEIGHTS_HELP)
-    s.add_argument("--data", metavar="DIR", help="a dataset folder (default: render the default held-out split)")
-    s.add_argument("--runtime", default=runtimes.DEFAULT, choices=runtimes.RUNTIMES, help="where the network "
-                   f"runs (default {runtimes.DEFAULT})")
-    s.add_argument("--json", action="store_true")
-    s.set_defaults(func=_cmd_detector_eval)
-    s = dsub.add_parser("export", help="write the network as an ONNX graph (for ONNX Runtime)")
-    s.add_argument("--weights", metavar="FILE.pt", help=_WEIGHTS_HELP)
-    s.add_argument("--out", required=True, metavar="FILE.onnx")
-    s.add_argument("--batch", type=int, default=32, help="frames per call (default 32, a session's)")
-    s.add_argument("--size", default="160x128", metavar="WxH", help="frame size, padded to whole strides of 32 "
-                   "(default 160x128, a session's)")
-    s.set_defaults(func=_cmd_detector_export)
-
-
 def _teleop_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("teleop", help="drive the robot from a local web page; the session is recorded")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
@@ -656,7 +362,7 @@ def _teleop_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--record", metavar="FILE.jsonl", help="default: recordings/<world>-<time>.jsonl")
     p.add_argument("--detector", default="yolo", choices=("yolo", "oracle", "off"))
     p.add_argument("--conf-threshold", type=float, default=d.conf_threshold, metavar="C")
-    p.add_argument("--weights", metavar="FILE.pt", help=_WEIGHTS_HELP)
+    p.add_argument("--weights", metavar="FILE.pt", help=WEIGHTS_HELP)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--view", default="blind", choices=("blind", "full"),
                    help="blind (default): only the map and the camera, as the paper's human saw; "
