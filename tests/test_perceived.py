@@ -12,12 +12,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import room_xml
-from rosmeery_jax.scoring import metrics
 from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.scoring.evaluate import read_map, score, tie
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
+from rosmeery_jax.scoring import metrics, perceived
 from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper
 from rosmeery_jax.scoring.voxel_table import KeyTable, Rows, cube_keys, first_claims
 from rosmeery_jax.sim.sensors import rgbd
@@ -231,8 +231,8 @@ def test_a_repeated_frame_reuses_its_voxels_and_builds_the_same_map(scenes, monk
     frames = [(POSE, depth, boxes), (POSE, depth, boxes), (POSE, moved, boxes), (POSE, moved, boxes),
               (NEAR, depth2, boxes2), (POSE, depth, boxes)]
     calls = []
-    voxels = PerceivedMapper._box_voxels
-    monkeypatch.setattr(PerceivedMapper, "_box_voxels", lambda self, *a: calls.append(1) or voxels(self, *a))
+    points = perceived.box_points
+    monkeypatch.setattr(perceived, "box_points", lambda *a: calls.append(1) or points(*a))
 
     def build(memo: bool) -> PerceivedMapper:
         m = PerceivedMapper(Camera.of(env.config.camera))

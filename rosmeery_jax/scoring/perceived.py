@@ -98,80 +98,26 @@ instances, F frames, N objects.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 
+from rosmeery_jax.scoring.box_points import Boxed, Cloud, box_points
 from rosmeery_jax.scoring.depth_segments import box_owner, depth_rays, segment_owners, segments
 from rosmeery_jax.scoring.mapper import Camera, DepthFrame, Frame, Mapper, MapState
+from rosmeery_jax.scoring.perceived_config import PerceivedConfig
 from rosmeery_jax.scoring.voxel_table import NEIGHBOURS, KeyTable, Rows, cube_keys, first_claims
 
 
-@dataclass(frozen=True)
-class PerceivedConfig:
-    voxel: float = 0.025  # m: half the surface samples' spacing (rule 3)
-    floor_z: float = 0.03  # m: points lower than this are floor
-    edge_abs: float = 0.03  # m: neighbouring pixels further apart in depth than edge_abs +
-    edge_rel: float = 0.03  # edge_rel * depth lie on different surfaces (rule 2)
-    min_share: float = 0.2  # the nearest segment with this share of a box's pixels is the object,
-    inside: float = 0.5  # of the segments with at least this share of their pixels in the box
-    front_share: float = 0.05  # a segment with this share of the box, standing more than
-    behind: float = 0.5  # m nearer than the object's, shows the latter to be background (inf: off)
-    part_share: float = 0.02  # rule 2: segments with this share of a box's pixels standing at most
-    part_behind: float = 0.3  # m behind the object's nearest point are its parts (part_share inf: none)
-    cell: float = 0.05  # m: the association's coarse cells (rule 4)
-    overlap: float = 0.2  # share of a detection's cells an instance must hold to take it,
-    same_overlap: float = 0.05  # or, if it carries the detection's label, this share (rule 4)
-    min_voxels: int = 3  # detections with fewer voxels are dropped (a few stray pixels)
-    min_views: int = 2  # detections that confirm an instance (rule 6),
-    min_conf: float = 0.6  # one of them at least this confident (rule 6; 0: any the session passes),
-    alone_conf: float = 0.7  # or one detection this confident (rule 6; inf: never one alone)
-    grow: float = 0.5  # share of a frame segment's cells an instance must hold to grow into it (rule 7; 0: off),
-    grow_margin: float = 0.3  # m: within its detections' points' 3D box widened by this (rule 7; inf: anywhere)
-    depth_every: int = 1  # rule 8: rule 7 on every n-th step's depth camera between detector frames (0: off)
-    absorb: float = 0.8  # rule 9: share of an instance's points over a larger one's plan-view box that
-    absorb_margin: float = 0.1  # makes it part of that one (inf: off); m: the box widened by this;
-    absorb_size: float = 0.5  # the smaller holds fewer points than this share of the larger's
-    bare: tuple[str, ...] = ("chair", "couch", "bench")  # rule 9: nothing is set on these, so an instance
-    placed: tuple[str, ...] = ("monitor", "tv", "laptop", "book", "vase")  # of these over one of them is its part
-    wall_above: float = 2.2  # m: rule 10: a point higher than this is a wall's (inf: off);
-    wall_cell: float = 0.1  # m: the plan-view cells of the walls
-
-
-class _Cloud(NamedTuple):
-    """F frames' depth pixels above the floor: valid (F, H, W) which pixels; per point (k,),
-    in row-major order: depth, world x, y, z, and its depth segment part; size (S,) each
-    segment's points."""
-
-    valid: np.ndarray
-    depth: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    z: np.ndarray
-    part: np.ndarray
-    size: np.ndarray
-
-
-class _Boxed(NamedTuple):
-    """One box's points in a frame (rules 1-3): keys (V,) their voxels' keys, ascending; cells
-    (C,) their coarse cells' keys; points (V, 3) the first point in each voxel; core (K,) the
-    coarse cells of the object's own depth segment, by which rule 4 associates the box."""
-
-    keys: np.ndarray
-    cells: np.ndarray
-    points: np.ndarray
-    core: np.ndarray
-
-
 class _Seen(NamedTuple):
-    """The latest frame (pose, depth, boxes), its cloud and each box's points (:class:`_Boxed`),
+    """The latest frame (pose, depth, boxes), its cloud and each box's points (:class:`Boxed`),
     kept while the frame repeats."""
 
     pose: np.ndarray
     depth: np.ndarray
     boxes: np.ndarray
-    cloud: _Cloud
+    cloud: Cloud
     voxels: list
 
 
@@ -305,7 +251,7 @@ class PerceivedMapper(Mapper):
         first = first[self.cells.get(near[first]) < 0]  # the first seen stays
         self.cells.add(near[first], insts[near_rank[first]])
 
-    def _grow(self, cloud: _Cloud) -> None:
+    def _grow(self, cloud: Cloud) -> None:
         """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
         points in that instance's cells or next to them."""
         if not len(cloud.part) or not len(self.claimed):
@@ -334,7 +280,7 @@ class PerceivedMapper(Mapper):
         self._claim(ids[order], cube_keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take],
                     rank[take], rank[take])
 
-    def _within_reach(self, inst: np.ndarray, cloud: _Cloud, at: np.ndarray) -> np.ndarray:
+    def _within_reach(self, inst: np.ndarray, cloud: Cloud, at: np.ndarray) -> np.ndarray:
         """Rule 7: (k,) which of the cloud's points ``at`` (k,) lie within ``grow_margin`` of
         the 3D box of the points that the detections of instance ``inst`` (k,) took."""
         if not np.isfinite(self.cfg.grow_margin):
@@ -350,7 +296,7 @@ class PerceivedMapper(Mapper):
             root = root[root]
         return np.r_[root, -1]
 
-    def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list[_Boxed]:
+    def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list[Boxed]:
         """Each box's points in this frame (rules 1-3), kept with the
         frame's cloud while the frame repeats: a robot at rest sends the same pose, depth and
         boxes after every decision."""
@@ -361,10 +307,10 @@ class PerceivedMapper(Mapper):
             cloud = self._cloud(np.asarray(pose)[None], np.asarray(depth)[None], self.rays, self.cfg)
             owner = box_owner(boxes, depth.shape)[cloud.valid[0]]  # (k,) the box each point lies most inside
             self._last = last = _Seen(np.array(pose), np.array(depth), np.array(boxes), cloud,
-                                      [self._box_voxels(cloud, owner == i) for i in range(len(boxes))])
+                                      [box_points(cloud, owner == i, self.cfg) for i in range(len(boxes))])
         return last.voxels
 
-    def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> _Cloud:
+    def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> Cloud:
         """F frames' depth pixels above the floor, in the world frame, cut into segments
         (each frame's own): pose (F, 3), depth (F, H, W); ``rays`` the frames' (:func:`depth_rays`)."""
         z = self.config.mount_height + rays[2] * depth
@@ -381,7 +327,7 @@ class PerceivedMapper(Mapper):
             valid[valid] = keep
             d, x, y, z = d[keep], x[keep], y[keep], z[keep]
         count, part = segments(depth, valid, cfg.edge_abs, cfg.edge_rel)
-        return _Cloud(valid, d, x, y, z, part, np.bincount(part, minlength=count))
+        return Cloud(valid, d, x, y, z, part, np.bincount(part, minlength=count))
 
     def _off_walls(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Rule 10: (k,) which of the points (k,) each lie off the walls, after the cells of
@@ -400,47 +346,6 @@ class PerceivedMapper(Mapper):
     def _plan_cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(k,) the plan-view cell keys (``wall_cell``) of points at x, y (k,) (rule 10)."""
         return cube_keys((x, y, np.zeros_like(x)), self.cfg.wall_cell)
-
-    def _box_voxels(self, cloud: _Cloud, mine: np.ndarray) -> _Boxed:
-        """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
-        of their pixels in the box, the nearest holding ``min_share`` of the box's points,
-        unless one holding ``front_share`` stands ``behind`` nearer; with its parts, those
-        holding ``part_share`` at most ``part_behind`` behind it."""
-        cfg, n = self.cfg, int(mine.sum())
-        part = cloud.part[mine]
-        size = np.bincount(part, minlength=len(cloud.size))  # each segment's pixels in the box
-        inside = (size > 0) & (size >= cfg.inside * cloud.size)
-        fit = inside & (size >= cfg.min_share * n)
-        if not fit.any():
-            return self._boxed(cloud, mine & False)
-        near = np.full(len(cloud.size), np.inf, cloud.depth.dtype)  # each segment's nearest point in the box
-        np.minimum.at(near, part, cloud.depth[mine])  # (an accumulator of another dtype is 18x slower)
-        front = inside & (size >= min(cfg.front_share, cfg.min_share) * n)  # the fit, and thin things
-        obj = int(np.flatnonzero(fit)[np.argmin(near[fit])])
-        if near[obj] > near[front].min() + cfg.behind:  # a thin thing in front: the fit is what shows through it
-            return self._boxed(cloud, mine & False)
-        parts = inside & (size >= cfg.part_share * n) & (near >= near[obj]) & (near <= near[obj] + cfg.part_behind)
-        parts[obj] = True
-        core = mine & (cloud.part == obj) if parts.sum() > 1 else None  # None: the object's segment alone
-        return self._boxed(cloud, mine & parts[cloud.part], core)
-
-    def _boxed(self, cloud: _Cloud, take: np.ndarray, core: np.ndarray | None = None) -> _Boxed:
-        """A box's points: the cloud's points ``take`` (k,), of which ``core`` (k,) (all if
-        None) are the object's own segment."""
-        keys, cells, points = self._voxels(cloud, take)
-        return _Boxed(keys, cells, points, cells if core is None else self._cells(cloud, core))
-
-    def _voxels(self, cloud: _Cloud, take: np.ndarray) -> tuple:
-        """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
-        cell keys, and the first of the points in each voxel, (V, 3) (rule 3)."""
-        x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
-        keys, first = np.unique(cube_keys((x, y, z), self.cfg.voxel), return_index=True)
-        cells = keys if self.cfg.cell == self.cfg.voxel else self._cells(cloud, take)
-        return keys, cells, np.stack([x[first], y[first], z[first]], -1)
-
-    def _cells(self, cloud: _Cloud, take: np.ndarray) -> np.ndarray:
-        """The distinct coarse cell keys (C,) ascending of the cloud's points ``take`` (k,) (rule 4)."""
-        return np.unique(cube_keys((cloud.x[take], cloud.y[take], cloud.z[take]), self.cfg.cell))
 
     def _associate(self, cells: np.ndarray, label: int, taken: set[int]) -> int:
         """The instance a detection joins, from the instances seen in ``cells``, those of its
