@@ -89,3 +89,30 @@ def test_what_rosmeery_run_imports_is_declared():
                          text=True, cwd=ROOT, env={"PATH": "/usr/bin:/bin", "JAX_PLATFORMS": "cpu"})
     assert out.returncode == 0, out.stderr.strip().splitlines()[-1]
     assert out.stdout.split()[-1] == "True"  # the import reached the heavy parts
+
+
+def test_without_the_detector_extra_the_commands_that_run_yolo_are_one_line_naming_it(tmp_path, capsys, monkeypatch):
+    """torch and ONNX Runtime are imported only when YOLO runs: without them, each command
+    that would run or export it stops before any work, naming what to install (a traceback
+    after "compiling", before)."""
+    import importlib.util
+
+    from rosmeery_jax.apps.cli import main
+
+    found = importlib.util.find_spec
+    extra = {"torch", "onnxruntime", "onnx", "onnxscript"}
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name in extra else found(name, *a))
+    monkeypatch.chdir(tmp_path)
+    cases = {("detector", "train", "--data", "d", "--out", "w.pt"): "detector train: needs torch (the detector extra)",
+             ("detector", "eval"): "detector eval: needs torch, onnxruntime, onnx, onnxscript (the detector extra)",
+             ("detector", "eval", "--runtime", "torch"): "detector eval: needs torch (the detector extra)",
+             ("detector", "export", "--out", "x.onnx"): "detector export: needs torch, onnx, onnxscript (the detector",
+             ("teleop", "--world", "kitchen"): "--detector: needs torch, onnxruntime, onnx, onnxscript (the detector"}
+    for argv, needle in cases.items():
+        assert main(list(argv)) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith(f"rosmeery: error: command line: {needle}") and err.count("\n") == 1, err
+        assert "pip install 'rosmeery-jax[detector]' 'torch==2.13.0'" in err
+    assert (" (or --detector oracle / off)" in err) and not list(tmp_path.iterdir())  # nothing written
+    assert main(["teleop", "--world", "kitchen", "--detector", "oracle", "--port", "0"]) == 2  # the oracle needs
+    assert "--port: 0 is not a TCP port" in capsys.readouterr().err  # none of it: teleop goes on to its next check

@@ -38,7 +38,7 @@ from rosmeery_jax.core.files import atomic_path
 RUNTIMES = ("torch", "onnxruntime", "onnxruntime-int8")
 DEFAULT = "onnxruntime-int8"  # the fastest measured; its mAP cost is in docs/detector.md
 # the packages each runtime needs (onnx and onnxscript export the graph)
-_NEEDS = {"torch": ("torch",), "onnxruntime": ("onnxruntime", "onnx", "onnxscript"),
+NEEDS = {"torch": ("torch",), "onnxruntime": ("onnxruntime", "onnx", "onnxscript"),
           "onnxruntime-int8": ("onnxruntime", "onnx", "onnxscript")}
 EXPORT_VERSION = 2  # bump when the exported or quantised graph changes: old cached files are then not reused
 # Calibration frames for int8: procedural worlds of all four kinds, none a paper world
@@ -55,7 +55,7 @@ def padded(h: int, w: int) -> tuple[int, int]:
 
 def missing(runtime: str) -> list[str]:
     """The packages ``runtime`` needs that are not installed."""
-    return [m for m in _NEEDS[runtime] if importlib.util.find_spec(m) is None]
+    return [m for m in NEEDS[runtime] if importlib.util.find_spec(m) is None]
 
 
 def check(runtime: str) -> None:
