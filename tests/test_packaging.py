@@ -93,8 +93,8 @@ def test_what_rosmeery_run_imports_is_declared():
 
 def test_without_the_detector_extra_the_commands_that_run_yolo_are_one_line_naming_it(tmp_path, capsys, monkeypatch):
     """torch and ONNX Runtime are imported only when YOLO runs: without them, each command
-    that would run or export it stops before any work, naming what to install (a traceback
-    after "compiling", before)."""
+    that would run or export it stops before any work, naming all it lacks and what to
+    install (tracebacks before, teleop's after compiling; a session named torch alone)."""
     import importlib.util
 
     from rosmeery_jax.apps.cli import main
@@ -107,12 +107,13 @@ def test_without_the_detector_extra_the_commands_that_run_yolo_are_one_line_nami
              ("detector", "eval"): "detector eval: needs torch, onnxruntime, onnx, onnxscript (the detector extra)",
              ("detector", "eval", "--runtime", "torch"): "detector eval: needs torch (the detector extra)",
              ("detector", "export", "--out", "x.onnx"): "detector export: needs torch, onnx, onnxscript (the detector",
-             ("teleop", "--world", "kitchen"): "--detector: needs torch, onnxruntime, onnx, onnxscript (the detector"}
+             ("teleop", "--world", "kitchen"): "--detector: 'yolo' needs torch, onnxruntime, onnx, onnxscript (the",
+             ("run", "--worlds", "kitchen"): "detector: 'yolo' needs torch, onnxruntime, onnx, onnxscript (the"}
     for argv, needle in cases.items():
         assert main(list(argv)) == 2, argv
         err = capsys.readouterr().err
         assert err.startswith(f"rosmeery: error: command line: {needle}") and err.count("\n") == 1, err
         assert "pip install 'rosmeery-jax[detector]' 'torch==2.13.0'" in err
-    assert (" (or --detector oracle / off)" in err) and not list(tmp_path.iterdir())  # nothing written
+    assert err.endswith("(or use --detector oracle / off)\n") and not list(tmp_path.iterdir())  # nothing written
     assert main(["teleop", "--world", "kitchen", "--detector", "oracle", "--port", "0"]) == 2  # the oracle needs
     assert "--port: 0 is not a TCP port" in capsys.readouterr().err  # none of it: teleop goes on to its next check

@@ -126,6 +126,6 @@ def test_a_missing_or_unknown_runtime_is_one_clear_line(monkeypatch):
         runtime.check("tensorrt")
     found = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "onnxscript" else found(name, *a))
-    with pytest.raises(InputError, match=r"onnxruntime-int8 needs onnxscript: pip install"):
+    with pytest.raises(InputError, match=r"onnxruntime-int8 needs onnxscript \(the detector extra\): pip install"):
         runtime.check("onnxruntime-int8")
     runtime.check("torch")  # torch needs neither

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import WEIGHTS
 from rosmeery_jax.scoring import results
 
@@ -33,18 +31,3 @@ def int_list(text: str) -> tuple[int, ...]:
     if not values or min(values) < 1:
         raise argparse.ArgumentTypeError(f"{text!r}: batch sizes must be >= 1")
     return values
-
-
-DETECTOR_INSTALL = "pip install 'rosmeery-jax[detector]' 'torch==2.13.0'"
-
-
-def require_detector(where: str, modules: tuple[str, ...] = runtimes.NEEDS[runtimes.DEFAULT],
-                     alternative: str = "") -> None:
-    """Before any work: one line where ``where`` (an option or a sub-command) needs packages
-    of the detector extra that are not installed: torch and ``modules`` (by default those
-    of the default runtime). They are imported only when YOLO runs, and a missing one would
-    otherwise end in a traceback."""
-    lacking = [m for m in dict.fromkeys(("torch", *modules)) if importlib.util.find_spec(m) is None]
-    if lacking:
-        raise InputError("command line", where, f"needs {', '.join(lacking)} (the detector extra): "
-                         f"{DETECTOR_INSTALL}{alternative}")

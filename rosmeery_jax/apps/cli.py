@@ -17,7 +17,7 @@ import jax
 import pandas as pd
 
 from rosmeery_jax.apps import detector_commands, world_commands
-from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive, require_detector
+from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.record import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
@@ -128,7 +128,8 @@ def _cmd_teleop(args) -> int:
     if not 0 <= args.conf_threshold <= 1:  # as a session's
         raise InputError("command line", "--conf-threshold", f"{args.conf_threshold!r} must be a number in [0, 1]")
     if args.detector == "yolo":
-        require_detector("--detector", alternative=" (or --detector oracle / off)")
+        runtimes.require("command line", "--detector", runtimes.NEEDS[runtimes.DEFAULT], "'yolo'",
+                         " (or use --detector oracle / off)")
     load_world(args.world)  # a bad name fails here, in one line
     record = Path(args.record or f"recordings/{Path(args.world).stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     if record.exists():

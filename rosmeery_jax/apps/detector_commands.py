@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rosmeery_jax.apps.arguments import WEIGHTS_HELP, positive, require_detector
+from rosmeery_jax.apps.arguments import WEIGHTS_HELP, positive
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
@@ -85,7 +85,7 @@ def _cmd_detector_dataset(args) -> int:
 
 
 def _cmd_detector_train(args) -> int:
-    require_detector("detector train", ())
+    runtimes.require("command line", "detector train")
     from rosmeery_jax.detector.train import TrainConfig, log_file, train  # torch (the detector extra): only here
 
     positive(args, "epochs", "batch", "max_images", "seed")
@@ -106,7 +106,7 @@ def _cmd_detector_train(args) -> int:
 
 
 def _cmd_detector_export(args) -> int:
-    require_detector("detector export", ("onnx", "onnxscript"))
+    runtimes.require("command line", "detector export", ("onnx", "onnxscript"))
     from rosmeery_jax.detector import checkpoint  # torch (the detector extra): only here
 
     positive(args, "batch")
@@ -130,7 +130,7 @@ def _cmd_detector_export(args) -> int:
 
 
 def _cmd_detector_eval(args) -> int:
-    require_detector("detector eval", runtimes.NEEDS[args.runtime])
+    runtimes.require("command line", "detector eval", runtimes.NEEDS[args.runtime])
     from rosmeery_jax.detector.detections import YoloDetector  # torch (the detector extra): only here
 
     weights = weights_file(args.weights)

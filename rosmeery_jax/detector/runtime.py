@@ -53,18 +53,24 @@ def padded(h: int, w: int) -> tuple[int, int]:
     return h + (-h) % 32, w + (-w) % 32
 
 
-def missing(runtime: str) -> list[str]:
-    """The packages ``runtime`` needs that are not installed."""
-    return [m for m in NEEDS[runtime] if importlib.util.find_spec(m) is None]
+INSTALL = "pip install 'rosmeery-jax[detector]' 'torch==2.13.0'"  # the detector extra, torch pinned
+
+
+def require(source: str, where: str, modules: tuple[str, ...] = (), what: str = "", alternative: str = "") -> None:
+    """Before any work: one line where ``where`` (of ``source``) needs packages of the
+    detector extra that are not installed: torch and ``modules``. They are imported only
+    when YOLO runs or is exported, and a missing one would otherwise end in a traceback."""
+    lacking = [m for m in dict.fromkeys(("torch", *modules)) if importlib.util.find_spec(m) is None]
+    if lacking:
+        raise InputError(source, where, f"{what + ' ' if what else ''}needs {', '.join(lacking)} (the detector "
+                         f"extra): {INSTALL}{alternative}")
 
 
 def check(runtime: str) -> None:
-    """One line naming the runtime and the packages to install, for one that is missing."""
+    """One line for an unknown runtime, or one whose packages (torch and its own) are missing."""
     if runtime not in RUNTIMES:
         raise InputError("config", "detector_runtime", f"unknown runtime {runtime!r}; one of {', '.join(RUNTIMES)}")
-    if lacking := missing(runtime):
-        raise InputError("config", "detector_runtime", f"{runtime} needs {', '.join(lacking)}: pip install "
-                         f"'rosmeery-jax[detector]' (or pip install {' '.join(lacking)})")
+    require("config", "detector_runtime", NEEDS[runtime], runtime)
 
 
 def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:

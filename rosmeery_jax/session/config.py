@@ -5,7 +5,6 @@ whole before anything runs or is written."""
 from __future__ import annotations
 
 import functools
-import importlib.util
 import math
 import os
 from dataclasses import dataclass, field
@@ -130,10 +129,9 @@ class SessionConfig:
         if self.weights and not weights_file(self.weights).is_file():
             raise InputError(source, "weights", f"{self.weights!r}: no such file (or a name: {', '.join(WEIGHTS)})")
         _check_devices(self, worlds, source)
-        if self.detector == "yolo" and importlib.util.find_spec("torch") is None:  # found, not imported
-            raise InputError(source, "detector", "'yolo' needs torch: pip install 'torch==2.13.0' "
-                             "(or use --detector oracle / off)")
-        if self.detector == "yolo":
+        if self.detector == "yolo":  # its packages found, not imported
+            runtimes.require(source, "detector", runtimes.NEEDS.get(self.detector_runtime, ()), "'yolo'",
+                             " (or use --detector oracle / off)")
             with _as_source(source):
                 runtimes.check(self.detector_runtime)
         _check_size(self, worlds, source)
