@@ -66,11 +66,13 @@ def require(source: str, where: str, modules: tuple[str, ...] = (), what: str = 
                          f"extra): {INSTALL}{alternative}")
 
 
-def check(runtime: str) -> None:
-    """One line for an unknown runtime, or one whose packages (torch and its own) are missing."""
+def check(runtime: str, source: str = "config", where: str = "detector_runtime", what: str | None = None,
+          alternative: str = "") -> None:
+    """One line for an unknown runtime, or for one whose packages (torch and its own) are
+    missing, named as :func:`require` names them (``what`` by default the runtime)."""
     if runtime not in RUNTIMES:
-        raise InputError("config", "detector_runtime", f"unknown runtime {runtime!r}; one of {', '.join(RUNTIMES)}")
-    require("config", "detector_runtime", NEEDS[runtime], runtime)
+        raise InputError(source, "detector_runtime", f"unknown runtime {runtime!r}; one of {', '.join(RUNTIMES)}")
+    require(source, where, NEEDS[runtime], runtime if what is None else what, alternative)
 
 
 def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:

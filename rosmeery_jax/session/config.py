@@ -130,10 +130,7 @@ class SessionConfig:
             raise InputError(source, "weights", f"{self.weights!r}: no such file (or a name: {', '.join(WEIGHTS)})")
         _check_devices(self, worlds, source)
         if self.detector == "yolo":  # its packages found, not imported
-            runtimes.require(source, "detector", runtimes.NEEDS.get(self.detector_runtime, ()), "'yolo'",
-                             " (or use --detector oracle / off)")
-            with _as_source(source):
-                runtimes.check(self.detector_runtime)
+            runtimes.check(self.detector_runtime, source, "detector", "'yolo'", " (or use --detector oracle / off)")
         _check_size(self, worlds, source)
         object.__setattr__(self, "_validated", True)  # not a field: a changed copy is checked again
         return self
