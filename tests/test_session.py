@@ -13,6 +13,7 @@ import pytest
 
 from rosmeery_jax.scoring import results
 from rosmeery_jax.apps.cli import main
+from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
 from rosmeery_jax.core.errors import InputError
@@ -56,6 +57,9 @@ def test_existing_results_are_refused_without_resume_and_resume_skips_finished_r
     before = run_file.stat().st_mtime_ns
     assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(session_dir), "--resume"]) == 0
     assert run_file.stat().st_mtime_ns == before  # finished run not redone
+    table = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith(("world ", "small_office "))]
+    assert table[0].split()[:3] == ["world", "policy", "metric"] and len(table) == 1 + 2 * 5
+    assert {ln.index("[< 3 seeds]") for ln in table[1:]} == {table[0].index("95% CI")}  # columns line up
     df = results.load(session_dir)
     assert set(df.policy) == {"random", "frontier"}
     # The interrupted-then-resumed folder equals one uninterrupted session.
@@ -81,6 +85,13 @@ def test_a_folder_begun_before_a_setting_existed_resumes_at_its_default_only(tmp
         check_out(replace(cfg, sample_s=2.0), resume=True)
     with pytest.raises(InputError, match="detect_every.*was 0, now 5"):
         check_out(replace(cfg, detect_every=5), resume=True)
+
+
+def test_text_tables_are_as_wide_as_their_widest_cell():
+    out = columns(("metric", "final"), [("ori", "0.5"), ("labelled_share", "0.125")], right=(1,))
+    assert out.splitlines() == ["metric          final",
+                                "ori               0.5",
+                                "labelled_share  0.125"]
 
 
 def test_plot_command_redraws(session_dir, capsys):

@@ -19,6 +19,7 @@ import pandas as pd
 from rosmeery_jax.apps import detector_commands, world_commands
 from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
+from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.apps.record import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
@@ -72,10 +73,11 @@ def _cmd_replay(args) -> int:
         results.write_csv(results.object_frame(env.world, final, **tags), out / "objects.csv")
         write_semantic_map(out, "semantic_map", env.world, run.knowledge, float(times[-1]))
     print(f"{env.world.title}: {len(times)} poses over {times[-1] - times[0]:.1f} s")
-    print(f"{'metric':<12}{'final':>8}{'auc':>8}{'t50 s':>8}{'t90 s':>8}")
+    rows = []
     for name, c in curves.items():
         s = metrics.summarize(times, c)
-        print(f"{name:<12}{s['final']:>8.3f}{s['auc']:>8.3f}{s['t50_s']:>8.1f}{s['t90_s']:>8.1f}")
+        rows.append((name, f"{s['final']:.3f}", f"{s['auc']:.3f}", f"{s['t50_s']:.1f}", f"{s['t90_s']:.1f}"))
+    print(columns(("metric", "final", "auc", "t50 s", "t90 s"), rows, right=(1, 2, 3, 4)))
     print(f"wrote {out}/metrics.csv, objects.csv, semantic_map.ply, semantic_map.json")
     return 0
 
@@ -98,13 +100,15 @@ def _cmd_run(args) -> int:
 def _print_summary(out: Path) -> None:
     df = results.load(out)
     df["policy"] = df.policy.where(df.mapper == "oracle", df.policy + " [" + df.mapper + "]")
-    print(f"{'world':<14}{'policy':<18}{'metric':<12}{'final, mean [95% CI] over seeds':>32}{'auc':>8}{'t90 s':>8}")
+    rows = []
     for (w, p, m), g in df.groupby(["world", "policy", "metric"], sort=False):
         per_seed = [metrics.summarize(s.time_s.to_numpy(), s.value.to_numpy()) for _, s in g.groupby("seed")]
         final = stats.interval([x["final"] for x in per_seed])
         auc = sum(x["auc"] for x in per_seed) / len(per_seed)
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
-        print(f"{w:<14}{p:<18}{m:<12}{final.mean:>14.3f} {final.bounds('.3f'):<16}{auc:>8.3f}{t90:>8.1f}")
+        rows.append((w, p, m, f"{final.mean:.3f}", final.bounds(".3f"), f"{auc:.3f}", f"{t90:.1f}"))
+    print(columns(("world", "policy", "metric", "final", "95% CI over seeds", "auc", "t90 s"), rows,
+                  right=(3, 5, 6)))
     if (out / "navigation.csv").exists():
         print(navigation.summary(pd.read_csv(out / "navigation.csv")))
     if (out / "timing.json").exists():

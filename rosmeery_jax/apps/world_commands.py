@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new
 from rosmeery_jax.world import load_world, world_names
@@ -74,11 +75,11 @@ def _cmd_worlds(args) -> int:
     if args.json:
         print(json.dumps(summaries, indent=2))
         return 0
-    print(f"{'world':<14}{'title':<15}{'objects':>8}{'samples':>9}{'boxes':>7}{'reach m2':>10}  categories")
-    for s in summaries:
-        cats = ", ".join(f"{c} x{k}" for c, k in s["categories"].items())
-        print(f"{s['name']:<14}{s['title']:<15}{s['objects']:>8}{s['samples']:>9}{s['boxes']:>7}"
-              f"{s['reachable_area_m2']:>10.1f}  {cats}")
+    rows = [(s["name"], s["title"], str(s["objects"]), str(s["samples"]), str(s["boxes"]),
+             f"{s['reachable_area_m2']:.1f}", ", ".join(f"{c} x{k}" for c, k in s["categories"].items()))
+            for s in summaries]
+    print(columns(("world", "title", "objects", "samples", "boxes", "reach m2", "categories"), rows,
+                  right=(2, 3, 4, 5)))
     for s in summaries:
         if "picture" in s:
             print(f"wrote {s['picture']}")
