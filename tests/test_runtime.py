@@ -5,14 +5,18 @@ export, cached by the weights' content, and a missing runtime is one clear line.
 from __future__ import annotations
 
 import importlib.util
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
+from rosmeery_jax.detector import runtime  # before ONNX Runtime loads: it sets ORT_DISABLE_TELEMETRY
+
 pytest.importorskip("torch")
 pytest.importorskip("onnxruntime")
 
-from rosmeery_jax.detector import runtime  # noqa: E402
 from rosmeery_jax.detector.boxes import box_iou  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector  # noqa: E402
 from rosmeery_jax.core.errors import InputError  # noqa: E402
@@ -71,6 +75,22 @@ def test_onnxruntime_float32_detections_equal_torchs(cache, frames, torch_detect
         np.testing.assert_array_equal(a[:, 5], b[:, 5])
         np.testing.assert_allclose(a[:, :4], b[:, :4], atol=1e-2)  # pixels
         np.testing.assert_allclose(a[:, 4], b[:, 4], atol=1e-4)
+
+
+def test_onnxruntime_writes_nothing_outside_and_keeps_no_device_id(cache, tmp_path):
+    """ONNX Runtime run through our runtime, in a fresh process with a fresh home and cache:
+    nothing appears in either (ONNX Runtime's telemetry keeps a device id and an event store
+    in the cache folder unless ORT_DISABLE_TELEMETRY is set before it loads)."""
+    graph = runtime.cached_export(DEFAULT_WEIGHTS, 2, 128, 160)
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {k: v for k, v in os.environ.items() if k != "ORT_DISABLE_TELEMETRY"}
+    env.update(HOME=str(home), XDG_CACHE_HOME=str(home / ".cache"))
+    code = ("import sys, numpy as np; from rosmeery_jax.detector import runtime; "
+            "net = runtime.OnnxRuntimeNetwork(sys.argv[1], 1); "
+            "assert net(np.zeros((2, 3, 128, 160), np.float32)).shape[0] == 2")
+    subprocess.run([sys.executable, "-c", code, str(graph)], env=env, check=True, cwd=tmp_path)
+    assert not list(home.rglob("*"))
 
 
 def test_int8_detections_match_torchs_within_the_stated_tolerance(cache, frames, torch_detections):

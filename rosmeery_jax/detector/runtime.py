@@ -35,6 +35,11 @@ import numpy as np
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import atomic_path
 
+# ONNX Runtime (1.32 on Linux too) keeps a device id and an event store in the user's cache
+# folder and uploads usage events unless this is set before it loads; a benchmark run writes
+# nothing outside its own folders and sends nothing. Set it to 0 beforehand to opt back in.
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+
 RUNTIMES = ("torch", "onnxruntime", "onnxruntime-int8")
 DEFAULT = "onnxruntime-int8"  # the fastest measured; its mAP cost is in docs/detector.md
 # the packages each runtime needs (onnx and onnxscript export the graph)
