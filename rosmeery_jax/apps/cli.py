@@ -132,8 +132,7 @@ def _cmd_teleop(args) -> int:
     if not 0 <= args.conf_threshold <= 1:  # as a session's
         raise InputError("command line", "--conf-threshold", f"{args.conf_threshold!r} must be a number in [0, 1]")
     if args.detector == "yolo":
-        runtimes.require("command line", "--detector", runtimes.NEEDS[runtimes.DEFAULT], "'yolo'",
-                         " (or use --detector oracle / off)")
+        runtimes.check(runtimes.DEFAULT, "command line", "--detector", "'yolo'", " (or use --detector oracle / off)")
     load_world(args.world)  # a bad name fails here, in one line
     record = Path(args.record or f"recordings/{Path(args.world).stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl")
     if record.exists():
