@@ -81,14 +81,14 @@ def test_onnxruntime_writes_nothing_outside_and_keeps_no_device_id(cache, tmp_pa
     """ONNX Runtime run through our runtime, in a fresh process with a fresh home and cache:
     nothing appears in either (ONNX Runtime's telemetry keeps a device id and an event store
     in the cache folder unless ORT_DISABLE_TELEMETRY is set before it loads)."""
-    graph = runtime.cached_export(DEFAULT_WEIGHTS, 2, 128, 160)
+    graph = runtime.cached_export(DEFAULT_WEIGHTS, 32, 128, 160)  # the other tests' graph
     home = tmp_path / "home"
     home.mkdir()
     env = {k: v for k, v in os.environ.items() if k != "ORT_DISABLE_TELEMETRY"}
     env.update(HOME=str(home), XDG_CACHE_HOME=str(home / ".cache"))
     code = ("import sys, numpy as np; from rosmeery_jax.detector import runtime; "
             "net = runtime.OnnxRuntimeNetwork(sys.argv[1], 1); "
-            "assert net(np.zeros((2, 3, 128, 160), np.float32)).shape[0] == 2")
+            "assert net(np.zeros((32, 3, 128, 160), np.float32)).shape[0] == 32")
     subprocess.run([sys.executable, "-c", code, str(graph)], env=env, check=True, cwd=tmp_path)
     assert not list(home.rglob("*"))
 
