@@ -240,10 +240,11 @@ JOIN = ("import sys; from rosmeery_jax.session.cluster import connect; ray = con
         "print('joined', ray.get(ray.remote(lambda: 41).remote()) + 1)")  # connect imports Ray itself
 
 
-def _join(address: str) -> subprocess.CompletedProcess:
-    """A fresh process, as a user's command, joins ``address`` and runs one task there."""
-    return subprocess.run([sys.executable, "-c", JOIN, address], capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
+def _join(address: str, first: str = "") -> subprocess.CompletedProcess:
+    """A fresh process, as a user's command, joins ``address`` and runs one task there
+    (after the code ``first``)."""
+    return subprocess.run([sys.executable, "-c", first + JOIN, address], capture_output=True, text=True,
+                          timeout=300, env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
 
 
 def test_a_token_head_is_joined_when_the_home_folder_holds_its_token(own_home, cluster):
@@ -262,6 +263,9 @@ def test_a_local_cluster_leaves_no_token_in_the_home_folder(own_home, cluster):
     """rosmeery's own local cluster authenticates with a token written nowhere, so a head
     started later without one is still joined."""
     done = _join("ray")
+    assert done.returncode == 0 and "joined 42" in done.stdout, done.stderr[-2000:]
+    assert not (own_home / ".ray" / "auth_token").exists()
+    done = _join("ray", first="import ray; ")  # Ray imported before (a notebook): "Failed to start GCS"
     assert done.returncode == 0 and "joined 42" in done.stdout, done.stderr[-2000:]
     assert not (own_home / ".ray" / "auth_token").exists()
     done = _join(cluster)

@@ -69,6 +69,26 @@ def _auth(address: str) -> None:
     elif os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or \
             (Path.home() / ".ray" / "auth_token").is_file():
         os.environ["RAY_AUTH_MODE"] = "token"
+    else:
+        return
+    _reread_auth(address)
+
+
+def _reread_auth(address: str) -> None:
+    """Ray reads its authentication settings when it is imported. If it already was (in a
+    notebook, by another library), have it read them again, as Ray does itself when it turns
+    token authentication on (its configuration and token cache; without this, a local
+    cluster's GCS refused the driver: "Failed to start GCS")."""
+    if "ray._raylet" not in sys.modules:
+        return
+    try:
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        Config.initialize("")
+        AuthenticationTokenLoader.instance().reset_cache()
+    except (ImportError, AttributeError):  # a Ray whose private API moved
+        raise InputError(address, "--cluster", "Ray was imported before its authentication could be set: run the "
+                         "session in a new process, or set RAY_AUTH_MODE before importing Ray (docs/cluster.md)") from None
 
 
 def connect(address: str):
