@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 
 from conftest import optimized, room_xml
@@ -329,6 +331,16 @@ def test_a_resumed_training_reaches_the_same_parameters(worlds, trained, tmp_pat
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     keep = ["update", "env_steps", "return", "loss", "entropy"]
     assert ppo.read_curve(out)[keep].equals(ppo.read_curve(trained)[keep])
+
+
+def test_the_train_command_ends_with_the_mean_return_or_says_no_episode_ended():
+    from rosmeery_jax.apps.cli import trained_summary
+
+    curve = pd.DataFrame({"update": [1, 2, 3], "env_steps": [100, 200, 300], "return": [np.nan, 4.0, 5.0]})
+    line = trained_summary(curve, Path("out"))
+    assert line.startswith("trained 3 updates (300 env-steps; mean return of the last 10 updates 4.500) -> out/")
+    line = trained_summary(curve.assign(**{"return": np.nan}), Path("out"))
+    assert "no episode ended in the last 10 updates" in line and "nan" not in line
 
 
 def test_resume_refuses_another_configuration(worlds, trained, tmp_path):

@@ -207,12 +207,17 @@ def _cmd_train(args) -> int:
 
     cfg = ppo.load_config(args.config)
     out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
-    curve = ppo.read_curve(out)
-    last = curve.iloc[-1]
-    print(f"trained {int(last['update'])} updates ({int(last['env_steps']):,} env-steps; mean return of the last "
-          f"10 updates {curve['return'].tail(10).mean():.3f}) -> {out}/policy.msgpack (use it as --policies "
-          f"learned:{out}/policy.msgpack)")
+    print(trained_summary(ppo.read_curve(out), out))
     return 0
+
+
+def trained_summary(curve: pd.DataFrame, out: Path) -> str:
+    """The line a training run ends with, from its curve (a row per update)."""
+    last, mean = curve.iloc[-1], curve["return"].tail(10).mean()  # NaN where no episode ended
+    returns = f"mean return of the last 10 updates {mean:.3f}" if pd.notna(mean) else \
+        "no episode ended in the last 10 updates"
+    return (f"trained {int(last['update'])} updates ({int(last['env_steps']):,} env-steps; {returns}) -> "
+            f"{out}/policy.msgpack (use it as --policies learned:{out}/policy.msgpack)")
 
 
 def _cmd_diff(args) -> int:
