@@ -130,7 +130,7 @@ def _cmd_detector_export(args) -> int:
 
 
 def _cmd_detector_eval(args) -> int:
-    runtimes.require("command line", "detector eval", runtimes.NEEDS[args.runtime])
+    runtimes.check(args.runtime, "command line", "detector eval", "")
     from rosmeery_jax.detector.detections import YoloDetector  # torch (the detector extra): only here
 
     weights = weights_file(args.weights)

@@ -43,7 +43,7 @@ os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 RUNTIMES = ("torch", "onnxruntime", "onnxruntime-int8")
 DEFAULT = "onnxruntime-int8"  # the fastest measured; its mAP cost is in docs/detector.md
 # the packages each runtime needs (onnx and onnxscript export the graph)
-NEEDS = {"torch": ("torch",), "onnxruntime": ("onnxruntime", "onnx", "onnxscript"),
+_NEEDS = {"torch": ("torch",), "onnxruntime": ("onnxruntime", "onnx", "onnxscript"),
           "onnxruntime-int8": ("onnxruntime", "onnx", "onnxscript")}
 EXPORT_VERSION = 2  # bump when the exported or quantised graph changes: old cached files are then not reused
 # Calibration frames for int8: procedural worlds of all four kinds, none a paper world
@@ -77,7 +77,7 @@ def check(runtime: str, source: str = "config", where: str = "detector_runtime",
     missing, named as :func:`require` names them (``what`` by default the runtime)."""
     if runtime not in RUNTIMES:
         raise InputError(source, "detector_runtime", f"unknown runtime {runtime!r}; one of {', '.join(RUNTIMES)}")
-    require(source, where, NEEDS[runtime], runtime if what is None else what, alternative)
+    require(source, where, _NEEDS[runtime], runtime if what is None else what, alternative)
 
 
 def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:
