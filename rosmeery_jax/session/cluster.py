@@ -64,13 +64,11 @@ def _auth(address: str) -> None:
     if os.environ.get("RAY_AUTH_MODE"):
         return
     if address == "ray":
-        os.environ["RAY_AUTH_MODE"] = "token"
         os.environ.setdefault("RAY_AUTH_TOKEN", secrets.token_hex(32))
-    elif os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or \
-            (Path.home() / ".ray" / "auth_token").is_file():
-        os.environ["RAY_AUTH_MODE"] = "token"
-    else:
-        return
+    elif not (os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH") or
+              (Path.home() / ".ray" / "auth_token").is_file()):
+        return  # Ray's default mode
+    os.environ["RAY_AUTH_MODE"] = "token"
     _reread_auth(address)
 
 
