@@ -22,7 +22,7 @@ SESSIONS = sorted(p.relative_to(ROOT) for p in (ROOT / "experiments").rglob("*.t
 def test_every_session_config_is_found():
     names = {p.name for p in SESSIONS}
     assert {"session.toml", "confident.toml", "evaluate.toml", "gradient_variants.toml", "view_oracle.toml",
-            "object_views.toml"} <= names
+            "object_views.toml", "known_targets.toml"} <= names
 
 
 @pytest.mark.parametrize("path", SESSIONS, ids=str)

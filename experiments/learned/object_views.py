@@ -9,7 +9,6 @@ import jax.numpy as jnp
 from rosmeery_jax.policies.learned import CANDIDATES, Choice, LearnedPolicy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy, facing
 from rosmeery_jax.rl.candidates import Offer, describe, driving, offer
-from rosmeery_jax.rl.task import flat_obs
 from rosmeery_jax.sim import grid
 
 
@@ -38,7 +37,6 @@ class LearnedViews(LearnedPolicy):
         views, free = self.object_views(state, k_view)
         feats = describe(self.env, state, views, free, jnp.zeros(self.views, bool), self.rl.radius)
         full = Offer(jnp.concatenate([base.targets, views]), jnp.concatenate([base.features, feats]), base.globals)
-        logits, _ = self.net.apply(self.params, flat_obs(full))
         due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
-        target = jnp.where(due, full.targets[jnp.argmax(logits)], ps.target)
+        target = jnp.where(due, full.targets[jnp.argmax(self.logits(state, full))], ps.target)
         return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))

@@ -71,8 +71,11 @@ class LearnedPolicy(Policy):
 
     def decide(self, state, ps: Choice, key):
         on_offer = offer(self.env, state, ps.target, key, CANDIDATES, self.rl.radius)
-        logits, _ = self.net.apply(self.params, flat_obs(on_offer))
-        picked = on_offer.targets[jnp.argmax(logits)]  # the most likely: no exploring in sessions
+        picked = on_offer.targets[jnp.argmax(self.logits(state, on_offer))]  # the most likely: no exploring in sessions
         due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
         target = jnp.where(due, picked, ps.target)
         return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
+
+    def logits(self, state, on_offer) -> jax.Array:
+        """(K + 1,) the network's score of each candidate of ``on_offer`` (an ``Offer``)."""
+        return self.net.apply(self.params, flat_obs(on_offer))[0]
