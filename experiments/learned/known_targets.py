@@ -22,5 +22,6 @@ class LearnedKnown(LearnedPolicy):
         """The network's scores, with the offered candidates on unknown cells refused."""
         logits = super().logits(state, on_offer)
         i, j = self.env.grid.cell(on_offer.targets[:, :2])
-        known = (self.env.occupancy(state)[i, j] != occupancy.UNKNOWN) & (on_offer.features[:, FEATURES.index("valid")] > 0.5)
+        offered = on_offer.features[:, FEATURES.index("valid")] > 0.5
+        known = (self.env.occupancy(state)[i, j] != occupancy.UNKNOWN) & offered
         return jnp.where(jnp.any(known) & ~known, -jnp.inf, logits)

@@ -6,9 +6,9 @@ free cell), described by the same features, so the network scores them as any ca
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.policies.learned import CANDIDATES, Choice, LearnedPolicy
+from rosmeery_jax.policies.learned import LearnedPolicy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy, facing
-from rosmeery_jax.rl.candidates import Offer, describe, driving, offer
+from rosmeery_jax.rl.candidates import Offer, describe
 from rosmeery_jax.sim import grid
 
 
@@ -31,12 +31,10 @@ class LearnedViews(LearnedPolicy):
         pick = grid.draw(key, jnp.where(free, 1.0, 0.0) + 1e-12, self.views)  # uniform over the free ones
         return jnp.concatenate([ring[pick], face[pick, None]], -1), free[pick]
 
-    def decide(self, state, ps, key):
+    def candidates(self, state, ps, key):
+        """The shipped offer, with ``views`` object views appended."""
         k_draw, k_view = jax.random.split(key)
-        base = offer(self.env, state, ps.target, k_draw, CANDIDATES, self.rl.radius)
+        base = super().candidates(state, ps, k_draw)
         views, free = self.object_views(state, k_view)
         feats = describe(self.env, state, views, free, jnp.zeros(self.views, bool), self.rl.radius)
-        full = Offer(jnp.concatenate([base.targets, views]), jnp.concatenate([base.features, feats]), base.globals)
-        due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
-        target = jnp.where(due, full.targets[jnp.argmax(self.logits(state, full))], ps.target)
-        return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
+        return Offer(jnp.concatenate([base.targets, views]), jnp.concatenate([base.features, feats]), base.globals)

@@ -70,11 +70,15 @@ class LearnedPolicy(Policy):
         return Choice(jnp.zeros(3, jnp.float32), jnp.int32(0))
 
     def decide(self, state, ps: Choice, key):
-        on_offer = offer(self.env, state, ps.target, key, CANDIDATES, self.rl.radius)
+        on_offer = self.candidates(state, ps, key)
         picked = on_offer.targets[jnp.argmax(self.logits(state, on_offer))]  # the most likely: no exploring in sessions
         due = ~driving(state) | (state.t - ps.chosen_at >= self.rl.decide_every)
         target = jnp.where(due, picked, ps.target)
         return target, Choice(target, jnp.where(due, state.t, ps.chosen_at))
+
+    def candidates(self, state, ps: Choice, key):
+        """The ``Offer`` of this decision: the kept target and ``CANDIDATES`` draws."""
+        return offer(self.env, state, ps.target, key, CANDIDATES, self.rl.radius)
 
     def logits(self, state, on_offer) -> jax.Array:
         """(K + 1,) the network's score of each candidate of ``on_offer`` (an ``Offer``)."""
