@@ -94,6 +94,7 @@ class Teleop:
         self.trail: list = [np.asarray(self.state.pose)[:2].tolist()]
         self.lock = threading.Lock()  # one tick or stop at a time
         self.running = True
+        self.stop_asked, self.stop_answered = threading.Event(), threading.Event()  # the page's /stop
         self.error = None
         self.frames = 0
         self.frame = self._snapshot(np.zeros(2))
@@ -292,8 +293,12 @@ def _handler(app: Teleop):
                     return self._error(400, str(err))
                 return self._send(b"{}", "application/json")
             if path == "/stop":
+                app.stop_asked.set()
                 app.stop()
-                return self._send(json.dumps(app.state_json()).encode(), "application/json")
+                try:
+                    return self._send(json.dumps(app.state_json()).encode(), "application/json")
+                finally:
+                    app.stop_answered.set()
             self._send(b"not found", "text/plain", 404)
 
     return Handler
@@ -316,5 +321,7 @@ def serve(app: Teleop, host: str = "127.0.0.1", port: int = 8765, ready=None) ->
         app.stop()
     finally:
         time.sleep(0.3)  # let the page fetch the final state
+        if app.stop_asked.is_set():  # and answer its /stop, however busy the machine
+            app.stop_answered.wait(timeout=10.0)
         server.shutdown()
         sim.join(timeout=2)
