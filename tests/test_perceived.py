@@ -522,6 +522,28 @@ def test_an_instance_grows_into_its_object_from_frames_without_its_box(scenes, t
     assert m.instances == 1 and list(grown.matched) == [0, -1] and grown.off_object == 0.0
 
 
+def test_an_instance_waiting_for_its_second_detection_grows_and_its_points_wait_with_it(scenes, tmp_path):
+    """Rules 6-7: the chair boxed in part once (0.65: not confirmed), then seen with no box
+    from nearer: nothing enters the map yet; once a second box confirms it, the map holds
+    every point the unboxed frame grew it by, as a mapper confirming at once does, and every
+    point stays on the chair."""
+    env, depth, label, boxes, depth2, _ = _two_views(scenes)
+    cam, short, chair, conf = Camera.of(env.config.camera), _part(boxes[0], 0.7), np.array([0]), np.array([0.65])
+    waiting, at_once = PerceivedMapper(cam), PerceivedMapper(cam, cfg=ONE)  # two views confirm; one does
+    for m in (waiting, at_once):
+        m.fold(POSE, depth, short, chair, conf)
+    seen = {tuple(p) for p in at_once.semantic_map().points}
+    for m in (waiting, at_once):
+        m.fold(NEAR, depth2, *NONE)
+    assert waiting.instances == 0 and len(waiting.semantic_map().points) == 0
+    grown = {tuple(p) for p in at_once.semantic_map().points} - seen
+    waiting.fold(POSE, depth, short, chair, conf)  # the second box: confirmed
+    assert waiting.instances == 1 and len(grown) > 0
+    assert grown <= {tuple(p) for p in waiting.semantic_map().points}
+    sc = score(env.world, _as_map(tmp_path, env, waiting))
+    assert list(sc.matched) == [0, -1] and sc.off_object == 0.0
+
+
 @pytest.mark.parametrize("scene", ["by_wall", "together", "flush"])
 def test_growth_stops_at_the_wall_behind_and_the_object_beside(scenes, tmp_path, scene):
     """Rule 7 takes only segments the instance mostly holds, one cell beyond it per frame:

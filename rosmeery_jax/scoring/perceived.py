@@ -57,9 +57,11 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    boxed under 0.6 were a part of an object another instance holds under another label (a
    chair's back as a monitor, a table's end as a bed).
 7. **Growth from the whole frame**: of the frame's segments (rule 2), a segment whose cells
-   are at least ``grow`` held by one confirmed instance is that instance seen again, boxed or
-   not (the detector missed it, or its box cut it short): its points in the instance's cells
-   or next to them join it. The rest of the segment (a wall it touches, a neighbour) stays
+   are at least ``grow`` held by one instance is that instance seen again, boxed or not (the
+   detector missed it, or its box cut it short): its points in the instance's cells or next
+   to them join it. An instance still waiting for its confirmation (rule 6) grows too, its
+   points waiting with it: a robot that passes an object once sees it between its first
+   two detections, and the depth of those steps is not lost. The rest of the segment (a wall it touches, a neighbour) stays
    out, so an instance grows by at most one cell per frame. Nor does it grow further than
    ``grow_margin`` from the 3D box of the points its detections took: detections say
    where the object is, and the frames between them fill in its surface, but do not carry
@@ -252,8 +254,8 @@ class PerceivedMapper(Mapper):
         self.cells.add(near[first], insts[near_rank[first]])
 
     def _grow(self, cloud: Cloud) -> None:
-        """Rule 7: each frame segment mostly held by one confirmed instance grows it by its
-        points in that instance's cells or next to them."""
+        """Rule 7: each frame segment mostly held by one instance grows it by its points in
+        that instance's cells or next to them (an unconfirmed instance's wait with it)."""
         if not len(cloud.part) or not len(self.claimed):
             return
         cell = cube_keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
@@ -261,9 +263,7 @@ class PerceivedMapper(Mapper):
         pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
         seg, cell_of = pairs // len(cells), pairs % len(cells)  # each pair's segment and index into cells
         root = self._roots()
-        confirmed = np.r_[self._confirmed(), False]  # index -1: no instance
         held = root[self.claimed.get(cells)][cell_of]  # looked up once per cell, not per pair
-        held = np.where(confirmed[held], held, -1)
         beside = root[self.cells.get(cells)][cell_of]  # the instance seen in the cell or next to it
         segs, insts = segment_owners(seg, held, len(cloud.size), self.cfg.grow)
         if not len(segs):
