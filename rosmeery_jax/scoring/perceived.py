@@ -61,8 +61,9 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    detector missed it, or its box cut it short): its points in the instance's cells or next
    to them join it. An instance still waiting for its confirmation (rule 6) grows too, its
    points waiting with it: a robot that passes an object once sees it between its first
-   two detections, and the depth of those steps is not lost. The rest of the segment (a wall it touches, a neighbour) stays
-   out, so an instance grows by at most one cell per frame. Nor does it grow further than
+   two detections, and the depth of those steps is not lost. The rest of the segment (a
+   wall it touches, a neighbour) stays out, so an instance grows by at most one cell per
+   frame. Nor does it grow further than
    ``grow_margin`` from the 3D box of the points its detections took: detections say
    where the object is, and the frames between them fill in its surface, but do not carry
    it along a wall or a row of furniture it touches, a cell a frame over hundreds of frames.
