@@ -63,10 +63,10 @@ Per frame (pose, depth, detections), each rule measured in docs/evaluate.md:
    points waiting with it: a robot that passes an object once sees it between its first
    two detections, and the depth of those steps is not lost. The rest of the segment (a
    wall it touches, a neighbour) stays out, so an instance grows by at most one cell per
-   frame. Nor does it grow further than
-   ``grow_margin`` from the 3D box of the points its detections took: detections say
-   where the object is, and the frames between them fill in its surface, but do not carry
-   it along a wall or a row of furniture it touches, a cell a frame over hundreds of frames.
+   frame. Nor does it grow further than ``grow_margin`` from the 3D box of the points its
+   detections took: detections say where the object is, and the frames between them fill
+   in its surface, but do not carry it along a wall or a row of furniture it touches, a
+   cell a frame over hundreds of frames.
 8. **Depth between detector frames**: rule 7 also runs on the depth camera of every step
    between detector frames (10 a second, 64 x 48; :meth:`Mapper.add_depth`), on all of
    them at once, when the map is next read or the next detector frame comes: judged
@@ -256,7 +256,7 @@ class PerceivedMapper(Mapper):
 
     def _grow(self, cloud: Cloud) -> None:
         """Rule 7: each frame segment mostly held by one instance grows it by its points in
-        that instance's cells or next to them (an unconfirmed instance's wait with it)."""
+        that instance's cells or next to them (an unconfirmed instance's points wait with it, rule 6)."""
         if not len(cloud.part) or not len(self.claimed):
             return
         cell = cube_keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
