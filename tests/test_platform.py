@@ -112,6 +112,36 @@ def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
     assert wrong <= 0.002
 
 
+def test_boxes_per_scan_step_change_no_hit(monkeypatch):
+    """The suite casts 4 boxes per scan step, sessions 16: every hit is the same, bitwise,
+    for both kernels; a value that does not divide a chunk is one line naming the variable."""
+    from rosmeery_jax.apps.bench import random_targets
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.sim import raycast, sensors
+
+    w = load_world("kitchen")
+    rs = ray_scene(w.scene)
+    cfg = sensors.CameraConfig()
+    poses = jnp.asarray(random_targets(w, 8, seed=5))
+
+    def hits(per_step):
+        def one(p):
+            o, _ = sensors.camera_pose(cfg, p)
+            d = sensors._yaw_rotate(jnp.asarray(sensors.camera_rays(cfg, cfg.width, cfg.height)), p[2])
+            return (raycast.cast(rs, o, d, cfg.max_range, boxes_per_step=per_step),
+                    raycast.cast_columns(rs, o, d.reshape(cfg.height, cfg.width, 3), cfg.max_range,
+                                         boxes_per_step=per_step))
+        return jax.tree.map(np.asarray, jax.jit(jax.vmap(one))(poses))
+
+    ref = hits(16)
+    assert (ref[0].label >= 0).mean() > 0.2  # objects in view: the comparison is not vacuous
+    for per_step in (4, 1):
+        jax.tree.map(np.testing.assert_array_equal, hits(per_step), ref)
+    monkeypatch.setenv("ROSMEERY_RAYCAST_UNROLL", "3")
+    with pytest.raises(InputError, match=r"ROSMEERY_RAYCAST_UNROLL.*'3' is not a divisor of 16"):
+        raycast.unroll()
+
+
 def test_wide_vectors_change_no_sensor_or_coverage_value():
     """``rosmeery_jax.core.xla`` lets LLVM use 512-bit vectors as a speed choice: the laser, the
     depth and label images and the coverage counts are bitwise those of XLA's default."""

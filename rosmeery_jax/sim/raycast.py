@@ -2,10 +2,10 @@
 
 The formulation measured fastest on a 2-core CPU (docs/performance.md): rays on the minor
 (vectorised) axis; a running element-wise minimum over boxes; ``lax.scan`` over chunks of
-16 boxes with the 16 unrolled inside the body; each box's cos/sin and the ray origin in the
-box frame computed once per frame; the slab test per box; the distance's float bits with
-the low bits replaced by the box index packed into one int32, so the reduction over boxes
-is a single integer ``minimum``. The packing only decides *which* box is hit; the distance
+16 boxes with the 16 unrolled inside the body (:func:`unroll`); each box's cos/sin and
+the ray origin in the box frame computed once per frame; the slab test per box; the
+distance's float bits with the low bits replaced by the box index packed into one int32,
+so the reduction over boxes is a single integer ``minimum``. The packing only decides *which* box is hit; the distance
 to that box is then recomputed exactly, so distances are exact, not quantised.
 
 Shapes: B ray bundles (one per sensor per env), R rays per bundle, G boxes.
@@ -13,15 +13,28 @@ Shapes: B ray bundles (one per sensor per env), R rays per bundle, G boxes.
 
 from __future__ import annotations
 
+import os
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world.scene import FLOOR, NOTHING, Scene
 
-CHUNK = 16
+CHUNK = 16  # scenes are padded to whole chunks of this many boxes
+
+
+def unroll() -> int:
+    """Boxes per step of a cast's scan, unrolled in its body: CHUNK (16) runs fastest; fewer
+    compile faster for the same hits, bitwise, as the minimum over boxes is exact however
+    they are grouped. ``$ROSMEERY_RAYCAST_UNROLL`` sets it (a divisor of CHUNK); the test
+    suite uses 4 (docs/performance.md)."""
+    value = os.environ.get("ROSMEERY_RAYCAST_UNROLL", str(CHUNK))
+    if not value.isdigit() or int(value) < 1 or CHUNK % int(value):
+        raise InputError("$ROSMEERY_RAYCAST_UNROLL", "", f"{value!r} is not a divisor of {CHUNK}")
+    return int(value)
 _FAR = 1e6
 INDEX_BITS = 12  # most box-index bits in the packed key: up to 4,095 boxes.
 SMALL_BITS = 9  # the bits any scene of up to 511 boxes uses. Bucketed, not sized to the scene,
@@ -101,11 +114,11 @@ def scene_bits(num_boxes: int) -> int:
     return SMALL_BITS if num_boxes < 2 ** SMALL_BITS else INDEX_BITS
 
 
-def _box_chunks(rs: RayScene):
-    """Scan inputs over chunks of CHUNK boxes: (first index, centers, halves, cos, sin)."""
-    n = rs.num_boxes // CHUNK
-    return (jnp.arange(n, dtype=jnp.int32) * CHUNK, rs.center.reshape(n, CHUNK, 3), rs.half.reshape(n, CHUNK, 3),
-            rs.cos.reshape(n, CHUNK), rs.sin.reshape(n, CHUNK))
+def _box_chunks(rs: RayScene, per_step: int):
+    """Scan inputs over groups of ``per_step`` boxes: (first index, centers, halves, cos, sin)."""
+    n = rs.num_boxes // per_step
+    return (jnp.arange(n, dtype=jnp.int32) * per_step, rs.center.reshape(n, per_step, 3),
+            rs.half.reshape(n, per_step, 3), rs.cos.reshape(n, per_step), rs.sin.reshape(n, per_step))
 
 
 def _pack(t, keep, index):
@@ -130,9 +143,12 @@ def _slab(lx, ly, lz, dx, dy, dz, hx, hy, hz):
     return jnp.where((tmax >= tmin) & (tmin > 0.0), tmin, big)
 
 
-def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bits: int | None = None) -> Hit:
+def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bits: int | None = None,
+         boxes_per_step: int | None = None) -> Hit:
     """Cast bundles of rays. origin (..., 3) one per bundle; dirs (..., R, 3) unit vectors;
-    ``bits`` of the packed key index the boxes (default :func:`scene_bits`)."""
+    ``bits`` of the packed key index the boxes (default :func:`scene_bits`); ``boxes_per_step``
+    of the scan (default :func:`unroll`) change nothing but compile and run times."""
+    per_step = boxes_per_step or unroll()
     lead = origin.shape[:-1]
     o = origin.reshape(-1, 3)
     d = dirs.reshape(o.shape[0], -1, 3)
@@ -143,7 +159,7 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bit
 
     def chunk(best, xs):
         base, c, h, cs, sn = xs
-        for k in range(CHUNK):
+        for k in range(per_step):
             ox, oy, oz = o[:, 0] - c[k, 0], o[:, 1] - c[k, 1], o[:, 2] - c[k, 2]  # (B,)
             lx = (cs[k] * ox + sn[k] * oy)[:, None]
             ly = (-sn[k] * ox + cs[k] * oy)[:, None]
@@ -153,7 +169,7 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bit
             best = jnp.minimum(best, _pack(t, keep, base + k))
         return best, None
 
-    best, _ = jax.lax.scan(chunk, jnp.full(dx.shape, inf_bits, jnp.int32), _box_chunks(rs))
+    best, _ = jax.lax.scan(chunk, jnp.full(dx.shape, inf_bits, jnp.int32), _box_chunks(rs, per_step))
     box = best & ~keep  # (B, R)
     out = _resolve(rs, o, d, box, max_range)
     r = d.shape[1]
@@ -214,7 +230,7 @@ def _resolve(rs: RayScene, o: jax.Array, d: jax.Array, box: jax.Array, max_range
 
 
 def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float,
-                 bits: int | None = None) -> Hit:
+                 bits: int | None = None, boxes_per_step: int | None = None) -> Hit:
     """Cast a level camera's rays (H, W, 3): every column shares one horizontal direction.
 
     Exact, like :func:`cast`, and about twice as fast for camera images: the x / y slab test
@@ -222,8 +238,10 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
     parameterise each ray by its horizontal distance s; a box's x / y slabs give an interval
     [s0, s1] for the column, its z slab an interval per pixel, and the pixel's nearest box is
     the one with the smallest entry s (t = s / |horizontal part of d|, the same order).
-    origin (..., 3); dirs (..., H, W, 3) with each column's horizontal direction constant.
+    origin (..., 3); dirs (..., H, W, 3) with each column's horizontal direction constant;
+    ``boxes_per_step`` as in :func:`cast`.
     """
+    per_step = boxes_per_step or unroll()
     lead = origin.shape[:-1]
     h_, w_ = dirs.shape[-3], dirs.shape[-2]
     o = origin.reshape(-1, 3)
@@ -242,7 +260,7 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
 
     def chunk(best, xs):
         base, c, h, cs, sn = xs
-        for k in range(CHUNK):
+        for k in range(per_step):
             ox, oy = o[:, 0] - c[k, 0], o[:, 1] - c[k, 1]  # (B,)
             lx = (cs[k] * ox + sn[k] * oy)[:, None]
             ly = (-sn[k] * ox + cs[k] * oy)[:, None]
@@ -261,7 +279,7 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
             best = jnp.minimum(best, _pack(t, keep, base + k))
         return best, None
 
-    best, _ = jax.lax.scan(chunk, jnp.full(islope.shape, inf_bits, jnp.int32), _box_chunks(rs))
+    best, _ = jax.lax.scan(chunk, jnp.full(islope.shape, inf_bits, jnp.int32), _box_chunks(rs, per_step))
     box = jnp.swapaxes(best & ~keep, 1, 2).reshape(o.shape[0], h_ * w_)
     out = _resolve(rs, o, d.reshape(o.shape[0], h_ * w_, 3), box, max_range)
     return Hit(*(a.reshape(*lead, h_ * w_, *a.shape[2:]) for a in out))

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.sim import grid
-from rosmeery_jax.sim.raycast import RayScene, cast, cast_columns, index_bits, materialized
+from rosmeery_jax.sim.raycast import RayScene, cast, cast_columns, index_bits, materialized, padded_boxes
 from rosmeery_jax.world.scene import NOTHING
 
 
@@ -106,7 +106,7 @@ def frustum_boxes(rs: RayScene, cfg: CameraConfig, origin: jax.Array, yaw: jax.A
     boxes (far away) change nothing."""
     if cfg.cull <= 0:
         return rs
-    k = min(-(-cfg.cull // 16) * 16, rs.num_boxes)
+    k = min(padded_boxes(cfg.cull), rs.num_boxes)
     rel = rs.center[:, :2] - origin[:2]
     dist = jnp.linalg.norm(rel, axis=-1)
     radius = jnp.linalg.norm(rs.half[:, :2], axis=-1)
@@ -124,7 +124,7 @@ def _camera_cast(rs: RayScene, cfg: CameraConfig, pose: jax.Array, width: int, h
     d = _yaw_rotate(jnp.asarray(camera_rays(cfg, width, height)), pose[2])
     rs = frustum_boxes(rs, cfg, o, pose[2], width, height)
     # The key's index bits follow the cull size (fixed), not the culled scene's padded size.
-    bits = index_bits(-(-cfg.cull // 16) * 16) if cfg.cull > 0 else None
+    bits = index_bits(padded_boxes(cfg.cull)) if cfg.cull > 0 else None
     if cfg.pitch == 0.0:  # a level camera: its columns are vertical fans (cast_columns)
         hit = cast_columns(rs, o, d.reshape(height, width, 3), cfg.max_range, bits)
     else:
