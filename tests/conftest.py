@@ -27,10 +27,6 @@ if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] += (" --xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
                                 " --xla_cpu_parallel_codegen_split_count=1 --xla_cpu_use_fusion_emitters=false")
 
-# Ray casts step over 4 boxes at a time instead of 16: the same hits, bitwise (test_platform), and
-# a short session traces in about a quarter less time and compiles a little faster.
-os.environ.setdefault("ROSMEERY_RAYCAST_UNROLL", "4")
-
 
 # XLA's own optimisations back, for the few programs that run thousands of robot-steps: there the
 # quick pipeline's slower code costs more than its faster compile saves (16 robots, 625

@@ -113,7 +113,7 @@ def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
 
 
 def test_boxes_per_scan_step_change_no_hit(monkeypatch):
-    """The suite casts 4 boxes per scan step, sessions 16: every hit is the same, bitwise,
+    """Casting 16, 4 (the default) or 1 box per scan step gives every hit the same, bitwise,
     for both kernels; a value that does not divide a chunk is one line naming the variable."""
     from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.core.errors import InputError

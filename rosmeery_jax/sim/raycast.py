@@ -1,9 +1,9 @@
 """Exact ray casting against yaw-rotated boxes and the floor plane, fused for the CPU.
 
 The formulation measured fastest on a 2-core CPU (docs/performance.md): rays on the minor
-(vectorised) axis; a running element-wise minimum over boxes; ``lax.scan`` over chunks of
-16 boxes with the 16 unrolled inside the body (:func:`unroll`); each box's cos/sin and
-the ray origin in the box frame computed once per frame; the slab test per box; the
+(vectorised) axis; a running element-wise minimum over boxes; ``lax.scan`` over groups of
+4 boxes with the 4 unrolled inside the body (:func:`unroll`); each box's cos/sin and the
+ray origin in the box frame computed once per frame; the slab test per box; the
 distance's float bits with the low bits replaced by the box index packed into one int32,
 so the reduction over boxes is a single integer ``minimum``. The packing only decides *which* box is hit; the distance
 to that box is then recomputed exactly, so distances are exact, not quantised.
@@ -27,14 +27,16 @@ CHUNK = 16  # scenes are padded to whole chunks of this many boxes
 
 
 def unroll() -> int:
-    """Boxes per step of a cast's scan, unrolled in its body: CHUNK (16) runs fastest; fewer
-    compile faster for the same hits, bitwise, as the minimum over boxes is exact however
-    they are grouped. ``$ROSMEERY_RAYCAST_UNROLL`` sets it (a divisor of CHUNK); the test
-    suite uses 4 (docs/performance.md)."""
-    value = os.environ.get("ROSMEERY_RAYCAST_UNROLL", str(CHUNK))
+    """Boxes per step of a cast's scan, unrolled in its body: 4 by default, as fast to run
+    as 16 and shorter to compile (docs/performance.md); the hits are bitwise the same for
+    any grouping, as the minimum over packed keys is exact. ``$ROSMEERY_RAYCAST_UNROLL``
+    sets another divisor of CHUNK."""
+    value = os.environ.get("ROSMEERY_RAYCAST_UNROLL", "4")
     if not value.isdigit() or int(value) < 1 or CHUNK % int(value):
         raise InputError("$ROSMEERY_RAYCAST_UNROLL", "", f"{value!r} is not a divisor of {CHUNK}")
     return int(value)
+
+
 _FAR = 1e6
 INDEX_BITS = 12  # most box-index bits in the packed key: up to 4,095 boxes.
 SMALL_BITS = 9  # the bits any scene of up to 511 boxes uses. Bucketed, not sized to the scene,
