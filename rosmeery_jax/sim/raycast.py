@@ -5,8 +5,9 @@ The formulation measured fastest on a 2-core CPU (docs/performance.md): rays on 
 4 boxes with the 4 unrolled inside the body (:func:`unroll`); each box's cos/sin and the
 ray origin in the box frame computed once per frame; the slab test per box; the
 distance's float bits with the low bits replaced by the box index packed into one int32,
-so the reduction over boxes is a single integer ``minimum``. The packing only decides *which* box is hit; the distance
-to that box is then recomputed exactly, so distances are exact, not quantised.
+so the reduction over boxes is a single integer ``minimum``. The packing only decides
+*which* box is hit; the distance to that box is then recomputed exactly, so distances are
+exact, not quantised.
 
 Shapes: B ray bundles (one per sensor per env), R rays per bundle, G boxes.
 """
@@ -116,7 +117,7 @@ def scene_bits(num_boxes: int) -> int:
     return SMALL_BITS if num_boxes < 2 ** SMALL_BITS else INDEX_BITS
 
 
-def _box_chunks(rs: RayScene, per_step: int):
+def _box_groups(rs: RayScene, per_step: int):
     """Scan inputs over groups of ``per_step`` boxes: (first index, centers, halves, cos, sin)."""
     n = rs.num_boxes // per_step
     return (jnp.arange(n, dtype=jnp.int32) * per_step, rs.center.reshape(n, per_step, 3),
@@ -159,7 +160,7 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bit
     dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]  # (B, R)
     inf_bits = jax.lax.bitcast_convert_type(jnp.float32(jnp.inf), jnp.int32)
 
-    def chunk(best, xs):
+    def group(best, xs):
         base, c, h, cs, sn = xs
         for k in range(per_step):
             ox, oy, oz = o[:, 0] - c[k, 0], o[:, 1] - c[k, 1], o[:, 2] - c[k, 2]  # (B,)
@@ -171,7 +172,7 @@ def cast(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: float, bit
             best = jnp.minimum(best, _pack(t, keep, base + k))
         return best, None
 
-    best, _ = jax.lax.scan(chunk, jnp.full(dx.shape, inf_bits, jnp.int32), _box_chunks(rs, per_step))
+    best, _ = jax.lax.scan(group, jnp.full(dx.shape, inf_bits, jnp.int32), _box_groups(rs, per_step))
     box = best & ~keep  # (B, R)
     out = _resolve(rs, o, d, box, max_range)
     r = d.shape[1]
@@ -260,7 +261,7 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
     big = jnp.float32(1e30)
     iex_ = lambda a: 1.0 / jnp.where(jnp.abs(a) < 1e-12, 1e-12, a)  # noqa: E731
 
-    def chunk(best, xs):
+    def group(best, xs):
         base, c, h, cs, sn = xs
         for k in range(per_step):
             ox, oy = o[:, 0] - c[k, 0], o[:, 1] - c[k, 1]  # (B,)
@@ -281,7 +282,7 @@ def cast_columns(rs: RayScene, origin: jax.Array, dirs: jax.Array, max_range: fl
             best = jnp.minimum(best, _pack(t, keep, base + k))
         return best, None
 
-    best, _ = jax.lax.scan(chunk, jnp.full(islope.shape, inf_bits, jnp.int32), _box_chunks(rs, per_step))
+    best, _ = jax.lax.scan(group, jnp.full(islope.shape, inf_bits, jnp.int32), _box_groups(rs, per_step))
     box = jnp.swapaxes(best & ~keep, 1, 2).reshape(o.shape[0], h_ * w_)
     out = _resolve(rs, o, d.reshape(o.shape[0], h_ * w_, 3), box, max_range)
     return Hit(*(a.reshape(*lead, h_ * w_, *a.shape[2:]) for a in out))
