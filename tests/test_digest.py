@@ -13,19 +13,34 @@ import pytest
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.session import digest, engine
 
-RUN = ["run", "--worlds", "small_office", "--policies", "random", "--seeds", "3", "--duration", "20",
-       "--detector", "oracle", "--detector-period-s", "5", "--digest", "--quiet"]
+from conftest import room_xml
+
+BODIES = """
+<body name="desk_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.4" size="0.5 0.3 0.4"/></body>
+<body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
+<body name="fridge_1" pos="-1.5 1.4 0"><geom type="box" pos="0 0 0.8" size="0.3 0.3 0.8"/></body>
+"""
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory):
+def run(tmp_path_factory) -> list[str]:
+    """A 20 s session of three random walkers in a furnished room, with digests."""
+    world = tmp_path_factory.mktemp("world") / "room.xml"
+    world.write_text(room_xml(BODIES, {"desk_1": "desk", "chair_1": "chair", "fridge_1": "refrigerator"},
+                              spawn=(0.3, -0.4, 0.0), half=2.2))
+    return ["run", "--worlds", str(world), "--policies", "random", "--seeds", "3", "--duration", "20",
+            "--detector", "oracle", "--detector-period-s", "5", "--digest", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def reference(run, tmp_path_factory):
     out = tmp_path_factory.mktemp("digest") / "a"
-    assert main([*RUN, "--out", str(out)]) == 0
+    assert main([*run, "--out", str(out)]) == 0
     return out
 
 
-def test_the_digest_catches_a_one_ulp_change_in_one_env(reference, tmp_path, monkeypatch, capsys):
-    table = pd.read_csv(reference / "runs" / "small_office__random.digest.csv", dtype=str)
+def test_the_digest_catches_a_one_ulp_change_in_one_env(run, reference, tmp_path, monkeypatch, capsys):
+    table = pd.read_csv(reference / "runs" / "room__random.digest.csv", dtype=str)
     assert list(table.columns) == ["seed", "chunk", "time_s", *digest.PARTS] and len(table) == 3 * 4
     assert table.time_s.tolist()[:4] == ["5.0", "10.0", "15.0", "20.0"]
     start = engine._start
@@ -40,27 +55,27 @@ def test_the_digest_catches_a_one_ulp_change_in_one_env(reference, tmp_path, mon
 
     monkeypatch.setattr(engine, "_start", one_ulp_in_seed_1)
     out = tmp_path / "b"
-    assert main([*RUN, "--out", str(out)]) == 0
+    assert main([*run, "--out", str(out)]) == 0
     capsys.readouterr()
     assert main(["diff", str(reference), str(out)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[0] == "small_office__random seed 0: identical over 4 chunks"
-    assert lines[1].startswith("small_office__random seed 1: different from the first chunk; at chunk 0 (5.0 s) "
+    assert lines[0] == "room__random seed 0: identical over 4 chunks"
+    assert lines[1].startswith("room__random seed 1: different from the first chunk; at chunk 0 (5.0 s) "
                                "physics")
-    assert lines[2] == "small_office__random seed 2: identical over 4 chunks"
+    assert lines[2] == "room__random seed 2: identical over 4 chunks"
 
 
 def test_without_digests_the_paths_are_compared(reference, tmp_path, capsys):
     other = tmp_path / "c"
     (other / "runs").mkdir(parents=True)
     for suffix in (".metrics.csv", ".trajectory.csv"):
-        df = pd.read_csv(reference / "runs" / f"small_office__random{suffix}")
+        df = pd.read_csv(reference / "runs" / f"room__random{suffix}")
         if suffix == ".trajectory.csv":
             df.loc[(df.seed == 2) & (df.time_s >= 7.0), "x"] += 0.25
-        df.to_csv(other / "runs" / f"small_office__random{suffix}", index=False)
+        df.to_csv(other / "runs" / f"room__random{suffix}", index=False)
     lines = digest.compare(reference, other)
-    assert lines[0].startswith("small_office__random seed 0: the same path")
-    assert lines[2].startswith("small_office__random seed 2: the paths part at 7 s by 0.25")
+    assert lines[0].startswith("room__random seed 0: the same path")
+    assert lines[2].startswith("room__random seed 2: the paths part at 7 s by 0.25")
     (other / "runs" / "kitchen__random.metrics.csv").write_text("")  # a run of the second folder alone
     assert digest.compare(reference, other)[0] == f"kitchen__random: only in {other}"
     assert main(["diff", str(reference), str(tmp_path / "typo")]) == 2  # was: every run "only in" the first
