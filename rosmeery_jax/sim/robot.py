@@ -151,6 +151,11 @@ def _pieces(center, half, yaw, max_len):
             yield np.array([center[0] + c * lx - s * ly, center[1] + s * lx + c * ly, center[2]]), ph
 
 
+# MJX's step, jitted on its own: inside a session's program it is inlined as if called
+# directly, and JAX keeps its trace (and its batched form) for every later program of the
+# process whose model has the same structure, such as the next session's.
+_mjx_step = jax.jit(mjx.step)
+
 # The proxies' per-geom fields (every other geom field is the same for all of them); the
 # robot's sphere is the model's last geom.
 PROXY_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_aabb", "geom_rbound")
@@ -201,7 +206,7 @@ class Platform:
         def sub(d, _):
             yaw = d.qpos[2]
             ctrl = jnp.stack([v * jnp.cos(yaw), v * jnp.sin(yaw), w])
-            return mjx.step(model, d.replace(ctrl=ctrl)), None
+            return _mjx_step(model, d.replace(ctrl=ctrl)), None
 
         d, _ = jax.lax.scan(sub, d, None, length=self.cfg.substeps)
         return d
