@@ -67,9 +67,9 @@ def hall(tmp_path_factory):
     return str(path)
 
 
-def _run(out, worlds, policies, seeds, *extra) -> pd.DataFrame:
-    """A 20 s session."""
-    args = ["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", "20",
+def _run(out, worlds, policies, seeds, *extra, duration: float = 20) -> pd.DataFrame:
+    """A session of ``duration`` simulated seconds."""
+    args = ["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", str(duration),
             "--quiet", "--out", str(out), *extra]
     assert main(args) == 0
     return results.load(out)
@@ -84,7 +84,7 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, hall, tmp
     """A world padded to a larger one (in every size), beside other worlds, policies and
     seeds, with the detector's labels reaching semantic_nbv on the schedule: bitwise the
     same as alone, for the built-in knowledge and the perceived mapper alike (mapping from an
-    instance's first detection: 20 s gives few detections, and a second one of the same
+    instance's first detection: 10 s gives few detections, and a second one of the same
     object may not come). The random walker draws the same targets over the padded grid as
     over its own."""
     plugin = tmp_path / "one_view.py"
@@ -93,9 +93,10 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, hall, tmp
     grown = ("boxes", "laser_boxes", "proxies", "samples", "objects", "reachable")
     assert all(getattr(small, f) < getattr(large, f) for f in grown), (small, large)
     assert all(a < b for a, b in zip(small.grid, large.grid)) and small.categories == large.categories
-    both = ("--detector", "oracle", "--mapper", f"oracle,{plugin}:OneView")
-    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both)
-    mixed = _run(tmp_path / "mixed", f"{room},{hall}", "random,semantic_nbv", 3, *both)
+    # labels of 0-2 s reach the robots at 4 s (the period after next), well within the 10 s run
+    both = ("--detector", "oracle", "--detector-period-s", "2", "--mapper", f"oracle,{plugin}:OneView")
+    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both, duration=10)
+    mixed = _run(tmp_path / "mixed", f"{room},{hall}", "random,semantic_nbv", 3, *both, duration=10)
     for policy in ("random", "semantic_nbv"):
         a, b = _rows(alone, "room", policy, 2), _rows(mixed, "room", policy, 2)
         assert len(a) and len(a) == len(b)
@@ -118,7 +119,7 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, hall, tmp
     for m in ("ori", "cori", "opi", "opi_strict"):
         assert summary[m] == pytest.approx(last[m], abs=1e-6)
     timing = json.loads((tmp_path / "mixed" / "timing.json").read_text())
-    assert timing["compiles"] == 1 and timing["xla_compiles"] >= 1 and timing["frames"] == 2 * 3 * 2 * 20
+    assert timing["compiles"] == 1 and timing["xla_compiles"] >= 1 and timing["frames"] == 2 * 3 * 2 * 10
     assert set(mixed.world) == {"room", "hall"} and set(mixed.policy) == {"random", "semantic_nbv"}
 
 
