@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
@@ -63,6 +63,7 @@ def options(draw):
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(options())
+@example(GenOptions("lab", 642, 6, 10, 0.0))  # its first 8 draws fail (7 floor plans, 1 unviewable object)
 def test_layouts_hold_what_was_asked_without_overlaps(o):
     layout = generate(o)
     assert len(layout.items) == o.objects

@@ -68,7 +68,7 @@ ACCESS = 60  # cm kept free in front of a piece against a wall
 AROUND = 50  # cm kept free around a table group
 GAP = 2  # cm between a piece and the wall behind it
 PER_OBJECT_M2 = 1.5  # capacity: floor area per object at most
-ATTEMPTS = 8  # whole layouts tried per world before giving up
+ATTEMPTS = 32  # whole layouts tried per world before giving up (a 6-room lab fails a third of its draws)
 
 
 class GenerationError(InputError):
