@@ -124,15 +124,15 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, hall, tmp
 
 
 def test_results_do_not_depend_on_chunk_s(room, tmp_path):
-    a = _run(tmp_path / "a", room, "frontier", 2, "--detector", "off", "--chunk-s", "20")
-    b = _run(tmp_path / "b", room, "frontier", 2, "--detector", "off", "--chunk-s", "3")
+    a = _run(tmp_path / "a", room, "frontier", 2, "--detector", "off", "--chunk-s", "10", duration=10)
+    b = _run(tmp_path / "b", room, "frontier", 2, "--detector", "off", "--chunk-s", "3", duration=10)
     pd.testing.assert_frame_equal(a.sort_values(KEY).reset_index(drop=True), b.sort_values(KEY).reset_index(drop=True))
     # Rows every step: the engine logs every step instead of every 10. The whole seconds are
     # the same experiment (trajectories bitwise; metric values up to float32 rounding of a
     # mean over objects computed over a different number of rows).
     toml = tmp_path / "every_step.toml"
     toml.write_text("sample_s = 0.1\n")
-    c = _run(tmp_path / "c", room, "frontier", 2, "--detector", "off", "--config", str(toml))
+    c = _run(tmp_path / "c", room, "frontier", 2, "--detector", "off", "--config", str(toml), duration=10)
     assert sorted(set(c.time_s))[:3] == [0.0, 0.1, 0.2]
     whole = c[np.isclose(c.time_s % 1.0, 0.0)].sort_values(KEY).reset_index(drop=True)
     ref = a.sort_values(KEY).reset_index(drop=True)
@@ -141,6 +141,7 @@ def test_results_do_not_depend_on_chunk_s(room, tmp_path):
     ta, tc = (pd.read_csv(d / "runs" / "room__frontier.trajectory.csv") for d in (tmp_path / "a", tmp_path / "c"))
     assert np.array_equal(ta[["x", "y", "yaw"]].to_numpy(),
                           tc[np.isclose(tc.time_s % 1.0, 0.0)][["x", "y", "yaw"]].to_numpy())
+    assert np.ptp(ta.x) > 0.3  # the robots moved in their 10 s: the comparison has something to compare
     # Every step's pose replayed (`rosmeery replay --run`) gives the session's ORI curve, bitwise.
     assert main(["replay", "--world", room, "--poses", str(tmp_path / "c" / "trajectories.csv"), "--run",
                  "frontier:1", "--metrics", "ori", "--out", str(tmp_path / "replayed")]) == 0
@@ -155,9 +156,9 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     in every file that names a seed; a resume may not move the seeds; joined with seed 0
     alone (``rosmeery join``), they are the 0-2 session's files. (The chunking test's
     program: loaded from the compilation cache.)"""
-    off = ("--detector", "off", "--chunk-s", "20")
-    whole = _run(tmp_path / "whole", room, "frontier", 3, *off)
-    part = _run(tmp_path / "part", room, "frontier", 2, *off, "--first-seed", "1")
+    off = ("--detector", "off", "--chunk-s", "10")
+    whole = _run(tmp_path / "whole", room, "frontier", 3, *off, duration=10)
+    part = _run(tmp_path / "part", room, "frontier", 2, *off, "--first-seed", "1", duration=10)
     assert sorted(set(part.seed)) == [1, 2]
     assert part.sort_values(KEY).reset_index(drop=True).equals(
         whole[whole.seed >= 1].sort_values(KEY).reset_index(drop=True))
@@ -171,11 +172,11 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     assert ((tmp_path / "part" / "maps" / maps[1]).read_bytes()
             == (tmp_path / "whole" / "maps" / maps[1]).read_bytes())
     capsys.readouterr()
-    assert main(["run", "--worlds", room, "--policies", "frontier", "--seeds", "2", "--duration", "20", "--quiet",
+    assert main(["run", "--worlds", room, "--policies", "frontier", "--seeds", "2", "--duration", "10", "--quiet",
                  *off, "--out", str(tmp_path / "part"), "--resume"]) == 2
     assert "first_seed" in capsys.readouterr().err
     # Seed 0 alone, joined with seeds 1-2 (given out of order): the files of the 0-2 session.
-    _run(tmp_path / "zero", room, "frontier", 1, *off)
+    _run(tmp_path / "zero", room, "frontier", 1, *off, duration=10)
     assert main(["join", str(tmp_path / "part"), str(tmp_path / "zero"), "--out", str(tmp_path / "joined")]) == 0
     files = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if p.is_file()  # noqa: E731
                              and not p.name.endswith((".png", "timing.json", "config.json")))
@@ -186,7 +187,7 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     session = lambda d: {k: v for k, v in json.loads((d / "config.json").read_text())["session"].items()  # noqa: E731
                          if k != "out"}
     assert session(joined) == session(whole_dir)
-    assert main(["run", "--worlds", room, "--policies", "frontier", "--seeds", "3", "--duration", "20", "--quiet",
+    assert main(["run", "--worlds", room, "--policies", "frontier", "--seeds", "3", "--duration", "10", "--quiet",
                  *off, "--out", str(joined), "--resume"]) == 0  # one session's folder: nothing left to run
     assert [p["first_seed"] for p in json.loads((joined / "config.json").read_text())["joined"]] == [0, 1]
     assert sorted(p.name for p in (joined / "plots").glob("*.png")) == sorted(
