@@ -67,9 +67,9 @@ def hall(tmp_path_factory):
     return str(path)
 
 
-def _run(out, worlds, policies, seeds, *extra, duration: float = 20) -> pd.DataFrame:
-    """A session of ``duration`` simulated seconds."""
-    args = ["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", str(duration),
+def _run(out, worlds, policies, seeds, *extra) -> pd.DataFrame:
+    """A 10 s session."""
+    args = ["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", "10",
             "--quiet", "--out", str(out), *extra]
     assert main(args) == 0
     return results.load(out)
@@ -95,8 +95,8 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, hall, tmp
     assert all(a < b for a, b in zip(small.grid, large.grid)) and small.categories == large.categories
     # labels of 0-2 s reach the robots at 4 s (the period after next), well within the 10 s run
     both = ("--detector", "oracle", "--detector-period-s", "2", "--mapper", f"oracle,{plugin}:OneView")
-    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both, duration=10)
-    mixed = _run(tmp_path / "mixed", f"{room},{hall}", "random,semantic_nbv", 3, *both, duration=10)
+    alone = _run(tmp_path / "alone", room, "random,semantic_nbv", 2, *both)
+    mixed = _run(tmp_path / "mixed", f"{room},{hall}", "random,semantic_nbv", 3, *both)
     for policy in ("random", "semantic_nbv"):
         a, b = _rows(alone, "room", policy, 2), _rows(mixed, "room", policy, 2)
         assert len(a) and len(a) == len(b)
@@ -124,15 +124,15 @@ def test_a_run_alone_equals_the_same_run_in_a_padded_mixed_batch(room, hall, tmp
 
 
 def test_results_do_not_depend_on_chunk_s(room, tmp_path):
-    a = _run(tmp_path / "a", room, "frontier", 2, "--detector", "off", "--chunk-s", "10", duration=10)
-    b = _run(tmp_path / "b", room, "frontier", 2, "--detector", "off", "--chunk-s", "3", duration=10)
+    a = _run(tmp_path / "a", room, "frontier", 2, "--detector", "off", "--chunk-s", "10")
+    b = _run(tmp_path / "b", room, "frontier", 2, "--detector", "off", "--chunk-s", "3")
     pd.testing.assert_frame_equal(a.sort_values(KEY).reset_index(drop=True), b.sort_values(KEY).reset_index(drop=True))
     # Rows every step: the engine logs every step instead of every 10. The whole seconds are
     # the same experiment (trajectories bitwise; metric values up to float32 rounding of a
     # mean over objects computed over a different number of rows).
     toml = tmp_path / "every_step.toml"
     toml.write_text("sample_s = 0.1\n")
-    c = _run(tmp_path / "c", room, "frontier", 2, "--detector", "off", "--config", str(toml), duration=10)
+    c = _run(tmp_path / "c", room, "frontier", 2, "--detector", "off", "--config", str(toml))
     assert sorted(set(c.time_s))[:3] == [0.0, 0.1, 0.2]
     whole = c[np.isclose(c.time_s % 1.0, 0.0)].sort_values(KEY).reset_index(drop=True)
     ref = a.sort_values(KEY).reset_index(drop=True)
@@ -157,8 +157,8 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     alone (``rosmeery join``), they are the 0-2 session's files. (The chunking test's
     program: loaded from the compilation cache.)"""
     off = ("--detector", "off", "--chunk-s", "10")
-    whole = _run(tmp_path / "whole", room, "frontier", 3, *off, duration=10)
-    part = _run(tmp_path / "part", room, "frontier", 2, *off, "--first-seed", "1", duration=10)
+    whole = _run(tmp_path / "whole", room, "frontier", 3, *off)
+    part = _run(tmp_path / "part", room, "frontier", 2, *off, "--first-seed", "1")
     assert sorted(set(part.seed)) == [1, 2]
     assert part.sort_values(KEY).reset_index(drop=True).equals(
         whole[whole.seed >= 1].sort_values(KEY).reset_index(drop=True))
@@ -176,7 +176,7 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
                  *off, "--out", str(tmp_path / "part"), "--resume"]) == 2
     assert "first_seed" in capsys.readouterr().err
     # Seed 0 alone, joined with seeds 1-2 (given out of order): the files of the 0-2 session.
-    _run(tmp_path / "zero", room, "frontier", 1, *off, duration=10)
+    _run(tmp_path / "zero", room, "frontier", 1, *off)
     assert main(["join", str(tmp_path / "part"), str(tmp_path / "zero"), "--out", str(tmp_path / "joined")]) == 0
     files = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if p.is_file()  # noqa: E731
                              and not p.name.endswith((".png", "timing.json", "config.json")))
