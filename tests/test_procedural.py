@@ -206,8 +206,12 @@ def test_spare_chairs_stand_alone_with_their_backs_to_a_wall():
 def test_more_objects_than_fit_names_what_could_not_be_placed():
     with pytest.raises(InputError, match="do not fit"):
         check_options(GenOptions("lab", 0, rooms=1, objects=200))
-    with pytest.raises(GenerationError, match="could not place .* clutter objects"):
+    with pytest.raises(GenerationError, match="could not place .* clutter objects") as raised:
         generate(GenOptions("apartment", 0, rooms=4, objects=46))
+    assert "spare" not in str(raised.value)
+    # half the objects clutter, each a spare chair against a wall: the walls run out
+    with pytest.raises(GenerationError, match="clutter objects .* or a lower spare"):
+        generate(GenOptions("office", 0, clutter=0.5, spare=1.0))
 
 
 def test_generate_command_writes_loadable_files_and_bad_input_writes_nothing(tmp_path, capsys):

@@ -207,8 +207,10 @@ def generate(options: GenOptions) -> Layout:
         if spawn is not None:
             return Layout(options, *plan, items, spawn, attempt)
     what = f"could not place {', '.join(unplaced)}" if unplaced else "no layout passed the reachability checks"
+    ask = "fewer objects, more rooms or a lower spare (spare chairs need free wall)" if o.spare else (
+        "fewer objects or more rooms")
     raise GenerationError(options.name, "objects", f"{what} in {ATTEMPTS} attempts for {o.objects} objects in "
-                          f"{o.rooms} rooms; ask for fewer objects or more rooms")
+                          f"{o.rooms} rooms; ask for {ask}")
 
 
 # ----------------------------------------------------------------------------- furnishing
