@@ -1,7 +1,9 @@
 """Variants of ``gradient_nbv`` that test what limits it (docs/learned.md): no gradient step,
 more steps, more starts, more candidates of random's kind, and the ground truth as its
-belief, as its view model, or both. Run as plugins by ``gradient_variants.toml``; none is a
-policy to explore with (those named for the ground truth or a true view read it)."""
+belief, as its view model, or both (``gradient_variants.toml``); the ground truth's belief
+weighed by ORI or as its samples, and its own belief widened to occupied cells
+(``gradient_beliefs.toml``). Run as plugins; none is a policy to explore with (those named
+for the ground truth or a true view read it; the widened belief did not hold its lead)."""
 
 from pathlib import Path
 
@@ -10,7 +12,8 @@ import jax.numpy as jnp
 
 from rosmeery_jax.core.plugins import load
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
-from rosmeery_jax.sim import occupancy
+from rosmeery_jax.rl.candidates import surface_maps
+from rosmeery_jax.sim import grid, occupancy
 from rosmeery_jax.sim.coverage import FAR
 
 # the ground truth's gain of a view, from the view_oracle measure beside this file
@@ -104,3 +107,85 @@ class GradDrawsTrueView(GradDraws, GradTrueView):
 class GradDrawsOracle(GradDraws, GradOracle):
     """The same candidates scored by its own view model, with the ground truth as its belief."""
     name = "grad_draws_oracle"
+
+
+def _ori_weight(env, state):
+    """(S,) what observing each ground-truth sample would add to ORI, times N: 1 / its
+    object's sample count while the camera has not observed it, else 0 (padding samples 0)."""
+    sk = env.sk
+    table = sk.table
+    weight = 1.0 / jnp.maximum(sk.ps_G[jnp.clip(table.object, 0, table.num_objects - 1)], 1.0)
+    return jnp.where((state.knowledge.seen <= 0.5) & (table.points[0] < FAR / 2), weight, 0.0)
+
+
+class GradOracleORI(GradientNBVPolicy):
+    """The ground-truth belief of ``grad_oracle``, each coarse cell weighed by the ORI its
+    unseen samples hold (times N) rather than 1: the belief as ORI counts it, still one point
+    per cell at ``point_height``, still seen through the robot's rendered view."""
+    name = "grad_oracle_ori"
+
+    def belief(self, state):
+        table = self.env.sk.table
+        i, j = self.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
+        hc, wc = self.shape
+        mass = jax.ops.segment_sum(_ori_weight(self.env, state), i * wc + j, hc * wc)
+        return self.belief_points(), jnp.where(self.coarse.inside().reshape(-1), mass, 0.0)
+
+    def believed_opacity(self, held):
+        return self.belief_opacity * (held > 0).reshape(self.shape)
+
+
+class GradOracleSamples(GradientNBVPolicy):
+    """The belief at its limit: the ground-truth samples themselves (true positions and
+    heights), weighed by the ORI each would add, seen through the robot's rendered view (a
+    depth per image column through its map). Against ``grad_draws_true_view`` only the
+    view differs: rendered from the robot's map, not cast at the true scene."""
+    name = "grad_oracle_samples"
+
+    def init(self, key):
+        s = super().init(key)
+        return s._replace(viewed=jnp.zeros(self.env.sk.table.points.shape[1], jnp.float32))
+
+    def belief(self, state):
+        return self.env.sk.table, _ori_weight(self.env, state)
+
+    def start_weights(self, weight):
+        return weight + 1e-9 * (self.env.sk.table.points[0] < FAR / 2)
+
+    def believed_opacity(self, held):
+        table = self.env.sk.table
+        i, j = self.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
+        hc, wc = self.shape
+        cells = jax.ops.segment_max((held > 0).astype(jnp.float32), i * wc + j, hc * wc)
+        return self.belief_opacity * jnp.maximum(cells, 0.0).reshape(self.shape)
+
+
+class GradDrawsOracleORI(GradDraws, GradOracleORI):
+    """``grad_draws`` with the ORI-weighted ground-truth cells as its belief."""
+    name = "grad_draws_oracle_ori"
+
+
+class GradDrawsOracleSamples(GradDraws, GradOracleSamples):
+    """``grad_draws`` with the ground-truth samples, ORI-weighted, as its belief."""
+    name = "grad_draws_oracle_samples"
+
+
+class GradOccupied(GradientNBVPolicy):
+    """Its own belief widened from its own data: beside the cells near labelled surface, every
+    coarse cell its map shows occupied (the laser saw something there: furniture not yet
+    seen by the camera, or a wall) where it has observed no object surface. A wall's point
+    is soon viewed by the camera and weighs nothing after; an object the camera has not yet
+    seen is believed in before it is labelled."""
+    name = "grad_occupied"
+
+    def belief(self, state):
+        table, held = super().belief(state)
+        surface, _ = surface_maps(self.env, self.env.labelled_knowledge(state))
+        occupied = grid.block_any(self.env.occupancy(state) == occupancy.OCCUPIED, self.f)
+        extra = occupied & ~grid.block_any(surface > 0, self.f) & self.coarse.inside()
+        return table, jnp.maximum(held, extra.reshape(-1).astype(jnp.float32))
+
+
+class GradDrawsOccupied(GradDraws, GradOccupied):
+    """``grad_occupied`` with random's draws beside its refined views."""
+    name = "grad_draws_occupied"

@@ -167,19 +167,27 @@ class GradientNBVPolicy(ViewPolicy):
 
     def views(self, state, opacity, table, weight, key) -> tuple[jax.Array, jax.Array]:
         """The refined views (M, 3) and their expected gains (M,): each start looks at a
-        belief point drawn by ``weight`` (floored over the world's cells, for when every
-        weight is spent), from its own ring direction."""
-        pick = grid.draw(key, jnp.where(self.coarse.inside().reshape(-1), weight + 1e-9, 0.0), self.ring.shape[0])
+        belief point drawn by :meth:`start_weights`, from its own ring direction."""
+        pick = grid.draw(key, self.start_weights(weight), self.ring.shape[0])
         centre = table.points[:2, pick].T  # (M, 2)
         xy = centre + self.ring
         face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])
         views, gains = self.refine(opacity, table, weight, state, jnp.concatenate([xy, face[:, None]], 1))
         return views.at[:, 2].set(grid.wrap_angle(views[:, 2])), gains
 
+    def start_weights(self, weight: jax.Array) -> jax.Array:
+        """(P,) how often each belief point is a start's centre: its weight, floored over the
+        world's cells (for when every weight is spent)."""
+        return jnp.where(self.coarse.inside().reshape(-1), weight + 1e-9, 0.0)
+
+    def believed_opacity(self, held: jax.Array) -> jax.Array:
+        """(Hc, Wc) the opacity the belief adds: its held cells, ``belief_opacity`` each."""
+        return self.belief_opacity * held.reshape(self.shape)
+
     def decide(self, state, ps: GradientNBVState, key):
         env = self.env
         table, held = self.belief(state)
-        opacity = jnp.maximum(self.opacity(state), self.belief_opacity * held.reshape(self.shape))
+        opacity = jnp.maximum(self.opacity(state), self.believed_opacity(held))
         now = coverage.observed_soft(table, self.cov, self.cam, state.pose, state.depth)  # the real frame
         # A view reached counts as seen as predicted, so the same view is not chosen again.
         arrived = needs_target(state) & ~ps.exploring
