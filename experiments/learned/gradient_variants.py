@@ -138,8 +138,8 @@ class GradOracleORI(GradientNBVPolicy):
 class GradOracleSamples(GradientNBVPolicy):
     """The belief at its limit: the ground-truth samples themselves (true positions and
     heights), weighed by the ORI each would add, seen through the robot's rendered view (a
-    depth per image column through its map). Against ``grad_draws_true_view`` only the
-    view differs: rendered from the robot's map, not cast at the true scene."""
+    depth per image column through its map), as against ``grad_draws_true_view``'s cast at
+    the true scene."""
     name = "grad_oracle_samples"
 
     def init(self, key):
