@@ -18,6 +18,7 @@ from rosmeery_jax.sim.coverage import FAR
 
 # the ground truth's gain of a view, from the view_oracle measure beside this file
 ViewOracle = load(f"{Path(__file__).with_name('view_oracle.py')}:ViewOracle", __file__, "ViewOracle")
+ori_weights = load(f"{Path(__file__).with_name('view_oracle.py')}:ori_weights", __file__, "ori_weights")
 
 
 class GradIt0(GradientNBVPolicy):
@@ -110,12 +111,9 @@ class GradDrawsOracle(GradDraws, GradOracle):
 
 
 def _ori_weight(env, state):
-    """(S,) what observing each ground-truth sample would add to ORI, times N: 1 / its
-    object's sample count while the camera has not observed it, else 0 (padding samples 0)."""
-    sk = env.sk
-    table = sk.table
-    weight = 1.0 / jnp.maximum(sk.ps_G[jnp.clip(table.object, 0, table.num_objects - 1)], 1.0)
-    return jnp.where((state.knowledge.seen <= 0.5) & (table.points[0] < FAR / 2), weight, 0.0)
+    """(S,) ``ori_weights`` of the samples the camera has not observed, else 0 (padding 0)."""
+    table = env.sk.table
+    return jnp.where((state.knowledge.seen <= 0.5) & (table.points[0] < FAR / 2), ori_weights(env), 0.0)
 
 
 class GradOracleORI(GradientNBVPolicy):

@@ -85,6 +85,13 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
         return self.choose(state, ps, first, jnp.max(both / (legs + 1.0), -1))
 
 
+def ori_weights(env):
+    """(S,) what observing each ground-truth sample adds to ORI, times N: 1 / its object's
+    sample count (paper Eq. 3 weighs every object the same)."""
+    sk = env.sk
+    return 1.0 / jnp.maximum(sk.ps_G[jnp.clip(sk.table.object, 0, sk.table.num_objects - 1)], 1.0)
+
+
 class ByORI:
     """Scored by ORI itself (mixed in before a view oracle): each newly observed sample counts
     1 / its object's sample count, so every object weighs the same, as in ORI (paper Eq. 3);
@@ -92,9 +99,7 @@ class ByORI:
 
     def gain(self, state, pose):
         """The ORI this view would add, times N: sum over newly observed samples of 1 / ps_G."""
-        sk = self.env.sk
-        weight = 1.0 / jnp.maximum(sk.ps_G[jnp.clip(sk.table.object, 0, sk.table.num_objects - 1)], 1.0)
-        return jnp.sum(jnp.where(newly_observed(self.env, state, pose), weight, 0.0))
+        return jnp.sum(jnp.where(newly_observed(self.env, state, pose), ori_weights(self.env), 0.0))
 
 
 class ViewOracleORI(ByORI, ViewOracle):
