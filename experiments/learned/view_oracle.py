@@ -4,8 +4,9 @@ would newly observe the most ground-truth surface samples (``view_oracle``), or 
 metre of travel plus one (``view_oracle_pm``). It decides when learned does. Two more test
 how far more search (``view_oracle_pm_wide``) and a view after the next
 (``view_oracle_2step``) take it. The ``view_oracle_ori`` family scores a view by the ORI it
-would add rather than by samples. They read the ground truth, so they are measures, not
-explorers."""
+would add rather than by samples; ``view_oracle_ori_pm_objects`` adds candidates that are
+not random's draws (views facing objects). They read the ground truth, so they are measures,
+not explorers."""
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +14,7 @@ import jax.numpy as jnp
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.learned import Choice  # learned's state: target and when it was chosen
 from rosmeery_jax.rl.candidates import driving
-from rosmeery_jax.sim import coverage, occupancy
+from rosmeery_jax.sim import coverage, grid, occupancy
 
 
 def newly_observed(env, state, pose):
@@ -112,3 +113,45 @@ class ViewOracleORIPerMetre(ByORI, ViewOraclePerMetre):
 
 class ViewOracleORIWide(ByORI, ViewOracleWide):
     name = "view_oracle_ori_pm_wide"
+
+
+class ObjectViews:
+    """Candidates that are not random's draws (mixed in before a view oracle): beside the
+    kept target and the draws, ``views`` poses drawn uniformly among those on a ring
+    (``radii`` x 8 directions) around each ground-truth object's surface centroid, facing it,
+    on a cell the robot can reach on its own map, for objects with surface still unseen."""
+
+    views = 32
+    radii = (1.0, 2.0)
+
+    def decide(self, state, ps, key):
+        env, nav = self.env, self.env.navigator
+        k_draw, k_view = jax.random.split(key)
+        occupied = env.occupancy(state) == occupancy.OCCUPIED
+        drawn = nav.draw_reachable(state.nav, state.pose, occupied, k_draw, self.draws)  # (draws, 3)
+        table, n = env.sk.table, env.sk.table.num_objects
+        ones = jnp.ones_like(table.object, jnp.float32)
+        count = jax.ops.segment_sum(ones, table.object, n)
+        centroid = jnp.stack([jax.ops.segment_sum(table.points[a], table.object, n) for a in (0, 1)], -1)
+        centroid = centroid / jnp.maximum(count, 1.0)[:, None]  # (N, 2)
+        unseen = jax.ops.segment_sum((state.knowledge.seen <= 0.5).astype(jnp.float32), table.object, n) > 0
+        ang = jnp.arange(8) * 2 * jnp.pi / 8
+        ring = jnp.concatenate([r * jnp.stack([jnp.cos(ang), jnp.sin(ang)], -1) for r in self.radii])  # (V, 2)
+        at = centroid[:, None] + ring[None]  # (N, V, 2)
+        reach = nav.reachable(state.nav, state.pose, occupied)
+        i, j = nav.coarse.cell(at)
+        ok = reach[i, j] & nav.coarse.inside()[i, j] & unseen[:, None] & (count > 0)[:, None]
+        pick = grid.draw(k_view, ok.astype(jnp.float32) + 1e-12, self.views)  # (views,) flat (N * V)
+        xy = at.reshape(-1, 2)[pick]
+        yaw = jnp.arctan2(centroid[pick // ring.shape[0], 1] - xy[:, 1], centroid[pick // ring.shape[0], 0] - xy[:, 0])
+        views = jnp.concatenate([xy, yaw[:, None]], -1)
+        cands = jnp.concatenate([ps.target[None], drawn, views], 0)  # (1 + draws + views, 3)
+        score = jax.vmap(lambda q: self.gain(state, q))(cands)
+        score = jnp.where(jnp.r_[jnp.ones(1 + self.draws, bool), ok.reshape(-1)[pick]], score, -1.0)
+        if self.per_metre:
+            score = score / (jnp.linalg.norm(cands[:, :2] - state.pose[:2], axis=-1) + 1.0)
+        return self.choose(state, ps, cands, score)
+
+
+class ViewOracleORIObjects(ObjectViews, ByORI, ViewOraclePerMetre):
+    name = "view_oracle_ori_pm_objects"
