@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.learned import Choice  # learned's state: target and when it was chosen
+from rosmeery_jax.policies.semantic_nbv import facing
 from rosmeery_jax.rl.candidates import driving
 from rosmeery_jax.sim import coverage, grid, occupancy
 
@@ -125,32 +126,36 @@ class ObjectViews:
     radii = (1.0, 2.0)
 
     def decide(self, state, ps, key):
-        env, nav = self.env, self.env.navigator
         k_draw, k_view = jax.random.split(key)
-        occupied = env.occupancy(state) == occupancy.OCCUPIED
-        drawn = nav.draw_reachable(state.nav, state.pose, occupied, k_draw, self.draws)  # (draws, 3)
-        table, n = env.sk.table, env.sk.table.num_objects
-        ones = jnp.ones_like(table.object, jnp.float32)
-        count = jax.ops.segment_sum(ones, table.object, n)
+        occupied = self.env.occupancy(state) == occupancy.OCCUPIED
+        drawn = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k_draw, self.draws)  # (draws, 3)
+        views, ok = self.object_views(state, occupied, k_view)
+        cands = jnp.concatenate([ps.target[None], drawn, views], 0)  # (1 + draws + views, 3)
+        score = jax.vmap(lambda q: self.gain(state, q))(cands)
+        score = jnp.where(jnp.r_[jnp.ones(1 + self.draws, bool), ok], score, -1.0)
+        if self.per_metre:
+            score = score / (jnp.linalg.norm(cands[:, :2] - state.pose[:2], axis=-1) + 1.0)
+        return self.choose(state, ps, cands, score)
+
+    def object_views(self, state, occupied, key) -> tuple[jax.Array, jax.Array]:
+        """(views, 3) poses facing objects, drawn among the allowed ring views, and (views,)
+        which are allowed (none may be: then the draw is any, and all are refused)."""
+        nav, table = self.env.navigator, self.env.sk.table
+        n = table.num_objects
+        count = jax.ops.segment_sum(jnp.ones_like(table.object, jnp.float32), table.object, n)
         centroid = jnp.stack([jax.ops.segment_sum(table.points[a], table.object, n) for a in (0, 1)], -1)
         centroid = centroid / jnp.maximum(count, 1.0)[:, None]  # (N, 2)
         unseen = jax.ops.segment_sum((state.knowledge.seen <= 0.5).astype(jnp.float32), table.object, n) > 0
         ang = jnp.arange(8) * 2 * jnp.pi / 8
         ring = jnp.concatenate([r * jnp.stack([jnp.cos(ang), jnp.sin(ang)], -1) for r in self.radii])  # (V, 2)
         at = centroid[:, None] + ring[None]  # (N, V, 2)
-        reach = nav.reachable(state.nav, state.pose, occupied)
         i, j = nav.coarse.cell(at)
-        ok = reach[i, j] & nav.coarse.inside()[i, j] & unseen[:, None] & (count > 0)[:, None]
-        pick = grid.draw(k_view, ok.astype(jnp.float32) + 1e-12, self.views)  # (views,) flat (N * V)
+        reach = nav.reachable(state.nav, state.pose, occupied)
+        ok = (reach[i, j] & nav.coarse.inside()[i, j] & unseen[:, None] & (count > 0)[:, None]).reshape(-1)
+        pick = grid.draw(key, ok.astype(jnp.float32) + 1e-12, self.views)  # (views,) into N * V
         xy = at.reshape(-1, 2)[pick]
-        yaw = jnp.arctan2(centroid[pick // ring.shape[0], 1] - xy[:, 1], centroid[pick // ring.shape[0], 0] - xy[:, 0])
-        views = jnp.concatenate([xy, yaw[:, None]], -1)
-        cands = jnp.concatenate([ps.target[None], drawn, views], 0)  # (1 + draws + views, 3)
-        score = jax.vmap(lambda q: self.gain(state, q))(cands)
-        score = jnp.where(jnp.r_[jnp.ones(1 + self.draws, bool), ok.reshape(-1)[pick]], score, -1.0)
-        if self.per_metre:
-            score = score / (jnp.linalg.norm(cands[:, :2] - state.pose[:2], axis=-1) + 1.0)
-        return self.choose(state, ps, cands, score)
+        yaw = facing(centroid[pick // ring.shape[0]], xy)
+        return jnp.concatenate([xy, yaw[:, None]], -1), ok[pick]
 
 
 class ViewOracleORIObjects(ObjectViews, ByORI, ViewOraclePerMetre):
