@@ -3,7 +3,7 @@ takes, among the kept target and 32 targets of random's draw, the one from which
 would newly observe the most ground-truth surface samples (``view_oracle``), or the most per
 metre of travel plus one (``view_oracle_pm``). It decides when learned does. Two more test
 how far more search (``view_oracle_pm_wide``) and a view after the next
-(``view_oracle_2step``) take it. The ``view_oracle_ori`` family scores a view by the ORI it
+(``view_oracle_2step``, and ``view_oracle_ori_2step`` by ORI) take it. The ``view_oracle_ori`` family scores a view by the ORI it
 would add rather than by samples; ``view_oracle_ori_pm_objects`` adds candidates that are
 not random's draws (views facing objects). They read the ground truth, so they are measures,
 not explorers."""
@@ -81,10 +81,15 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
             state.nav, state.pose, occupied, k1, self.draws)], 0)  # (1 + draws, 3): the kept target first
         second = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k2, self.draws)  # (draws, 3)
         a, b = (jax.vmap(lambda q: newly_observed(self.env, state, q))(qs) for qs in (first, second))
-        both = jnp.sum((a[:, None] | b[None]).astype(jnp.float32), -1)  # (1 + draws, draws)
+        both = self.together(a, b)  # (1 + draws, draws)
         legs = (jnp.linalg.norm(first[:, None, :2] - state.pose[:2], axis=-1)
                 + jnp.linalg.norm(second[None, :, :2] - first[:, None, :2], axis=-1))
         return self.choose(state, ps, first, jnp.max(both / (legs + 1.0), -1))
+
+    def together(self, a, b):
+        """(A, B) what views a (A, S) and b (B, S), which samples each newly observes, observe
+        together: samples."""
+        return jnp.sum((a[:, None] | b[None]).astype(jnp.float32), -1)
 
 
 def ori_weights(env):
@@ -114,6 +119,15 @@ class ViewOracleORIPerMetre(ByORI, ViewOraclePerMetre):
 
 class ViewOracleORIWide(ByORI, ViewOracleWide):
     name = "view_oracle_ori_pm_wide"
+
+
+class ViewOracleORITwoSteps(ByORI, ViewOracleTwoSteps):
+    """``view_oracle_2step`` judged by the ORI the two views add together."""
+    name = "view_oracle_ori_2step"
+
+    def together(self, a, b):
+        """(A, B) the ORI views a (A, S) and b (B, S) add together, times N."""
+        return jnp.sum(jnp.where(a[:, None] | b[None], ori_weights(self.env), 0.0), -1)
 
 
 class ObjectViews:
