@@ -16,6 +16,7 @@ from rosmeery_jax.policies.learned import Choice  # learned's state: target and 
 from rosmeery_jax.policies.semantic_nbv import facing
 from rosmeery_jax.rl.candidates import driving
 from rosmeery_jax.sim import coverage, grid, occupancy
+from rosmeery_jax.sim.coverage import FAR
 
 
 def newly_observed(env, state, pose):
@@ -155,11 +156,11 @@ class ObjectViews:
         """(views, 3) poses facing objects, drawn among the allowed ring views, and (views,)
         which are allowed (none may be: then the draw is any, and all are refused)."""
         nav, table = self.env.navigator, self.env.sk.table
-        n = table.num_objects
-        count = jax.ops.segment_sum(jnp.ones_like(table.object, jnp.float32), table.object, n)
-        centroid = jnp.stack([jax.ops.segment_sum(table.points[a], table.object, n) for a in (0, 1)], -1)
+        n, real = table.num_objects, (table.points[0] < FAR / 2).astype(jnp.float32)  # padding stands at FAR
+        count = jax.ops.segment_sum(real, table.object, n)
+        centroid = jnp.stack([jax.ops.segment_sum(real * table.points[a], table.object, n) for a in (0, 1)], -1)
         centroid = centroid / jnp.maximum(count, 1.0)[:, None]  # (N, 2)
-        unseen = jax.ops.segment_sum((state.knowledge.seen <= 0.5).astype(jnp.float32), table.object, n) > 0
+        unseen = jax.ops.segment_sum(real * (state.knowledge.seen <= 0.5), table.object, n) > 0
         ang = jnp.arange(8) * 2 * jnp.pi / 8
         ring = jnp.concatenate([r * jnp.stack([jnp.cos(ang), jnp.sin(ang)], -1) for r in self.radii])  # (V, 2)
         at = centroid[:, None] + ring[None]  # (N, V, 2)
