@@ -45,6 +45,14 @@ class GradC32(GradientNBVPolicy):
         super().__init__(env, candidates=32)
 
 
+def _sample_cells(policy) -> tuple[jax.Array, int]:
+    """(S,) the flat coarse cell of each ground-truth sample, and the coarse cells' count."""
+    table = policy.env.sk.table
+    i, j = policy.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
+    hc, wc = policy.shape
+    return i * wc + j, hc * wc
+
+
 class GradOracle(GradientNBVPolicy):
     """An upper bound on the belief: a belief point in every coarse cell holding a ground-truth
     surface sample the camera has not observed, in place of the robot's guess from the
@@ -54,9 +62,7 @@ class GradOracle(GradientNBVPolicy):
     def belief(self, state):
         table = self.env.sk.table
         unseen = (state.knowledge.seen <= 0.5) & (table.points[0] < FAR / 2)  # padding samples stand at FAR
-        i, j = self.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
-        hc, wc = self.shape
-        count = jax.ops.segment_sum(unseen.astype(jnp.float32), i * wc + j, hc * wc)
+        count = jax.ops.segment_sum(unseen.astype(jnp.float32), *_sample_cells(self))
         return self.belief_points(), ((count > 0) & self.coarse.inside().reshape(-1)).astype(jnp.float32)
 
 
@@ -123,10 +129,7 @@ class GradOracleORI(GradientNBVPolicy):
     name = "grad_oracle_ori"
 
     def belief(self, state):
-        table = self.env.sk.table
-        i, j = self.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
-        hc, wc = self.shape
-        mass = jax.ops.segment_sum(_ori_weight(self.env, state), i * wc + j, hc * wc)
+        mass = jax.ops.segment_sum(_ori_weight(self.env, state), *_sample_cells(self))
         return self.belief_points(), jnp.where(self.coarse.inside().reshape(-1), mass, 0.0)
 
     def believed_opacity(self, held):
@@ -151,10 +154,7 @@ class GradOracleSamples(GradientNBVPolicy):
         return weight + 1e-9 * (self.env.sk.table.points[0] < FAR / 2)
 
     def believed_opacity(self, held):
-        table = self.env.sk.table
-        i, j = self.coarse.cell(jnp.stack([table.points[0], table.points[1]], -1))
-        hc, wc = self.shape
-        cells = jax.ops.segment_max((held > 0).astype(jnp.float32), i * wc + j, hc * wc)
+        cells = jax.ops.segment_max((held > 0).astype(jnp.float32), *_sample_cells(self))
         return self.belief_opacity * jnp.maximum(cells, 0.0).reshape(self.shape)
 
 
