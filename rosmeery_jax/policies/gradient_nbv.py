@@ -44,6 +44,7 @@ import optax
 
 from rosmeery_jax.policies.base import needs_target
 from rosmeery_jax.policies.frontier import FrontierState, ViewPolicy, blocked_within
+from rosmeery_jax.policies.semantic_nbv import facing
 from rosmeery_jax.rl.candidates import surface_maps
 from rosmeery_jax.sim import coverage, grid, occupancy
 from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
@@ -171,8 +172,7 @@ class GradientNBVPolicy(ViewPolicy):
         pick = grid.draw(key, self.start_weights(weight), self.ring.shape[0])
         centre = table.points[:2, pick].T  # (M, 2)
         xy = centre + self.ring
-        face = jnp.arctan2(centre[:, 1] - xy[:, 1], centre[:, 0] - xy[:, 0])
-        views, gains = self.refine(opacity, table, weight, state, jnp.concatenate([xy, face[:, None]], 1))
+        views, gains = self.refine(opacity, table, weight, state, jnp.concatenate([xy, facing(centre, xy)[:, None]], 1))
         return views.at[:, 2].set(grid.wrap_angle(views[:, 2])), gains
 
     def start_weights(self, weight: jax.Array) -> jax.Array:
