@@ -19,6 +19,13 @@ from rosmeery_jax.sim.coverage import FAR
 # the ground truth's gain of a view, from the view_oracle measure beside this file
 ViewOracle = load(f"{Path(__file__).with_name('view_oracle.py')}:ViewOracle", __file__, "ViewOracle")
 ori_weights = load(f"{Path(__file__).with_name('view_oracle.py')}:ori_weights", __file__, "ori_weights")
+newly_observed = load(f"{Path(__file__).with_name('view_oracle.py')}:newly_observed", __file__, "newly_observed")
+
+
+def true_view(policy, state, views):
+    """(M,) the ground-truth samples the camera would newly observe from each of ``views``
+    (M, 3): ``view_oracle``'s gain."""
+    return jax.vmap(lambda q: ViewOracle.worth(policy, newly_observed(policy.env, state, q)))(views)
 
 
 class GradIt0(GradientNBVPolicy):
@@ -77,7 +84,7 @@ class GradTrueView(GradientNBVPolicy):
         super().__init__(env, iterations=0)
 
     def refine(self, opacity, table, weight, state, starts):
-        return starts, jax.vmap(lambda q: ViewOracle.gain(self, state, q))(starts)
+        return starts, true_view(self, state, starts)
 
 
 class GradOracleTrueView(GradTrueView, GradOracle):
@@ -108,7 +115,7 @@ class GradDrawsTrueView(GradDraws, GradTrueView):
     name = "grad_draws_true_view"
 
     def score(self, state, opacity, table, weight, views):
-        return jax.vmap(lambda q: ViewOracle.gain(self, state, q))(views)
+        return true_view(self, state, views)
 
 
 class GradDrawsOracle(GradDraws, GradOracle):

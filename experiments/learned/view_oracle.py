@@ -3,10 +3,11 @@ takes, among the kept target and 32 targets of random's draw, the one from which
 would newly observe the most ground-truth surface samples (``view_oracle``), or the most per
 metre of travel plus one (``view_oracle_pm``). It decides when learned does. Two more test
 how far more search (``view_oracle_pm_wide``) and a view after the next
-(``view_oracle_2step``, and ``view_oracle_ori_2step`` by ORI) take it. The ``view_oracle_ori`` family scores a view by the ORI it
-would add rather than by samples; ``view_oracle_ori_pm_objects`` adds candidates that are
-not random's draws (views facing objects). They read the ground truth, so they are measures,
-not explorers."""
+(``view_oracle_2step``, and ``view_oracle_ori_2step`` by ORI) take it. The ``view_oracle_ori``
+family scores a view by the ORI it would add rather than by samples;
+``view_oracle_ori_3step`` plans three views, and ``view_oracle_ori_pm_objects`` adds
+candidates that are not random's draws (views facing objects). They read the ground truth,
+so they are measures, not explorers."""
 
 import jax
 import jax.numpy as jnp
@@ -36,8 +37,12 @@ class ViewOracle(Policy):
         return Choice(jnp.zeros(3, jnp.float32), jnp.int32(0))
 
     def gain(self, state, pose):
-        """Ground-truth samples the camera would newly observe from ``pose`` (3,)."""
-        return jnp.sum(newly_observed(self.env, state, pose).astype(jnp.float32))
+        """What the camera would newly observe from ``pose`` (3,) is worth."""
+        return self.worth(newly_observed(self.env, state, pose))
+
+    def worth(self, seen):
+        """(...,) what views that would newly observe ``seen`` (..., S) are worth: samples."""
+        return jnp.sum(seen.astype(jnp.float32), -1)
 
     def decide(self, state, ps, key):
         occupied = self.env.occupancy(state) == occupancy.OCCUPIED
@@ -70,27 +75,33 @@ class ViewOracleWide(ViewOraclePerMetre):
 
 
 class ViewOracleTwoSteps(ViewOraclePerMetre):
-    """Choosing with the view after it in mind: each candidate (the kept target and 32
-    draws, as ``view_oracle_pm``'s) is scored by the most that it and one of 32 more draws
-    would newly observe together, per metre of the two legs plus one."""
+    """Choosing with the views after it in mind, a plan of ``legs`` views: each candidate
+    (the kept target and 32 draws, as ``view_oracle_pm``'s) is followed by the best of 32
+    more draws for each later leg, the one that adds the most to what the plan would newly
+    observe so far, per metre of the legs so far plus one, and is scored by its whole plan.
+    With two legs that is the best pair it starts."""
     name = "view_oracle_2step"
+    legs = 2
 
     def decide(self, state, ps, key):
         occupied = self.env.occupancy(state) == occupancy.OCCUPIED
-        k1, k2 = jax.random.split(key)
-        first = jnp.concatenate([ps.target[None], self.env.navigator.draw_reachable(
-            state.nav, state.pose, occupied, k1, self.draws)], 0)  # (1 + draws, 3): the kept target first
-        second = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k2, self.draws)  # (draws, 3)
-        a, b = (jax.vmap(lambda q: newly_observed(self.env, state, q))(qs) for qs in (first, second))
-        both = self.together(a, b)  # (1 + draws, draws)
-        legs = (jnp.linalg.norm(first[:, None, :2] - state.pose[:2], axis=-1)
-                + jnp.linalg.norm(second[None, :, :2] - first[:, None, :2], axis=-1))
-        return self.choose(state, ps, first, jnp.max(both / (legs + 1.0), -1))
+        keys = jax.random.split(key, self.legs)
+        draw = lambda k: self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k, self.draws)
+        first = jnp.concatenate([ps.target[None], draw(keys[0])], 0)  # (A = 1 + draws, 3): the kept target first
+        seen = jax.vmap(lambda q: newly_observed(self.env, state, q))(first)  # (A, S)
+        at, metres = first, jnp.linalg.norm(first[:, :2] - state.pose[:2], axis=-1)  # (A, 3), (A,)
+        for k in keys[1:]:  # greedy, one leg at a time: every later leg's best for each plan
+            nxt = draw(k)  # (B, 3)
+            view = jax.vmap(lambda q: newly_observed(self.env, state, q))(nxt)  # (B, S)
+            legs = metres[:, None] + jnp.linalg.norm(nxt[None, :, :2] - at[:, None, :2], axis=-1)  # (A, B)
+            best = jnp.argmax(self.together(seen, view) / (legs + 1.0), -1)  # (A,)
+            seen, at, metres = seen | view[best], nxt[best], jnp.take_along_axis(legs, best[:, None], 1)[:, 0]
+        return self.choose(state, ps, first, self.worth(seen) / (metres + 1.0))
 
     def together(self, a, b):
-        """(A, B) what views a (A, S) and b (B, S), which samples each newly observes, observe
-        together: samples."""
-        return jnp.sum((a[:, None] | b[None]).astype(jnp.float32), -1)
+        """(A, B) what views a (A, S) and b (B, S), which samples each newly observes, are
+        worth together."""
+        return self.worth(a[:, None] | b[None])
 
 
 def ori_weights(env):
@@ -105,9 +116,10 @@ class ByORI:
     1 / its object's sample count, so every object weighs the same, as in ORI (paper Eq. 3);
     ``view_oracle`` counts samples, so large objects weigh more."""
 
-    def gain(self, state, pose):
-        """The ORI this view would add, times N: sum over newly observed samples of 1 / ps_G."""
-        return jnp.sum(jnp.where(newly_observed(self.env, state, pose), ori_weights(self.env), 0.0))
+    def worth(self, seen):
+        """(...,) the ORI views that would newly observe ``seen`` (..., S) add, times N: the
+        sum over those samples of 1 / ps_G."""
+        return jnp.sum(jnp.where(seen, ori_weights(self.env), 0.0), -1)
 
 
 class ViewOracleORI(ByORI, ViewOracle):
@@ -123,12 +135,13 @@ class ViewOracleORIWide(ByORI, ViewOracleWide):
 
 
 class ViewOracleORITwoSteps(ByORI, ViewOracleTwoSteps):
-    """``view_oracle_2step`` judged by the ORI the two views add together."""
+    """``view_oracle_2step`` judged by the ORI its plan would add."""
     name = "view_oracle_ori_2step"
 
-    def together(self, a, b):
-        """(A, B) the ORI views a (A, S) and b (B, S) add together, times N."""
-        return jnp.sum(jnp.where(a[:, None] | b[None], ori_weights(self.env), 0.0), -1)
+
+class ViewOracleORIThreeSteps(ViewOracleORITwoSteps):
+    name = "view_oracle_ori_3step"
+    legs = 3
 
 
 class ObjectViews:
