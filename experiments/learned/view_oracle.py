@@ -93,9 +93,9 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
         for k in keys[1:]:  # greedy, one leg at a time: every later leg's best for each plan
             nxt = draw(k)  # (B, 3)
             view = jax.vmap(lambda q: newly_observed(self.env, state, q))(nxt)  # (B, S)
-            legs = metres[:, None] + jnp.linalg.norm(nxt[None, :, :2] - at[:, None, :2], axis=-1)  # (A, B)
-            best = jnp.argmax(self.together(seen, view) / (legs + 1.0), -1)  # (A,)
-            seen, at, metres = seen | view[best], nxt[best], jnp.take_along_axis(legs, best[:, None], 1)[:, 0]
+            through = metres[:, None] + jnp.linalg.norm(nxt[None, :, :2] - at[:, None, :2], axis=-1)  # (A, B)
+            best = jnp.argmax(self.together(seen, view) / (through + 1.0), -1)  # (A,)
+            seen, at, metres = seen | view[best], nxt[best], jnp.take_along_axis(through, best[:, None], 1)[:, 0]
         return self.choose(state, ps, first, self.worth(seen) / (metres + 1.0))
 
     def together(self, a, b):
