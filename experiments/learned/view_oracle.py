@@ -46,12 +46,17 @@ class ViewOracle(Policy):
 
     def decide(self, state, ps, key):
         occupied = self.env.occupancy(state) == occupancy.OCCUPIED
-        drawn = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, key, self.draws)
-        cands = jnp.concatenate([ps.target[None], drawn], 0)  # (1 + draws, 3): the kept target first
-        score = jax.vmap(lambda q: self.gain(state, q))(cands)
+        cands, ok = self.candidates(state, ps, occupied, key)
+        score = jnp.where(ok, jax.vmap(lambda q: self.gain(state, q))(cands), -1.0)
         if self.per_metre:
             score = score / (jnp.linalg.norm(cands[:, :2] - state.pose[:2], axis=-1) + 1.0)
         return self.choose(state, ps, cands, score)
+
+    def candidates(self, state, ps, occupied, key) -> tuple[jax.Array, jax.Array]:
+        """(1 + draws, 3) the kept target first, then random's draws; (1 + draws,) which may
+        be chosen (all)."""
+        drawn = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, key, self.draws)
+        return jnp.concatenate([ps.target[None], drawn], 0), jnp.ones(1 + self.draws, bool)
 
     def choose(self, state, ps, cands, score):
         """The best of ``cands`` (1 + K, 3) by ``score`` (1 + K,), the kept target first and
@@ -86,12 +91,11 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
     def decide(self, state, ps, key):
         occupied = self.env.occupancy(state) == occupancy.OCCUPIED
         keys = jax.random.split(key, self.legs)
-        draw = lambda k: self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k, self.draws)
-        first = jnp.concatenate([ps.target[None], draw(keys[0])], 0)  # (A = 1 + draws, 3): the kept target first
+        first, _ = self.candidates(state, ps, occupied, keys[0])  # (A = 1 + draws, 3)
         seen = jax.vmap(lambda q: newly_observed(self.env, state, q))(first)  # (A, S)
         at, metres = first, jnp.linalg.norm(first[:, :2] - state.pose[:2], axis=-1)  # (A, 3), (A,)
         for k in keys[1:]:  # greedy, one leg at a time: every later leg's best for each plan
-            nxt = draw(k)  # (B, 3)
+            nxt = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k, self.draws)  # (B, 3)
             view = jax.vmap(lambda q: newly_observed(self.env, state, q))(nxt)  # (B, S)
             through = metres[:, None] + jnp.linalg.norm(nxt[None, :, :2] - at[:, None, :2], axis=-1)  # (A, B)
             best = jnp.argmax(self.together(seen, view) / (through + 1.0), -1)  # (A,)
@@ -153,17 +157,13 @@ class ObjectViews:
     views = 32
     radii = (1.0, 2.0)
 
-    def decide(self, state, ps, key):
+    def candidates(self, state, ps, occupied, key):
+        """(1 + draws + views, 3) the view oracle's candidates, then the object views;
+        which may be chosen."""
         k_draw, k_view = jax.random.split(key)
-        occupied = self.env.occupancy(state) == occupancy.OCCUPIED
-        drawn = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k_draw, self.draws)  # (draws, 3)
-        views, ok = self.object_views(state, occupied, k_view)
-        cands = jnp.concatenate([ps.target[None], drawn, views], 0)  # (1 + draws + views, 3)
-        score = jax.vmap(lambda q: self.gain(state, q))(cands)
-        score = jnp.where(jnp.r_[jnp.ones(1 + self.draws, bool), ok], score, -1.0)
-        if self.per_metre:
-            score = score / (jnp.linalg.norm(cands[:, :2] - state.pose[:2], axis=-1) + 1.0)
-        return self.choose(state, ps, cands, score)
+        cands, ok = super().candidates(state, ps, occupied, k_draw)
+        views, allowed = self.object_views(state, occupied, k_view)
+        return jnp.concatenate([cands, views], 0), jnp.concatenate([ok, allowed])
 
     def object_views(self, state, occupied, key) -> tuple[jax.Array, jax.Array]:
         """(views, 3) poses facing objects, drawn among the allowed ring views, and (views,)
