@@ -5,9 +5,13 @@ metre of travel plus one (``view_oracle_pm``). It decides when learned does. Two
 how far more search (``view_oracle_pm_wide``) and a view after the next
 (``view_oracle_2step``, and ``view_oracle_ori_2step`` by ORI) take it. The ``view_oracle_ori``
 family scores a view by the ORI it would add rather than by samples;
-``view_oracle_ori_3step`` plans three views, and ``view_oracle_ori_pm_objects`` adds
-candidates that are not random's draws (views facing objects). They read the ground truth,
+``view_oracle_ori_3step`` plans three views; ``view_oracle_ori_pm_kept`` and
+``view_oracle_ori_2step_kept`` keep to a view or a plan until it is driven; and
+``view_oracle_ori_pm_objects`` adds candidates that are not random's draws (views facing
+objects). They read the ground truth,
 so they are measures, not explorers."""
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -89,18 +93,25 @@ class ViewOracleTwoSteps(ViewOraclePerMetre):
     legs = 2
 
     def decide(self, state, ps, key):
+        legs, score = self.plans(state, ps, key)
+        return self.choose(state, ps, legs[:, 0], score)
+
+    def plans(self, state, ps, key) -> tuple[jax.Array, jax.Array]:
+        """(A, legs, 3) a plan from each of the A = 1 + draws candidates, and (A,) what each
+        plan would newly observe, worth per metre of its legs plus one."""
         occupied = self.env.occupancy(state) == occupancy.OCCUPIED
         keys = jax.random.split(key, self.legs)
-        first, _ = self.candidates(state, ps, occupied, keys[0])  # (A = 1 + draws, 3)
+        first, _ = self.candidates(state, ps, occupied, keys[0])  # (A, 3)
         seen = jax.vmap(lambda q: newly_observed(self.env, state, q))(first)  # (A, S)
-        at, metres = first, jnp.linalg.norm(first[:, :2] - state.pose[:2], axis=-1)  # (A, 3), (A,)
+        at, metres = [first], jnp.linalg.norm(first[:, :2] - state.pose[:2], axis=-1)  # legs so far, (A,)
         for k in keys[1:]:  # greedy, one leg at a time: every later leg's best for each plan
             nxt = self.env.navigator.draw_reachable(state.nav, state.pose, occupied, k, self.draws)  # (B, 3)
             view = jax.vmap(lambda q: newly_observed(self.env, state, q))(nxt)  # (B, S)
-            through = metres[:, None] + jnp.linalg.norm(nxt[None, :, :2] - at[:, None, :2], axis=-1)  # (A, B)
+            through = metres[:, None] + jnp.linalg.norm(nxt[None, :, :2] - at[-1][:, None, :2], axis=-1)  # (A, B)
             best = jnp.argmax(self.together(seen, view) / (through + 1.0), -1)  # (A,)
-            seen, at, metres = seen | view[best], nxt[best], jnp.take_along_axis(through, best[:, None], 1)[:, 0]
-        return self.choose(state, ps, first, self.worth(seen) / (metres + 1.0))
+            seen, metres = seen | view[best], jnp.take_along_axis(through, best[:, None], 1)[:, 0]
+            at.append(nxt[best])
+        return jnp.stack(at, 1), self.worth(seen) / (metres + 1.0)
 
     def together(self, a, b):
         """(A, B) what views a (A, S) and b (B, S), which samples each newly observes, are
@@ -146,6 +157,42 @@ class ViewOracleORITwoSteps(ByORI, ViewOracleTwoSteps):
 class ViewOracleORIThreeSteps(ViewOracleORITwoSteps):
     name = "view_oracle_ori_3step"
     legs = 3
+
+
+class Plan(NamedTuple):
+    """A plan the robot keeps to: target (3,), the legs after it (legs - 1, 3) and how many
+    of them are still to drive, int32."""
+
+    target: jax.Array
+    after: jax.Array
+    left: jax.Array
+
+
+class KeptPlans(ViewOracleORITwoSteps):
+    """Plans the robot keeps to, rather than choosing afresh every 3 s: it chooses only when
+    the navigator is done with its target (reached it, or gave up on it), then drives the
+    chosen plan's legs one after the other, and chooses again when all are driven. Plans
+    are ``view_oracle_ori_2step``'s; with one leg, a view is ``view_oracle_ori_pm``'s."""
+    name = "view_oracle_ori_2step_kept"
+
+    def init(self, key):
+        return Plan(jnp.zeros(3, jnp.float32), jnp.zeros((self.legs - 1, 3), jnp.float32), jnp.int32(0))
+
+    def decide(self, state, ps, key):
+        legs, score = self.plans(state, ps, key)
+        best = legs[jnp.argmax(score.at[0].set(-1.0))]  # (legs, 3); the kept target is done with
+        done = ~driving(state)
+        fresh, on = done & (ps.left == 0), done & (ps.left > 0)
+        following = ps.after[jnp.clip(self.legs - 1 - ps.left, 0, self.legs - 2)] if self.legs > 1 else ps.target
+        target = jnp.where(fresh, best[0], jnp.where(on, following, ps.target))
+        after = jnp.where(fresh, best[1:], ps.after)
+        left = jnp.where(fresh, self.legs - 1, ps.left - on.astype(jnp.int32))
+        return target, Plan(target, after, left)
+
+
+class KeptViews(KeptPlans):
+    name = "view_oracle_ori_pm_kept"
+    legs = 1
 
 
 class ObjectViews:
