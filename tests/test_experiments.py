@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import pytest
 
 from rosmeery_jax.policies import plugin
@@ -48,3 +49,31 @@ def test_the_training_config_validates(monkeypatch):
     monkeypatch.chdir(ROOT)
     cfg = ppo.load_config("experiments/learned/ppo.toml")
     assert not any(w.startswith(("kitchen", "laboratory", "small_office", "large_office")) for w in cfg.worlds)
+
+
+def test_a_kept_plan_drives_its_legs_in_order_then_chooses_again(monkeypatch):
+    """view_oracle_ori_2step_kept's bookkeeping, with three legs and plans stubbed: the best
+    plan but the kept target's (slot 0) is driven leg by leg, each leg taken only when the
+    navigator is done with the last, and a new plan chosen only when all are driven."""
+    monkeypatch.chdir(ROOT)
+    kept = plugin.plugin_class("experiments/learned/view_oracle.py:KeptPlans")
+    calls = []
+
+    class ThreeLegs(kept):
+        legs = 3
+
+        def plans(self, state, ps, key):
+            calls.append(None)
+            legs = jnp.arange(4 * 3 * 3, dtype=jnp.float32).reshape(4, 3, 3) + 100 * len(calls)
+            return legs, jnp.array([9.0, 1.0, 5.0, 2.0])  # slot 0 best, but done with; then slot 2
+
+    driving = [False]
+    monkeypatch.setitem(kept.decide.__globals__, "driving", lambda state: jnp.bool_(driving[0]))
+    policy, targets = ThreeLegs(None), []
+    ps = policy.init(jax.random.key(0))
+    for drive in (False, True, False, True, False, False):
+        driving[0] = drive
+        target, ps = policy.decide(None, ps, None)
+        targets.append(int(target[0]))
+    # plan 1 is slot 2's legs (118, 121, 124 + ...); the sixth decision starts plan 6's
+    assert targets == [118, 118, 121, 121, 124, 618]
