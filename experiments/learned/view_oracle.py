@@ -6,7 +6,8 @@ how far more search (``view_oracle_pm_wide``) and a view after the next
 (``view_oracle_2step``, and ``view_oracle_ori_2step`` by ORI) take it. The ``view_oracle_ori``
 family scores a view by the ORI it would add rather than by samples;
 ``view_oracle_ori_3step`` plans three views; ``view_oracle_ori_pm_kept`` and
-``view_oracle_ori_2step_kept`` keep to a view or a plan until it is driven; and
+``view_oracle_ori_2step_kept`` keep to a view or a plan until it is driven;
+``view_oracle_ori_pm_path`` counts what the robot would see on its way; and
 ``view_oracle_ori_pm_objects`` adds candidates that are not random's draws (views facing
 objects). They read the ground truth,
 so they are measures, not explorers."""
@@ -157,6 +158,31 @@ class ViewOracleORITwoSteps(ByORI, ViewOracleTwoSteps):
 class ViewOracleORIThreeSteps(ViewOracleORITwoSteps):
     name = "view_oracle_ori_3step"
     legs = 3
+
+
+class AlongThePath:
+    """Views scored with what the robot would see on the way (mixed in before a view
+    oracle): the samples newly observed from the view and from ``stops`` poses evenly
+    spaced on the straight line to it, each facing along the line as the robot drives, those
+    on cells it cannot reach on its own map left out (the navigator's path bends around
+    them; the line is its cheap stand-in)."""
+
+    stops = 2
+
+    def gain(self, state, pose):
+        nav = self.env.navigator
+        reach = nav.reachable(state.nav, state.pose, self.env.occupancy(state) == occupancy.OCCUPIED)
+        f = jnp.arange(1, self.stops + 1, dtype=jnp.float32) / (self.stops + 1)
+        xy = state.pose[:2] + f[:, None] * (pose[:2] - state.pose[:2])  # (stops, 2)
+        yaw = jnp.broadcast_to(facing(pose[:2], state.pose[:2]), (self.stops,))
+        i, j = nav.coarse.cell(xy)
+        seen = jax.vmap(lambda q: newly_observed(self.env, state, q))(jnp.concatenate([xy, yaw[:, None]], -1))
+        on_way = jnp.any(seen & (reach[i, j] & nav.coarse.inside()[i, j])[:, None], 0)  # (S,)
+        return self.worth(newly_observed(self.env, state, pose) | on_way)
+
+
+class ViewOracleORIAlongThePath(AlongThePath, ByORI, ViewOraclePerMetre):
+    name = "view_oracle_ori_pm_path"
 
 
 class Plan(NamedTuple):
