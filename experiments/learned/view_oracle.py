@@ -9,8 +9,7 @@ family scores a view by the ORI it would add rather than by samples;
 ``view_oracle_ori_2step_kept`` keep to a view or a plan until it is driven;
 ``view_oracle_ori_pm_path`` counts what the robot would see on its way; and
 ``view_oracle_ori_pm_objects`` adds candidates that are not random's draws (views facing
-objects). They read the ground truth,
-so they are measures, not explorers."""
+objects). They read the ground truth, so they are measures, not explorers."""
 
 from typing import NamedTuple
 
