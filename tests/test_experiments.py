@@ -1,7 +1,8 @@
 """The experiment configurations the docs quote: each validates as a new user would run it,
 from the repository root, its plugin explorers built and traced for one decision (the
 check a session makes also compiles and runs it: tests/test_plugins.py covers that, and
-here it would compile nine gradient_nbv variants, a minute of the suite)."""
+here it would compile nine gradient_nbv variants, a minute of the suite); and the kept
+plans' bookkeeping."""
 
 from __future__ import annotations
 
@@ -75,5 +76,6 @@ def test_a_kept_plan_drives_its_legs_in_order_then_chooses_again(monkeypatch):
         driving[0] = drive
         target, ps = policy.decide(None, ps, None)
         targets.append(int(target[0]))
-    # plan 1 is slot 2's legs (118, 121, 124 + ...); the sixth decision starts plan 6's
+    # the first plan is slot 2's three legs (x = 118, 121, 124); the sixth decision, with all
+    # driven, takes slot 2 of the sixth call's plans
     assert targets == [118, 118, 121, 121, 124, 618]
