@@ -187,6 +187,81 @@ def test_near_viewpoints_stand_close_to_their_object_where_the_robot_can_stand()
     assert np.median(off) < 0.35
 
 
+def test_clear_lines_and_footprint_corners_by_hand():
+    from rosmeery_jax.detector import dataset
+    from rosmeery_jax.world.freespace import FreeSpace
+
+    occ = np.zeros((10, 10), bool)
+    occ[:, 5] = True  # a wall at x in [0.5, 0.6) m, 10 cm cells from the origin
+    occ[9, 5] = False  # with a gap at the top row
+    fs = FreeSpace(np.zeros(2), 0.1, occ, ~occ, ~occ, np.ones((10, 10), np.float32))
+    start = np.array([[0.15, 0.15], [0.15, 0.15], [0.15, 0.95], [0.15, 0.15]])
+    end = np.array([[0.45, 0.85], [0.85, 0.15], [0.85, 0.95], [0.55, 0.15]])
+    # along the wall's side / through the wall / through the gap / ending in the wall's cell,
+    # 0.1 m short of its end
+    assert dataset.clear_line(fs, start, end, 0.0).tolist() == [True, False, True, False]
+    assert dataset.clear_line(fs, start, end, 0.1).tolist() == [True, False, True, True]
+
+    class Truth:  # one 2 x 1 m object at (3, 4) turned a quarter turn: 1 m along x, 2 m along y
+        bbox_center, bbox_size, bbox_yaw = np.array([[3.0, 4.0, 0.5]]), np.array([[2.0, 1.0, 1.0]]), np.array([np.pi / 2])
+
+    corners = dataset.footprint_corners(type("W", (), {"truth": Truth})(), np.array([[3.1, 3.9]]), inset=1.0)
+    assert corners.shape == (1, 4, 2)
+    np.testing.assert_allclose(sorted(map(tuple, corners[0].round(6))), [(2.5, 3.0), (2.5, 5.0), (3.5, 3.0), (3.5, 5.0)])
+
+
+def test_far_viewpoints_stand_far_from_their_object_and_see_a_corner_of_it():
+    from rosmeery_jax.detector import dataset
+    from rosmeery_jax.world import load_world
+    from rosmeery_jax.world.taxonomy import load_taxonomy
+
+    w = load_world("kitchen")
+    fs, centres = w.free_space, w.truth.bbox_center[:, :2]
+    toilet = centres[np.asarray(w.truth.category_index) == load_taxonomy().names.index("toilet")]
+    pick = np.repeat(toilet, 40, 0)  # the Kitchen's toilet, seen through a doorway from afar
+    which = np.arange(40) % 4 != 0  # a quarter stay where they were
+    ii, jj = np.nonzero(fs.reachable)
+    corners = dataset.footprint_corners(w, pick)
+    moved = dataset._far(np.zeros((40, 2)), pick, which, corners, fs, ii, jj, np.random.default_rng(0))
+    assert (moved[~which] == 0).all()
+    d = np.linalg.norm(moved[which] - pick[which], axis=-1)
+    slack = fs.resolution * np.sqrt(2) / 2  # a cell's centre within FAR, the point anywhere in the cell
+    assert (d >= dataset.FAR[0] - slack).all() and (d <= dataset.FAR[1] + slack).all()
+    cells = np.floor((moved[which] - fs.origin) / fs.resolution).astype(int)
+    assert fs.reachable[cells[:, 1], cells[:, 0]].all()
+    centre = fs.origin + (cells + 0.5) * fs.resolution  # the lines are drawn from cell centres
+    seen = np.zeros(len(centre), bool)
+    for corner in corners[which].transpose(1, 0, 2):
+        seen |= dataset.clear_line(fs, centre, corner, dataset.FAR_STOP)
+    assert seen.all()
+    # a line to the toilet's centre is blocked from all of them: it is seen only in part
+    assert not dataset.clear_line(fs, centre, pick[which], 0.4).any()
+    # through viewpoints: every pose reachable, most turned towards an object 4-10 m away
+    poses = dataset.viewpoints(w, dataset.DatasetConfig(per_world=200, aim=1.0, far=1.0), np.random.default_rng(5))
+    cells = np.floor((poses[:, :2] - fs.origin) / fs.resolution).astype(int)
+    assert fs.reachable[cells[:, 1], cells[:, 0]].all()
+    ahead = centres[None] - poses[:, None, :2]
+    off = np.abs(np.angle(np.exp(1j * (np.arctan2(ahead[..., 1], ahead[..., 0]) - poses[:, 2:3]))))
+    dist = np.linalg.norm(ahead, axis=-1)
+    far = (dist >= dataset.FAR[0] - slack) & (dist <= dataset.FAR[1] + slack)
+    assert (far & (off < 0.35)).any(1).mean() > 0.6
+
+
+def test_more_weights_the_balanced_aim_and_bad_weights_are_one_error(tmp_path, capsys):
+    np.testing.assert_allclose(aim_shares(np.array([4, 4, 4, 9]), {9: 2.0}), [1 / 9, 1 / 9, 1 / 9, 2 / 3])
+    np.testing.assert_allclose(aim_shares(np.array([4, 4, 4, 9]), {5: 3.0}), aim_shares(np.array([4, 4, 4, 9])))
+    base = ["detector", "dataset", "--worlds", "kitchen", "--per-world", "4", "--out", str(tmp_path / "d")]
+    for more, extra, words in [("sofa_bed=2", ["--balance"], "sofa_bed=2.0: name a category"),
+                               ("toilet=0", ["--balance"], "toilet=0.0: name a category"),
+                               ("toilet", ["--balance"], "'toilet' is not CATEGORY=FACTOR"),
+                               ("toilet=2", [], "weights the balanced aim: give --balance too")]:
+        assert main([*base, "--more", more, *extra]) == 2
+        assert f"command line: --more: {words}" in capsys.readouterr().err
+    assert main([*base, "--far", "1.5"]) == 2
+    assert "command line: --far: 1.5 must be a share between 0 and 1" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
 def test_visible_boxes_by_hand():
     seg = np.full((6, 8), -1, np.int32)
     seg[1:3, 2:5] = 7  # 6 px

@@ -36,6 +36,11 @@ def add_detector(sub) -> None:
     s.add_argument("--near", type=float, default=0.0, metavar="X",
                    help=f"share of the aimed viewpoints standing {dataset.NEAR[0]:g}-{dataset.NEAR[1]:g} m from their "
                         "object (close, cut-off views; default 0)")
+    s.add_argument("--far", type=float, default=0.0, metavar="X",
+                   help=f"share of the other aimed viewpoints standing {dataset.FAR[0]:g}-{dataset.FAR[1]:g} m from "
+                        "their object with a clear line to a corner of it (small, distant views; default 0)")
+    s.add_argument("--more", default="", metavar="CAT=X,...",
+                   help="with --balance, aim at these categories X times as often (e.g. toilet=4)")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_detector_dataset)
     s = dsub.add_parser("train", help="train YOLO-v5 from scratch on a dataset folder (CPU)")
@@ -73,15 +78,28 @@ def _cmd_detector_dataset(args) -> int:
     worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
-    if not 0 <= args.near <= 1:
-        raise InputError("command line", "--near", f"{args.near} must be a share between 0 and 1")
+    for name in ("near", "far"):
+        if not 0 <= getattr(args, name) <= 1:
+            raise InputError("command line", f"--{name}", f"{getattr(args, name)} must be a share between 0 and 1")
     cfg = dataset.DatasetConfig(worlds=worlds, per_world=args.per_world, seed=args.seed, balance=args.balance,
-                                near=args.near)
+                                near=args.near, far=args.far, more=_more(args.more))
     with output_folder(out):
         summary = dataset.write(cfg, out, progress=not args.quiet)
     print(f"wrote {args.out}: {summary['images']['train']} train / {summary['images']['val']} val images, "
           f"{summary['boxes']['train']} / {summary['boxes']['val']} boxes")
     return 0
+
+
+def _more(text: str) -> tuple[tuple[str, float], ...]:
+    """``--more`` as (category, factor) pairs; the values are checked by ``dataset.check``."""
+    pairs = []
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        name, _, x = item.partition("=")
+        try:
+            pairs.append((name.strip(), float(x)))
+        except ValueError:
+            raise InputError("command line", "--more", f"{item!r} is not CATEGORY=FACTOR") from None
+    return tuple(pairs)
 
 
 def _cmd_detector_train(args) -> int:

@@ -55,9 +55,16 @@ class DatasetConfig:
     # get more views: a world's one dining table as many as its twelve chairs)
     near: float = 0.0  # share of aimed viewpoints standing NEAR metres from their object (close,
     # cut-off views, as in small rooms; 0: wherever the robot can stand, as before)
+    far: float = 0.0  # share of the other aimed viewpoints standing FAR metres from their object
+    # with a clear line to a corner of it (small, distant, partly hidden views, as through a doorway)
+    more: tuple[tuple[str, float], ...] = ()  # (category, factor): with ``balance``, aim at these
+    # categories ``factor`` times as often as at the others (more views of weak classes)
 
 
 NEAR = (0.6, 2.0)  # metres from the aimed object's centre, for the ``near`` share
+FAR = (4.0, 10.0)  # the same for the ``far`` share
+FAR_TRIES = 256  # cells of the ring tried for a clear line, at random
+FAR_STOP = 0.15  # metres short of a footprint corner where the line may end in the object's own cells
 
 
 def visible_boxes(labels: np.ndarray, min_pixels: int) -> np.ndarray:
@@ -87,10 +94,12 @@ def _is_val(world: str, xy: np.ndarray, cfg: DatasetConfig) -> np.ndarray:
     return (h % 1000) < cfg.val_share * 1000
 
 
-def aim_shares(categories: np.ndarray) -> np.ndarray:
+def aim_shares(categories: np.ndarray, more: dict[int, float] | None = None) -> np.ndarray:
     """(N,) probability of aiming at each object so that every category present is aimed at
-    equally often (objects of one category share its turn)."""
+    equally often (objects of one category share its turn), or ``more[c]`` times as often
+    for the categories ``c`` it names."""
     weight = 1.0 / np.bincount(categories)[categories]
+    weight = weight * np.array([(more or {}).get(int(c), 1.0) for c in categories])
     return weight / weight.sum()
 
 
@@ -103,15 +112,21 @@ def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarra
                    fs.origin[1] + (ii[k] + rng.random(cfg.per_world)) * fs.resolution], -1)
     centres = world.truth.bbox_center[:, :2]
     if cfg.balance:
-        share = aim_shares(np.asarray(world.truth.category_index))
+        names = list(load_taxonomy().names)
+        share = aim_shares(np.asarray(world.truth.category_index), {names.index(n): x for n, x in cfg.more})
         pick = centres[rng.choice(len(centres), size=cfg.per_world, p=share)]
     else:  # uniform over objects (drawn as before ``balance`` existed: same datasets)
         pick = centres[rng.integers(len(centres), size=cfg.per_world)]
     noise = rng.normal(0, 0.35, cfg.per_world)
     aimed = rng.random(cfg.per_world) < cfg.aim
     yaw = rng.uniform(-np.pi, np.pi, cfg.per_world)
+    near = np.zeros(cfg.per_world, bool)
     if cfg.near > 0:  # drawn after the rest: datasets without it are unchanged
-        xy = _near(xy, pick, aimed & (rng.random(cfg.per_world) < cfg.near), fs, ii, jj, rng)
+        near = aimed & (rng.random(cfg.per_world) < cfg.near)
+        xy = _near(xy, pick, near, fs, ii, jj, rng)
+    if cfg.far > 0:  # drawn after ``near``, for the same reason
+        far = aimed & ~near & (rng.random(cfg.per_world) < cfg.far)
+        xy = _far(xy, pick, far, footprint_corners(world, pick), fs, ii, jj, rng)
     towards = np.arctan2(pick[:, 1] - xy[:, 1], pick[:, 0] - xy[:, 0]) + noise
     return np.concatenate([xy, np.where(aimed, towards, yaw)[:, None]], -1).astype(np.float32)
 
@@ -125,6 +140,55 @@ def _near(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, fs, ii: np.ndarra
     for p in np.flatnonzero(which).tolist():
         d = np.linalg.norm(cells - pick[p], axis=-1)
         ok = np.flatnonzero((d >= NEAR[0]) & (d <= NEAR[1]))
+        if len(ok):
+            out[p] = cells[ok[rng.integers(len(ok))]] + (rng.random(2) - 0.5) * fs.resolution
+    return out
+
+
+def footprint_corners(world, pick: np.ndarray, inset: float = 0.8) -> np.ndarray:
+    """(P, 4, 2) corners of the floor footprint of the object centred nearest each ``pick``
+    (P, 2), drawn in towards the centre to ``inset`` of the half-size (inside the object)."""
+    t = world.truth
+    k = np.argmin(np.linalg.norm(t.bbox_center[None, :, :2] - pick[:, None], axis=-1), 1)
+    c, s = np.cos(t.bbox_yaw[k]), np.sin(t.bbox_yaw[k])
+    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (P, 2, 2)
+    signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
+    half = signs[None] * (t.bbox_size[k, None, :2] / 2 * inset)  # (P, 4, 2)
+    return t.bbox_center[k, None, :2] + np.einsum("pij,pcj->pci", rot, half)
+
+
+def clear_line(fs, start: np.ndarray, end: np.ndarray, stop: float, step: float = 0.05) -> np.ndarray:
+    """(K,) whether the segments from ``start`` (K, 2) towards ``end`` (K, 2), up to ``stop``
+    metres short of ``end``, cross no occupied cell of the free-space grid ``fs``."""
+    gap = end - start
+    length = np.linalg.norm(gap, axis=-1)
+    t = np.arange(0.0, 1.0, step / max(float(length.max(initial=0.0)), step))
+    pts = start[:, None] + t[None, :, None] * gap[:, None]  # (K, S, 2)
+    shape = np.array(fs.occupied.shape)
+    cell = np.floor((pts - fs.origin) / fs.resolution).astype(np.int64)[..., ::-1]  # (row, col)
+    inside = ((cell >= 0) & (cell < shape)).all(-1)
+    cell = np.clip(cell, 0, shape - 1)
+    blocked = fs.occupied[cell[..., 0], cell[..., 1]] | ~inside
+    counts = t[None] * length[:, None] <= (length - stop)[:, None]
+    return ~(blocked & counts).any(1)
+
+
+def _far(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, corners: np.ndarray, fs, ii: np.ndarray,
+         jj: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """xy (P, 2) with the viewpoints ``which`` (P,) moved to a random reachable cell within
+    :data:`FAR` of their object's centre ``pick`` (P, 2) with a clear line to at least one of
+    its footprint's ``corners`` (P, 4, 2): the object whole or partly hidden, as through a
+    doorway (left where they are if no cell is)."""
+    cells = np.stack([fs.origin[0] + (jj + 0.5) * fs.resolution, fs.origin[1] + (ii + 0.5) * fs.resolution], -1)
+    out = xy.copy()
+    for p in np.flatnonzero(which).tolist():
+        d = np.linalg.norm(cells - pick[p], axis=-1)
+        ring = np.flatnonzero((d >= FAR[0]) & (d <= FAR[1]))
+        ring = rng.permutation(ring)[:FAR_TRIES]  # a sample of the ring: lines are costly
+        seen = np.zeros(len(ring), bool)
+        for corner in corners[p]:
+            seen |= clear_line(fs, cells[ring], np.broadcast_to(corner, (len(ring), 2)), FAR_STOP)
+        ok = ring[seen]
         if len(ok):
             out[p] = cells[ok[rng.integers(len(ok))]] + (rng.random(2) - 0.5) * fs.resolution
     return out
@@ -231,6 +295,12 @@ def check(cfg: DatasetConfig, out: Path, source: str = "command line") -> None:
     frames within the disk space free where ``out`` goes; one InputError otherwise."""
     if not cfg.worlds:
         raise InputError(source, "--worlds", "name at least one world")
+    names = load_taxonomy().names
+    for n, x in cfg.more:
+        if n not in names or not (np.isfinite(x) and x > 0):
+            raise InputError(source, "--more", f"{n}={x}: name a category of the taxonomy and a factor above 0")
+    if cfg.more and not cfg.balance:
+        raise InputError(source, "--more", "weights the balanced aim: give --balance too")
     twice = next((w for w in cfg.worlds if cfg.worlds.count(w) > 1), None)
     if twice is not None:
         raise InputError(source, "--worlds", f"{twice!r} appears twice")
