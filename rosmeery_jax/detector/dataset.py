@@ -135,11 +135,22 @@ def _near(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, fs, ii: np.ndarra
           rng: np.random.Generator) -> np.ndarray:
     """xy (P, 2) with the viewpoints ``which`` (P,) moved to a random reachable cell within
     :data:`NEAR` of their object's centre ``pick`` (P, 2) (left where they are if none is)."""
+    return _stand_in_ring(xy, pick, which, NEAR, fs, ii, jj, rng)
+
+
+def _stand_in_ring(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, ring: tuple[float, float], fs,
+                   ii: np.ndarray, jj: np.ndarray, rng: np.random.Generator, keep=None) -> np.ndarray:
+    """xy (P, 2) with the viewpoints ``which`` (P,) moved to a random reachable cell (``ii``,
+    ``jj``) ``ring`` metres from their object's centre ``pick`` (P, 2), among those that
+    ``keep(p, cells (K, 2)) -> (K,) bool`` keeps (all without it); left where they are if none is."""
     cells = np.stack([fs.origin[0] + (jj + 0.5) * fs.resolution, fs.origin[1] + (ii + 0.5) * fs.resolution], -1)
     out = xy.copy()
     for p in np.flatnonzero(which).tolist():
         d = np.linalg.norm(cells - pick[p], axis=-1)
-        ok = np.flatnonzero((d >= NEAR[0]) & (d <= NEAR[1]))
+        ok = np.flatnonzero((d >= ring[0]) & (d <= ring[1]))
+        if keep is not None:
+            ok = rng.permutation(ok)[:FAR_TRIES]  # a sample of the ring: ``keep`` may be costly
+            ok = ok[keep(p, cells[ok])]
         if len(ok):
             out[p] = cells[ok[rng.integers(len(ok))]] + (rng.random(2) - 0.5) * fs.resolution
     return out
@@ -179,19 +190,10 @@ def _far(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, corners: np.ndarra
     :data:`FAR` of their object's centre ``pick`` (P, 2) with a clear line to at least one of
     its footprint's ``corners`` (P, 4, 2): the object whole or partly hidden, as through a
     doorway (left where they are if no cell is)."""
-    cells = np.stack([fs.origin[0] + (jj + 0.5) * fs.resolution, fs.origin[1] + (ii + 0.5) * fs.resolution], -1)
-    out = xy.copy()
-    for p in np.flatnonzero(which).tolist():
-        d = np.linalg.norm(cells - pick[p], axis=-1)
-        ring = np.flatnonzero((d >= FAR[0]) & (d <= FAR[1]))
-        ring = rng.permutation(ring)[:FAR_TRIES]  # a sample of the ring: lines are costly
-        seen = np.zeros(len(ring), bool)
-        for corner in corners[p]:
-            seen |= clear_line(fs, cells[ring], np.broadcast_to(corner, (len(ring), 2)), FAR_STOP)
-        ok = ring[seen]
-        if len(ok):
-            out[p] = cells[ok[rng.integers(len(ok))]] + (rng.random(2) - 0.5) * fs.resolution
-    return out
+    def sees(p: int, cells: np.ndarray) -> np.ndarray:
+        return np.any([clear_line(fs, cells, np.broadcast_to(c, cells.shape), FAR_STOP) for c in corners[p]], 0)
+
+    return _stand_in_ring(xy, pick, which, FAR, fs, ii, jj, rng, keep=sees)
 
 
 SCENE_BUCKET = 128  # scenes are padded to a multiple of this many boxes: one compile per bucket
