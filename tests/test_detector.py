@@ -205,7 +205,7 @@ def test_clear_lines_and_footprint_corners_by_hand():
     class Truth:  # one 2 x 1 m object at (3, 4) turned a quarter turn: 1 m along x, 2 m along y
         bbox_center, bbox_size, bbox_yaw = np.array([[3.0, 4.0, 0.5]]), np.array([[2.0, 1.0, 1.0]]), np.array([np.pi / 2])
 
-    corners = dataset.footprint_corners(type("W", (), {"truth": Truth})(), np.array([[3.1, 3.9]]), inset=1.0)
+    corners = dataset.footprint_corners(Truth, np.array([0]), inset=1.0)
     assert corners.shape == (1, 4, 2)
     np.testing.assert_allclose(sorted(map(tuple, corners[0].round(6))), [(2.5, 3.0), (2.5, 5.0), (3.5, 3.0), (3.5, 5.0)])
 
@@ -217,11 +217,11 @@ def test_far_viewpoints_stand_far_from_their_object_and_see_a_corner_of_it():
 
     w = load_world("kitchen")
     fs, centres = w.free_space, w.truth.bbox_center[:, :2]
-    toilet = centres[np.asarray(w.truth.category_index) == load_taxonomy().names.index("toilet")]
-    pick = np.repeat(toilet, 40, 0)  # the Kitchen's toilet, seen through a doorway from afar
+    toilet = np.flatnonzero(np.asarray(w.truth.category_index) == load_taxonomy().names.index("toilet"))
+    pick = np.repeat(centres[toilet], 40, 0)  # the Kitchen's toilet, seen through a doorway from afar
     which = np.arange(40) % 4 != 0  # a quarter stay where they were
     ii, jj = np.nonzero(fs.reachable)
-    corners = dataset.footprint_corners(w, pick)
+    corners = dataset.footprint_corners(w.truth, np.repeat(toilet, 40))
     moved = dataset._far(np.zeros((40, 2)), pick, which, corners, fs, ii, jj, np.random.default_rng(0))
     assert (moved[~which] == 0).all()
     d = np.linalg.norm(moved[which] - pick[which], axis=-1)

@@ -114,9 +114,10 @@ def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarra
     if cfg.balance:
         names = list(load_taxonomy().names)
         share = aim_shares(np.asarray(world.truth.category_index), {names.index(n): x for n, x in cfg.more})
-        pick = centres[rng.choice(len(centres), size=cfg.per_world, p=share)]
+        aim_at = rng.choice(len(centres), size=cfg.per_world, p=share)
     else:  # uniform over objects (drawn as before ``balance`` existed: same datasets)
-        pick = centres[rng.integers(len(centres), size=cfg.per_world)]
+        aim_at = rng.integers(len(centres), size=cfg.per_world)
+    pick = centres[aim_at]
     noise = rng.normal(0, 0.35, cfg.per_world)
     aimed = rng.random(cfg.per_world) < cfg.aim
     yaw = rng.uniform(-np.pi, np.pi, cfg.per_world)
@@ -126,7 +127,7 @@ def viewpoints(world, cfg: DatasetConfig, rng: np.random.Generator) -> np.ndarra
         xy = _near(xy, pick, near, fs, ii, jj, rng)
     if cfg.far > 0:  # drawn after ``near``, for the same reason
         far = aimed & ~near & (rng.random(cfg.per_world) < cfg.far)
-        xy = _far(xy, pick, far, footprint_corners(world, pick), fs, ii, jj, rng)
+        xy = _far(xy, pick, far, footprint_corners(world.truth, aim_at), fs, ii, jj, rng)
     towards = np.arctan2(pick[:, 1] - xy[:, 1], pick[:, 0] - xy[:, 0]) + noise
     return np.concatenate([xy, np.where(aimed, towards, yaw)[:, None]], -1).astype(np.float32)
 
@@ -156,11 +157,9 @@ def _stand_in_ring(xy: np.ndarray, pick: np.ndarray, which: np.ndarray, ring: tu
     return out
 
 
-def footprint_corners(world, pick: np.ndarray, inset: float = 0.8) -> np.ndarray:
-    """(P, 4, 2) corners of the floor footprint of the object centred nearest each ``pick``
-    (P, 2), drawn in towards the centre to ``inset`` of the half-size (inside the object)."""
-    t = world.truth
-    k = np.argmin(np.linalg.norm(t.bbox_center[None, :, :2] - pick[:, None], axis=-1), 1)
+def footprint_corners(t, k: np.ndarray, inset: float = 0.8) -> np.ndarray:
+    """(P, 4, 2) corners of the floor footprint of objects ``k`` (P,) of the ground truth
+    ``t``, drawn in towards the centre to ``inset`` of the half-size (inside the object)."""
     c, s = np.cos(t.bbox_yaw[k]), np.sin(t.bbox_yaw[k])
     rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (P, 2, 2)
     signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
