@@ -76,6 +76,31 @@ def test_nano_and_small_have_the_official_layout():
     assert [tuple(r.shape) for r in raw] == [(2, 3, 16, 20, 8), (2, 3, 8, 10, 8), (2, 3, 4, 5, 8)]
 
 
+def test_the_p2_graph_adds_a_stride_4_level_assigns_small_boxes_to_it_and_loads_back(tmp_path):
+    from rosmeery_jax.detector.loss import YoloLoss
+
+    model = YOLOv5(3, "n", ["a", "b", "c"], p2=True)
+    keys = list(model.state_dict())
+    assert "model.31.anchors" in keys and keys[-1] == "model.31.m.3.bias"  # official yolov5-p2 indices
+    assert model.head.stride == (4, 8, 16, 32)
+    assert model.head.anchors[0].mul(4).flatten().tolist() == [5, 6, 8, 15, 16, 11]  # pixels
+    raw = model(torch.zeros(2, 3, 128, 160))
+    assert [tuple(r.shape) for r in raw] == [(2, 3, 32, 40, 8), (2, 3, 16, 20, 8), (2, 3, 8, 10, 8),
+                                           (2, 3, 4, 5, 8)]
+    # A 6 x 8 px box centred at (82, 66) px: at stride 4 its centre is (20.5, 16.5), no
+    # neighbour is nearer than half a cell, so all three P2 anchors (within 4x its shape)
+    # take it in cell (16, 20) alone.
+    target = torch.tensor([[0, 1, 82 / 160, 66 / 128, 6 / 160, 8 / 128]])
+    b, a, gj, gi, _, _, c = next(YoloLoss(model, 160)._assign(raw, target))
+    assert sorted(a.tolist()) == [0, 1, 2] and set(zip(gj.tolist(), gi.tolist())) == {(16, 20)}
+    assert c.tolist() == [1, 1, 1]
+    checkpoint.save(model, tmp_path / "p2.pt", (128, 160))
+    back = checkpoint.load(tmp_path / "p2.pt")
+    x = torch.rand(1, 3, 64, 96)
+    assert back.p2 and not checkpoint.load(DEFAULT_WEIGHTS).p2
+    torch.testing.assert_close(back.decoded(x), model.eval().decoded(x), atol=0.02, rtol=0.01)  # fp16 on disk
+
+
 def test_nms_keeps_the_best_of_overlapping_boxes_per_class():
     # decoded rows: cx, cy, w, h, objectness, class probabilities (2 classes)
     pred = np.array([[[50, 50, 20, 20, 0.9, 0.9, 0.1],

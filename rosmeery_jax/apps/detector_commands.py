@@ -53,6 +53,8 @@ def add_detector(sub) -> None:
     s.add_argument("--max-images", type=int, metavar="N", help="use only the first N training images (default: all)")
     s.add_argument("--mosaic", type=float, default=0.0, metavar="P", help="share of training images made a 2 x 2 "
                    "mosaic of four frames at half size, objects as from twice as far (default 0)")
+    s.add_argument("--p2", action="store_true", help="a fourth head level at stride 4 (the official yolov5-p2 "
+                   "graph), for objects a few pixels across")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_detector_train)
     s = dsub.add_parser("eval", help="mAP@0.5 and per-class AP on held-out viewpoints")
@@ -116,7 +118,7 @@ def _cmd_detector_train(args) -> int:
     if not 0 <= args.mosaic <= 1:
         raise InputError("command line", "--mosaic", f"{args.mosaic} is not a share between 0 and 1")
     cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
-                      max_images=args.max_images or 0, mosaic=args.mosaic)
+                      max_images=args.max_images or 0, mosaic=args.mosaic, p2=args.p2)
     with output_folder(out.parent):
         best = train(args.data, out, cfg, progress=not args.quiet)
     print(f"best validation mAP@0.5 {best['map50']:.3f} at epoch {best['epoch']}; wrote {args.out}")

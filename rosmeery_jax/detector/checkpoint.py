@@ -157,8 +157,9 @@ def load(path: str | Path, device: str = "cpu"):
             raise InputError(str(path), "state_dict", "missing")
     else:
         info = _read_official(path)
+    p2 = "model.31.anchors" in info["state_dict"]  # the yolov5-p2 graph's head is layer 31
     try:
-        model = YOLOv5(info["nc"], info["size"], info["names"])
+        model = YOLOv5(info["nc"], info["size"], info["names"], p2)
     except ValueError as err:
         raise InputError(str(path), "size", str(err)) from None
     sd = {k: v.float() if v.is_floating_point() else v for k, v in info["state_dict"].items()}
@@ -166,7 +167,7 @@ def load(path: str | Path, device: str = "cpu"):
         model.load_state_dict(sd, strict=True)
     except RuntimeError as err:
         first = str(err).splitlines()[1].strip() if len(str(err).splitlines()) > 1 else str(err)
-        raise InputError(str(path), "state_dict", f"does not match YOLO-v5{info['size']} with "
+        raise InputError(str(path), "state_dict", f"does not match YOLO-v5{info['size']}{'-p2' * p2} with "
                          f"{info['nc']} classes: {first[:160]}") from None
     model.imgsz = info.get("imgsz")
     return model.eval().to(device)

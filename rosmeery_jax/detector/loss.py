@@ -13,7 +13,8 @@ import torch
 from torch import nn
 
 HYP = {"box": 0.05, "obj": 1.0, "cls": 0.5, "anchor_t": 4.0}
-BALANCE = (4.0, 1.0, 0.4)  # objectness weight of the P3, P4, P5 levels
+# Objectness weight of each level, finest first: P3, P4, P5, or P2 to P5 (the official ones).
+BALANCE = {3: (4.0, 1.0, 0.4), 4: (4.0, 1.0, 0.25, 0.06)}
 _OFFSETS = torch.tensor([[0, 0], [1, 0], [0, 1], [-1, 0], [0, -1]], dtype=torch.float32) * 0.5
 
 
@@ -38,7 +39,8 @@ def ciou(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-7) -> torch.Tensor:
 
 class YoloLoss:
     def __init__(self, model, imgsz: int):
-        det = model.model[24]
+        det = model.head
+        self.balance = BALANCE[det.nl]
         self.anchors, self.nc, self.nl, self.na = det.anchors, det.nc, det.nl, det.na
         scale = 3 / self.nl
         self.gain = {"box": HYP["box"] * scale, "cls": HYP["cls"] * self.nc / 80 * scale,
@@ -59,7 +61,7 @@ class YoloLoss:
                 t = torch.zeros_like(pcls)
                 t[torch.arange(len(b)), tcls] = 1.0
                 lcls = lcls + self.bce(pcls, t)
-            lobj = lobj + self.bce(p[..., 4], tobj) * BALANCE[i]
+            lobj = lobj + self.bce(p[..., 4], tobj) * self.balance[i]
         parts = torch.stack((lbox * self.gain["box"], lobj * self.gain["obj"], lcls * self.gain["cls"]))
         return parts.sum() * raw[0].shape[0], parts.detach()
 

@@ -43,6 +43,7 @@ class TrainConfig:
     threads: int = 2
     max_images: int = 0  # 0 = the whole training split (a cap for quick tests)
     mosaic: float = 0.0  # share of training images made a 2 x 2 mosaic at half size (far views)
+    p2: bool = False  # a fourth head level at stride 4 (yolov5-p2), for objects a few pixels across
 
 
 class EMA:
@@ -141,7 +142,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
     val_images, val_rows, _ = read(data, "val")
     names = meta["names"]
     h, w = images.shape[1:3]
-    model = YOLOv5(len(names), cfg.size, names)
+    model = YOLOv5(len(names), cfg.size, names, cfg.p2)
     compute_loss = YoloLoss(model, max(h, w))
     decay, other = [], []
     for mod in model.modules():

@@ -4,6 +4,9 @@ Module and parameter names follow the official ``models/yolo.py`` / ``models/com
 layer for layer (``model.0.conv.weight`` ... ``model.24.m.2.bias``, ``model.24.anchors``),
 so official checkpoints load with ``strict=True`` (see :mod:`.checkpoint`). Sizes: ``n``
 and ``s`` (and ``m``, ``l``, ``x``) from depth / width multiples, any number of classes.
+``p2=True`` is the official ``yolov5-p2`` graph: a fourth head level at stride 4 for objects
+a few pixels across (its anchors are ours: the P3 ones halved, as official ``yolov5-p2``
+leaves them to its auto-anchor step).
 
 Shapes: I images, C classes, A anchors per level (3), D detections.
 NMS is :func:`rosmeery_jax.detector.boxes.nms` (numpy).
@@ -21,6 +24,7 @@ from rosmeery_jax.detector.boxes import nms
 SIZES = {"n": (0.33, 0.25), "s": (0.33, 0.50), "m": (0.67, 0.75), "l": (1.0, 1.0), "x": (1.33, 1.25)}
 ANCHORS = ((10, 13, 16, 30, 33, 23), (30, 61, 62, 45, 59, 119), (116, 90, 156, 198, 373, 326))  # pixels
 STRIDES = (8, 16, 32)
+P2_ANCHORS, P2_STRIDE = (5, 6, 8, 15, 16, 11), 4
 
 
 class Conv(nn.Module):
@@ -88,13 +92,14 @@ class Concat(nn.Module):
 class Detect(nn.Module):
     """One 1x1 conv per level; ``anchors`` (3, A, 2) in grid units of each level's stride."""
 
-    def __init__(self, nc: int, ch: tuple[int, ...]):
+    def __init__(self, nc: int, ch: tuple[int, ...], p2: bool = False):
         super().__init__()
+        anchors, strides = ((P2_ANCHORS, *ANCHORS), (P2_STRIDE, *STRIDES)) if p2 else (ANCHORS, STRIDES)
         self.nc, self.no, self.nl, self.na = nc, nc + 5, len(ch), len(ANCHORS[0]) // 2
-        self.register_buffer("anchors", torch.tensor(ANCHORS, dtype=torch.float32).view(self.nl, -1, 2)
-                             / torch.tensor(STRIDES, dtype=torch.float32).view(-1, 1, 1))
+        self.register_buffer("anchors", torch.tensor(anchors, dtype=torch.float32).view(self.nl, -1, 2)
+                             / torch.tensor(strides, dtype=torch.float32).view(-1, 1, 1))
         self.m = nn.ModuleList(nn.Conv2d(c, self.no * self.na, 1) for c in ch)
-        self.stride = STRIDES
+        self.stride = strides
 
     def forward(self, xs):
         """Raw maps: per level (I, A, h, w, 5 + C) logits."""
@@ -131,10 +136,10 @@ def _n(n: int, depth: float) -> int:
 
 
 class YOLOv5(nn.Module):
-    """The official YOLO-v5 graph; ``model`` is the 25-layer ``nn.Sequential`` of the
-    official checkpoints (layer i's parameters are ``model.i.*``)."""
+    """The official YOLO-v5 graph; ``model`` is the ``nn.Sequential`` of the official
+    checkpoints (layer i's parameters are ``model.i.*``): 25 layers, or 32 with ``p2``."""
 
-    def __init__(self, nc: int = 80, size: str = "n", names: list[str] | None = None):
+    def __init__(self, nc: int = 80, size: str = "n", names: list[str] | None = None, p2: bool = False):
         super().__init__()
         if size not in SIZES:
             raise ValueError(f"unknown YOLO-v5 size {size!r} (sizes: {', '.join(SIZES)})")
@@ -146,31 +151,44 @@ class YOLOv5(nn.Module):
             Conv(c(128), c(256), 3, 2), C3(c(256), c(256), n(6)),
             Conv(c(256), c(512), 3, 2), C3(c(512), c(512), n(9)),
             Conv(c(512), c(1024), 3, 2), C3(c(1024), c(1024), n(3)), SPPF(c(1024), c(1024), 5),
-            # head
+            # head: up to stride 8 (or 4), then back down
             Conv(c(1024), c(512), 1, 1), nn.Upsample(None, 2, "nearest"), Concat(),
             C3(c(1024), c(512), n(3), False),
             Conv(c(512), c(256), 1, 1), nn.Upsample(None, 2, "nearest"), Concat(),
             C3(c(512), c(256), n(3), False),
+        ]
+        if p2:
+            layers += [Conv(c(256), c(128), 1, 1), nn.Upsample(None, 2, "nearest"), Concat(),
+                       C3(c(256), c(128), n(1), False),
+                       Conv(c(128), c(128), 3, 2), Concat(), C3(c(256), c(256), n(3), False)]
+        layers += [
             Conv(c(256), c(256), 3, 2), Concat(), C3(c(512), c(512), n(3), False),
             Conv(c(512), c(512), 3, 2), Concat(), C3(c(1024), c(1024), n(3), False),
-            Detect(nc, (c(256), c(512), c(1024))),
+            Detect(nc, ((c(128),) if p2 else ()) + (c(256), c(512), c(1024)), p2),
         ]
         self.model = nn.Sequential(*layers)
-        self.nc, self.size = nc, size
+        self.nc, self.size, self.p2 = nc, size, p2
         self.names = list(names) if names is not None else [str(i) for i in range(nc)]
+        # Which earlier outputs each Concat joins with the previous layer's, and which
+        # layers feed the head (the official "from").
+        if p2:
+            self._concat, self._levels = {12: 6, 16: 4, 20: 2, 23: 18, 26: 14, 29: 10}, (21, 24, 27)
+        else:
+            self._concat, self._levels = {12: 6, 16: 4, 19: 14, 22: 10}, (17, 20)
         self._init_biases()
 
-    # Which earlier outputs each Concat joins with the previous layer's (official "from").
-    _CONCAT = {12: 6, 16: 4, 19: 14, 22: 10}
+    @property
+    def head(self) -> Detect:
+        return self.model[-1]
 
     def forward(self, x: torch.Tensor):
         """x (I, 3, H, W) float in [0, 1], H and W multiples of 32 -> raw maps per level."""
         saved = {}
         for i, layer in enumerate(self.model):
-            if i in self._CONCAT:
-                x = layer((x, saved[self._CONCAT[i]]))
-            elif i == 24:
-                return layer((saved[17], saved[20], x))
+            if i in self._concat:
+                x = layer((x, saved[self._concat[i]]))
+            elif layer is self.head:
+                return layer(tuple(saved[j] for j in self._levels) + (x,))
             else:
                 x = layer(x)
             saved[i] = x
@@ -178,7 +196,7 @@ class YOLOv5(nn.Module):
 
     def _init_biases(self) -> None:
         """The official prior: objectness for ~8 objects per 640^2 image, classes ~ 0.6 / C."""
-        det = self.model[24]
+        det = self.head
         for conv, s in zip(det.m, det.stride):
             b = conv.bias.detach().view(det.na, -1)
             b[:, 4] += math.log(8 / (640 / s) ** 2)
@@ -192,7 +210,7 @@ class YOLOv5(nn.Module):
     def decoded(self, images: torch.Tensor) -> torch.Tensor:
         """images (I, 3, H, W) in [0, 1] -> the decoded head (I, A, 5 + C): what every runtime
         computes (rosmeery_jax.detector.runtime)."""
-        return self.model[24].decode(self(images))
+        return self.head.decode(self(images))
 
     def detect(self, images: torch.Tensor, conf: float = 0.25, iou: float = 0.45, max_det: int = 100):
         """images (I, 3, H, W) in [0, 1] -> list of I arrays (D, 6): x1, y1, x2, y2 (pixels),
