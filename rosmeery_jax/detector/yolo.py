@@ -90,7 +90,8 @@ class Concat(nn.Module):
 
 
 class Detect(nn.Module):
-    """One 1x1 conv per level; ``anchors`` (3, A, 2) in grid units of each level's stride."""
+    """One 1x1 conv per level; ``anchors`` (L, A, 2) in grid units of each level's stride
+    (L levels: 3, or 4 with P2)."""
 
     def __init__(self, nc: int, ch: tuple[int, ...], p2: bool = False):
         super().__init__()
