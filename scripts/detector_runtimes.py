@@ -1,7 +1,7 @@
 """Time the detector's runtimes side by side at a session's batch and resolution, and score
 each on the held-out paper-world frames.
 
-    .venv/bin/python scripts/detector_runtimes.py [--repeats 9] [--map]
+    .venv/bin/python scripts/detector_runtimes.py [--repeats 9] [--map] [--weights NAME|FILE.pt]
 
 Each runtime runs in a process of its own (thread pools of two runtimes in one process
 slow each other), on the same 32 frames of the Kitchen at 160 x 128 (the session's
@@ -27,10 +27,10 @@ from rosmeery_jax.detector import dataset
 from rosmeery_jax.detector.boxes import nms
 from rosmeery_jax.detector.detections import YoloDetector
 
-runtime, repeats = sys.argv[1], int(sys.argv[2])
+runtime, repeats, weights = sys.argv[1], int(sys.argv[2]), sys.argv[3] or None
 cfg = dataset.DatasetConfig(worlds=("kitchen",), per_world=200)
 frames = np.stack([f[3] for f, _ in zip(dataset.generate(cfg, splits=("val", "train"), progress=False), range(32))])
-det = YoloDetector((), runtime="torch" if runtime == "torch.compile" else runtime)
+det = YoloDetector((), weights, runtime="torch" if runtime == "torch.compile" else runtime)
 det.forward(frames)  # builds the network (and its exported graph) for this shape
 net = det._nets[(128, 160)]
 if runtime == "torch.compile":
@@ -38,7 +38,7 @@ if runtime == "torch.compile":
     compiled = torch.compile(det.model)
     def net(x):
         with torch.inference_mode():
-            return det.model.model[24].decode(compiled(torch.from_numpy(x))).numpy()
+            return det.model.head.decode(compiled(torch.from_numpy(x))).numpy()
 parts = {"pre_ms": [], "network_ms": [], "nms_ms": []}
 for i in range(repeats + 1):
     t0 = time.perf_counter()
@@ -64,10 +64,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--map", action="store_true", help="also mAP@0.5 on the held-out paper-world frames")
+    ap.add_argument("--weights", default="", help="weights name or file (default: the default weights)")
     args = ap.parse_args()
     rows = {}
     for rt in RUNTIMES:
-        run = subprocess.run([sys.executable, "-c", CHILD, rt, str(args.repeats)], capture_output=True, text=True,
+        run = subprocess.run([sys.executable, "-c", CHILD, rt, str(args.repeats), args.weights], capture_output=True, text=True,
                              env=os.environ)
         if run.returncode:
             print(f"{rt}: failed\n{run.stderr[-2000:]}", file=sys.stderr)
@@ -82,7 +83,8 @@ def main() -> int:
         for rt in RUNTIMES:
             if rt == "torch.compile":
                 continue
-            run = subprocess.run([sys.executable, "-m", "rosmeery_jax", "detector", "eval", "--runtime", rt, "--json"],
+            run = subprocess.run([sys.executable, "-m", "rosmeery_jax", "detector", "eval", "--runtime", rt, "--json",
+                                  *(["--weights", args.weights] if args.weights else [])],
                                  capture_output=True, text=True, check=True)
             r = json.loads(run.stdout)
             print(f"{rt:<18} mAP@0.5 {r['map50']:.4f}; lowest class {min(r['ap50'].values()):.3f}")
