@@ -141,6 +141,22 @@ def test_export_command_writes_a_file_onnxruntime_runs_and_never_overwrites(cach
     assert "WxH" in capsys.readouterr().err and not (tmp_path / "b.onnx").exists()
 
 
+def test_a_stride_4_graph_exports_with_its_fourth_level_and_runs_as_in_torch(tmp_path):
+    import onnxruntime as ort
+    import torch
+
+    from rosmeery_jax.detector.yolo import YOLOv5
+
+    torch.manual_seed(0)
+    model = YOLOv5(3, "n", ["a", "b", "c"], p2=True).eval()
+    out = runtime.export(model, tmp_path / "p2.onnx", 2, 64, 96)
+    x = torch.rand(2, 3, 64, 96)
+    got = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).run(None, {"images": x.numpy()})[0]
+    # (16 x 24 + 8 x 12 + 4 x 6 + 2 x 3) cells x 3 anchors: strides 4, 8, 16 and 32
+    assert got.shape == (2, 3 * (384 + 96 + 24 + 6), 8)
+    np.testing.assert_allclose(got, model.decoded(x).numpy(), atol=1e-4, rtol=1e-4)
+
+
 def test_a_missing_or_unknown_runtime_is_one_clear_line(monkeypatch):
     with pytest.raises(InputError, match="unknown runtime 'tensorrt'"):
         runtime.check("tensorrt")
