@@ -93,10 +93,10 @@ class Detect(nn.Module):
     """One 1x1 conv per level; ``anchors`` (L, A, 2) in grid units of each level's stride
     (L levels: 3, or 4 with P2)."""
 
-    def __init__(self, nc: int, ch: tuple[int, ...], p2: bool = False):
+    def __init__(self, nc: int, ch: tuple[int, ...]):
         super().__init__()
-        anchors, strides = ((P2_ANCHORS, *ANCHORS), (P2_STRIDE, *STRIDES)) if p2 else (ANCHORS, STRIDES)
         self.nc, self.no, self.nl, self.na = nc, nc + 5, len(ch), len(ANCHORS[0]) // 2
+        anchors, strides = ((P2_ANCHORS, *ANCHORS)[-self.nl:], (P2_STRIDE, *STRIDES)[-self.nl:])  # the coarsest nl
         self.register_buffer("anchors", torch.tensor(anchors, dtype=torch.float32).view(self.nl, -1, 2)
                              / torch.tensor(strides, dtype=torch.float32).view(-1, 1, 1))
         self.m = nn.ModuleList(nn.Conv2d(c, self.no * self.na, 1) for c in ch)
@@ -165,7 +165,7 @@ class YOLOv5(nn.Module):
         layers += [
             Conv(c(256), c(256), 3, 2), Concat(), C3(c(512), c(512), n(3), False),
             Conv(c(512), c(512), 3, 2), Concat(), C3(c(1024), c(1024), n(3), False),
-            Detect(nc, ((c(128),) if p2 else ()) + (c(256), c(512), c(1024)), p2),
+            Detect(nc, ((c(128),) if p2 else ()) + (c(256), c(512), c(1024))),
         ]
         self.model = nn.Sequential(*layers)
         self.nc, self.size, self.p2 = nc, size, p2
