@@ -125,6 +125,30 @@ def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator, m
     return out, torch.from_numpy(np.concatenate(targets) if targets else np.zeros((0, 6), np.float32))
 
 
+def optimizer(model, lr: float, weight_decay: float) -> torch.optim.AdamW:
+    """AdamW over ``model``'s parameters, weight decay on convolution weights only."""
+    decay, other = [], []
+    for mod in model.modules():
+        for name, p in mod.named_parameters(recurse=False):
+            (decay if name == "weight" and isinstance(mod, torch.nn.Conv2d) else other).append(p)
+    return torch.optim.AdamW([{"params": decay, "weight_decay": weight_decay},
+                              {"params": other, "weight_decay": 0.0}], lr=lr)
+
+
+def fit_batch(model, ema: EMA, opt, compute_loss, x: torch.Tensor, targets: torch.Tensor, lr: float) -> torch.Tensor:
+    """One optimisation step on batch x (I, 3, H, W) with targets (T, 6) at learning rate
+    ``lr`` (gradients clipped to norm 10), the EMA updated; the loss's parts (3,)."""
+    for g in opt.param_groups:
+        g["lr"] = lr
+    loss, parts = compute_loss(model(x), targets)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+    opt.step()
+    ema.update(model)
+    return parts
+
+
 def log_file(out: str | Path) -> Path:
     """The per-epoch log written beside weights ``out``: ``<stem>.log.csv``."""
     return Path(out).with_name(Path(out).stem + ".log.csv")
@@ -144,12 +168,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
     h, w = images.shape[1:3]
     model = YOLOv5(len(names), cfg.size, names, cfg.p2)
     compute_loss = YoloLoss(model, max(h, w))
-    decay, other = [], []
-    for mod in model.modules():
-        for name, p in mod.named_parameters(recurse=False):
-            (decay if name == "weight" and isinstance(mod, torch.nn.Conv2d) else other).append(p)
-    opt = torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
-                             {"params": other, "weight_decay": 0.0}], lr=cfg.lr)
+    opt = optimizer(model, cfg.lr, cfg.weight_decay)
     ema = EMA(model, cfg.ema_decay)
     steps_per_epoch = math.ceil(len(images) / cfg.batch)
     total, warm = cfg.epochs * steps_per_epoch, steps_per_epoch
@@ -178,14 +197,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
                 idx = order[b * cfg.batch:(b + 1) * cfg.batch]
                 x = torch.from_numpy(images[idx]).permute(0, 3, 1, 2).float() / 255
                 x, targets = augment(x, [rows[i] for i in idx], rng, cfg.mosaic)
-                for g in opt.param_groups:
-                    g["lr"] = lr_at(step)
-                loss, parts = compute_loss(model(x), targets)
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
-                opt.step()
-                ema.update(model)
+                parts = fit_batch(model, ema, opt, compute_loss, x, targets, lr_at(step))
                 parts_sum += parts
                 step += 1
                 bar.set_postfix(loss=f"{float(parts.sum()):.3f}")
