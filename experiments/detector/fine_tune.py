@@ -1,6 +1,7 @@
-"""Occluders in training (experiments/detector/README.md, tried, not kept): fine-tune the
-shipped weights a few epochs with the shipped augmentation, and with occluders whose
-boxes are cut to what stays in sight, then score on the paper worlds' held-out frames.
+"""Variations of the recipe tried by fine-tuning (experiments/detector/README.md, tried,
+not kept): the shipped weights fine-tuned a few epochs with the shipped augmentation, with
+occluders whose boxes are cut to what stays in sight, or at twice the resolution, then
+scored on the paper worlds' held-out frames.
 
 It tests why the held-out toilet's boxes reach above its label: the toilet's cistern is
 hidden behind a cabinet, and no training toilet is seen so. An occluder is a flat,
@@ -9,13 +10,16 @@ in front of an object); every box the band spans across is cut back to the part 
 sight, one it hides whole is dropped, and one it only overlaps at a corner or inside
 keeps its extent (the extent of the pixels in sight barely changes).
 
-    .venv/bin/python experiments/detector/occluders.py --data data/detector_procedural \
+    .venv/bin/python experiments/detector/fine_tune.py --data data/detector_procedural \
         --mode toilets --epochs 4 --out out/detector/occluders_toilets.pt
 
 ``--mode plain``: the shipped augmentation alone (the control); ``objects``: an occluder
 on one random box in half the images; ``toilets``: the same, the box a toilet in 9 of 10
-images holding one, and that toilet's band over its top 7 times in 10. Prints one JSON
-line: mAP@0.5 and AP per class on the 1,419 held-out paper-world frames (torch eager).
+images holding one, and that toilet's band over its top 7 times in 10. ``--scale 2``:
+training images and held-out frames scaled up twice (bilinear), the network's input at
+320 x 256, as a session would run it on frames scaled up (the gain of rendering at that
+size is the same: the model card). Prints one JSON line: mAP@0.5 and AP per class on the
+1,419 held-out paper-world frames (torch eager).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from rosmeery_jax.apps.detector_commands import weights_file
 from rosmeery_jax.detector import checkpoint, dataset
@@ -107,6 +112,18 @@ def occlude(x: torch.Tensor, targets: torch.Tensor, rng: np.random.Generator, mo
     return x, torch.from_numpy(t[keep])
 
 
+def scaled(images: np.ndarray, scale: int) -> np.ndarray:
+    """Images (I, H, W, 3) uint8 scaled up ``scale`` times (bilinear), in chunks."""
+    if scale == 1:
+        return images
+    out = np.empty((len(images), images.shape[1] * scale, images.shape[2] * scale, 3), np.uint8)
+    for i in range(0, len(images), 256):
+        x = torch.from_numpy(images[i:i + 256]).permute(0, 3, 1, 2).float()
+        y = F.interpolate(x, scale_factor=scale, mode="bilinear", align_corners=False)
+        out[i:i + 256] = y.round().clamp(0, 255).byte().permute(0, 2, 3, 1).numpy()
+    return out
+
+
 def fine_tune(model, images, rows, epochs: int, mode: str, rng: np.random.Generator):
     """AdamW at :data:`LR`, cosine to 1e-5, EMA at full decay from the start: the EMA model."""
     h, w = images.shape[1:3]
@@ -135,18 +152,20 @@ def main() -> None:
     ap.add_argument("--data", required=True, help="the shipped recipe's dataset (reproduce.sh renders it)")
     ap.add_argument("--mode", choices=("plain", "objects", "toilets"), default="toilets")
     ap.add_argument("--epochs", type=int, default=4)
+    ap.add_argument("--scale", type=int, choices=(1, 2), default=1, help="images scaled up this many times")
     ap.add_argument("--out", required=True, help="the fine-tuned weights")
     args = ap.parse_args()
     torch.manual_seed(0)
     torch.set_num_threads(2)
     rng = np.random.default_rng(0)
     images, rows, _ = dataset.read(args.data, "train")
+    images = scaled(images, args.scale)
     frames = list(dataset.generate(dataset.DatasetConfig(), splits=("val",), progress=False))
-    held_images, held_rows = np.stack([f[3] for f in frames]), [f[4] for f in frames]
+    held_images, held_rows = scaled(np.stack([f[3] for f in frames]), args.scale), [f[4] for f in frames]
     model = fine_tune(checkpoint.load(weights_file("procedural")), images, rows, args.epochs, args.mode, rng)
     checkpoint.save(model, Path(args.out), images.shape[1:3])
     r = evaluate(model_detections(model, held_images), held_images, held_rows, model.nc)
-    print(json.dumps({"mode": args.mode, "epochs": args.epochs, "map50": round(r["map50"], 4),
+    print(json.dumps({"mode": args.mode, "scale": args.scale, "epochs": args.epochs, "map50": round(r["map50"], 4),
                       "ap": {model.names[c]: round(v, 3) for c, v in r["ap"].items()}}))
 
 
