@@ -610,3 +610,30 @@ def test_a_bad_dataset_is_one_error_naming_file_and_row(tmp_path, case, where):
         images, rows, _ = dataset.read(tmp_path, "val")
         assert images.shape == (2, 128, 160, 3)
         np.testing.assert_allclose(rows[0], [[3, 0.5, 0.5, 0.2, 0.2], [26, 1, 0, 0.1, 1]], rtol=1e-6)
+
+
+def _fine_tune_module():
+    """experiments/detector/fine_tune.py (a script, not a package module)."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "detector" / "fine_tune.py"
+    spec = importlib.util.spec_from_file_location("fine_tune", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_an_occluder_cuts_the_boxes_it_spans_to_what_stays_in_sight():
+    """Hand-computed: a band across a box's whole width cuts its top or bottom away; one
+    across its height, a side; one inside it or over a corner leaves it; hidden, it goes."""
+    cut = _fine_tune_module().cut
+    box = np.array([10.0, 20.0, 30.0, 60.0])
+    assert cut(box, np.array([0, 0, 40, 35])).tolist() == [10, 35, 30, 60]  # top hidden
+    assert cut(box, np.array([5, 50, 35, 70])).tolist() == [10, 20, 30, 50]  # bottom hidden
+    assert cut(box, np.array([0, 10, 18, 70])).tolist() == [18, 20, 30, 60]  # left side hidden
+    assert cut(box, np.array([5, 30, 35, 40])).tolist() == box.tolist()  # a band inside: extent kept
+    assert cut(box, np.array([0, 0, 15, 25])).tolist() == box.tolist()  # a corner: kept
+    assert cut(box, np.array([50, 0, 60, 80])).tolist() == box.tolist()  # beside it
+    assert cut(box, np.array([0, 0, 40, 80])) is None  # whole
+    assert cut(box, np.array([0, 0, 40, 58])) is None  # 2 px left in sight
+    assert cut(box, np.array([12, 22, 40, 80])) is None  # 86 % covered, over a corner

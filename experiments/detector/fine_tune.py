@@ -18,7 +18,7 @@ on one random box in half the images; ``toilets``: the same, the box a toilet in
 images holding one, and that toilet's band over its top 7 times in 10. ``--scale 2``:
 training images and held-out frames scaled up twice (bilinear), the network's input at
 320 x 256, as a session would run it on frames scaled up (the gain of rendering at that
-size is the same: the model card). Prints one JSON line: mAP@0.5 and AP per class on the
+size is nearly the same: the model card). Prints one JSON line: mAP@0.5 and AP per class on the
 1,419 held-out paper-world frames (torch eager).
 """
 
