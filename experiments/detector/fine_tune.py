@@ -38,7 +38,7 @@ from rosmeery_jax.apps.detector_commands import weights_file
 from rosmeery_jax.detector import checkpoint, dataset
 from rosmeery_jax.detector.evaluate import evaluate, model_detections
 from rosmeery_jax.detector.loss import YoloLoss
-from rosmeery_jax.detector.train import EMA, augment, fit_batch, optimizer
+from rosmeery_jax.detector.train import EMA, augment, cosine, fit_batch, optimizer
 
 LR, BATCH, MOSAIC, SHARE = 2e-4, 32, 0.5, 0.5  # a fine-tune: a fifth of training's lr, decayed
 
@@ -95,7 +95,7 @@ def occlude(x: torch.Tensor, targets: torch.Tensor, rng: np.random.Generator, mo
         top = mode == "toilets" and t[j, 1] == toilet and rng.random() < 0.7
         if boxes[j, 2] - boxes[j, 0] < 6 or boxes[j, 3] - boxes[j, 1] < 6:
             continue
-        side = rng.integers(4)
+        side = rng.integers(4)  # drawn for a toilet's top band too: the same draws in every mode
         occ = band(boxes[j], 0 if top else side, rng)
         occ = np.clip(occ, 0, scale)
         a, b, c, d = int(occ[0]), int(occ[1]), math.ceil(occ[2]), math.ceil(occ[3])
@@ -132,7 +132,6 @@ def fine_tune(model, images, rows, epochs: int, mode: str, rng: np.random.Genera
     ema.updates = 10_000  # past the ramp: the weights are already trained
     per_epoch, started = math.ceil(len(images) / BATCH), time.time()
     for epoch in range(epochs):
-        model.train()
         order = rng.permutation(len(images))
         for b in range(per_epoch):
             idx = order[b * BATCH:(b + 1) * BATCH]
@@ -140,8 +139,7 @@ def fine_tune(model, images, rows, epochs: int, mode: str, rng: np.random.Genera
             x, targets = augment(x, [rows[i] for i in idx], rng, MOSAIC)
             if mode != "plain":
                 x, targets = occlude(x, targets, rng, mode, toilet)
-            step = epoch * per_epoch + b
-            lr = 1e-5 + 0.5 * (LR - 1e-5) * (1 + math.cos(math.pi * step / (epochs * per_epoch)))
+            lr = cosine(LR, (epoch * per_epoch + b) / (epochs * per_epoch))
             fit_batch(model, ema, opt, loss_fn, x, targets, lr)
         print(f"epoch {epoch + 1}: {time.time() - started:.0f} s", flush=True)
     return ema.model

@@ -125,6 +125,11 @@ def augment(x: torch.Tensor, rows: list[np.ndarray], rng: np.random.Generator, m
     return out, torch.from_numpy(np.concatenate(targets) if targets else np.zeros((0, 6), np.float32))
 
 
+def cosine(lr: float, t: float) -> float:
+    """The learning rate at share ``t`` in [0, 1] of a cosine decay from ``lr`` to 1e-5."""
+    return 1e-5 + 0.5 * (lr - 1e-5) * (1 + math.cos(math.pi * t))
+
+
 def optimizer(model, lr: float, weight_decay: float) -> torch.optim.AdamW:
     """AdamW over ``model``'s parameters, weight decay on convolution weights only."""
     decay, other = [], []
@@ -176,8 +181,7 @@ def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), p
     def lr_at(step: int) -> float:
         if step < warm:
             return cfg.lr * (step + 1) / warm
-        t = (step - warm) / max(1, total - warm)
-        return 1e-5 + 0.5 * (cfg.lr - 1e-5) * (1 + math.cos(math.pi * t))
+        return cosine(cfg.lr, (step - warm) / max(1, total - warm))
 
     out = Path(out)
     log_path = log_file(out)
