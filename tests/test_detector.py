@@ -456,6 +456,26 @@ def test_the_default_detector_was_trained_on_generated_worlds_only():
     assert sorted(paper) == ["kitchen", "laboratory", "large_office", "small_office"]  # the named option
 
 
+def test_the_twice_the_size_weights_are_the_default_fine_tuned_on_generated_worlds_only():
+    """``procedural_2x``: the default weights (by content) fine-tuned at 320 x 256 on a dataset
+    whose manifest lists the same worlds as the weights, every one a procedural world."""
+    import hashlib
+    import json
+
+    from rosmeery_jax.detector.detections import WEIGHTS
+    from rosmeery_jax.world.procedural import parse_name
+
+    raw = torch.load(WEIGHTS["procedural_2x"], weights_only=True)
+    assert raw["imgsz"] == [256, 320]  # twice the session's 128 x 160 frames
+    settings = raw["meta"]["fine_tune"]
+    assert settings["base_sha256"] == hashlib.sha256(DEFAULT_WEIGHTS.read_bytes()).hexdigest()
+    assert settings["scale"] == 2
+    recipe = Path(__file__).resolve().parents[1] / "experiments" / "detector"
+    manifest = json.loads((recipe / "dataset_2x.json").read_text())["dataset"]
+    assert raw["meta"]["dataset"] == manifest and len(manifest["worlds"]) == 240
+    assert {parse_name(w).kind for w in manifest["worlds"]} == {"apartment", "office", "kitchen", "lab"}
+
+
 def test_weights_are_named_or_a_path_and_a_bad_name_gives_one_line(tmp_path, capsys):
     from rosmeery_jax.detector.detections import WEIGHTS, weights_file
 

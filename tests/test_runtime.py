@@ -141,6 +141,33 @@ def test_export_command_writes_a_file_onnxruntime_runs_and_never_overwrites(cach
     assert "WxH" in capsys.readouterr().err and not (tmp_path / "b.onnx").exists()
 
 
+def test_frames_are_scaled_up_only_by_a_whole_factor_to_the_size_the_weights_were_trained_at():
+    assert runtime.upscale_factor([256, 320], 128, 160) == 2
+    assert runtime.upscale_factor([384, 480], 128, 160) == 3
+    for imgsz in ([128, 160], None, [256, 300], [200, 250], [64, 80]):  # own size, unknown, other shape, smaller
+        assert runtime.upscale_factor(imgsz, 128, 160) == 1
+    row = np.array([[[0, 0, 0], [100, 200, 40]]], np.uint8)[None]  # one frame, 1 x 2 pixels
+    up = runtime.upscale(row, 2)  # half-pixel centres: 0, 1/4, 3/4 and 1 of the way, edges held
+    assert up.shape == (1, 2, 4, 3)
+    np.testing.assert_array_equal(up[0, 0, :, 1], [0, 50, 150, 200])
+    np.testing.assert_array_equal(up[0, 0], up[0, 1])
+    assert runtime.upscale(row, 1) is row
+
+
+def test_weights_trained_at_twice_the_size_see_frames_scaled_up_and_box_in_the_frames_pixels(frames):
+    import torch
+
+    detector = YoloDetector((), runtime="torch")
+    detector.model.imgsz = [256, 320]  # as weights trained on 160 x 128 frames scaled up twice
+    got = detector.forward(frames[:8])
+    x = torch.from_numpy(runtime.upscale(frames[:8], 2)).permute(0, 3, 1, 2).float() / 255
+    ref = detector.model.detect(x)
+    assert sum(len(d) for d in ref) > 5  # not vacuous
+    for a, b in zip(ref, got):
+        np.testing.assert_allclose(b[:, :4] * 2, a[:, :4], atol=1e-3)
+        np.testing.assert_allclose(b[:, 4:], a[:, 4:], atol=1e-5)
+
+
 def test_a_stride_4_graph_exports_with_its_fourth_level_and_runs_as_in_torch(tmp_path):
     import onnxruntime as ort
     import torch

@@ -5,8 +5,12 @@ A detector takes a batch of RGB frames (I, H, W, 3) uint8 with their segmentatio
 frame, arrays ``obj`` (D,), ``label`` (D,) taxonomy category index, ``conf`` (D,).
 
 - ``yolo``: the torch YOLO-v5 (by default the shipped weights trained on generated worlds
-  only, ``procedural``; ``paper_worlds`` those trained on the four paper worlds; or any
+  only, ``procedural``; ``procedural_2x`` the same fine-tuned on frames scaled up twice;
+  ``paper_worlds`` those trained on the four paper worlds; or any
   YOLO-v5 weights path; class names are matched to taxonomy categories by name, others dropped).
+  Weights trained on frames scaled up a whole number of times (their ``imgsz`` that many
+  times the frame's size) see the session's frames scaled up alike (``runtime.upscale``),
+  and their boxes are brought back to the frame's pixels.
   A detection attaches to the object with the most pixels inside its box in the
   segmentation image, if that object covers at least ``MIN_SHARE`` of the box.
 - ``oracle``: simulated from ground truth, no torch, for fast sweeps. Confidence model: for
@@ -33,6 +37,7 @@ from rosmeery_jax.detector.dataset import visible_boxes
 MIN_SHARE = 0.1  # share of a detection's box an object must cover to take the detection
 _FOLDER = Path(__file__).parent / "weights"
 WEIGHTS = {"procedural": _FOLDER / "yolov5n_procedural.pt",  # the default: trained on generated worlds only
+           "procedural_2x": _FOLDER / "yolov5n_procedural_2x.pt",  # the same fine-tuned on frames scaled up twice
            "paper_worlds": _FOLDER / "yolov5n_paper_worlds.pt"}  # trained on the four paper worlds it is scored in
 DEFAULT_WEIGHTS = WEIGHTS["procedural"]
 
@@ -122,18 +127,23 @@ class YoloDetector:
         return nms(self.head(images), self.conf if conf is None else conf, iou, max_det)
 
     def prepare(self, h: int, w: int) -> tuple[int, int]:
-        """Build the network for frames of h x w (padded to whole strides), exporting its graph
-        on first use; a session calls it while it compiles. Returns the padded (H, W)."""
-        padded = runtimes.padded(h, w)
+        """Build the network for frames of h x w (scaled up as ``runtime.upscale_factor``
+        says, padded to whole strides), exporting its graph on first use; a session calls it
+        while it compiles. Returns the network's padded (H, W)."""
+        k = runtimes.upscale_factor(self.model.imgsz, h, w)
+        padded = runtimes.padded(k * h, k * w)
         if padded not in self._nets:
             self._nets[padded] = runtimes.network(self.runtime, self.model, self.path, self.batch, *padded,
-                                                  self.threads)
+                                                  self.threads, k)
         return padded
 
     def head(self, images: np.ndarray) -> np.ndarray:
-        """images (I, H, W, 3) uint8 -> the network's decoded head (I, A, 5 + C) on the runtime."""
+        """images (I, H, W, 3) uint8 -> the network's decoded head (I, A, 5 + C) on the
+        runtime, boxes in the frames' pixels."""
+        k = runtimes.upscale_factor(self.model.imgsz, *images.shape[1:3])
+        padded = self.prepare(*images.shape[1:3])
+        images = runtimes.upscale(images, k)
         h, w = images.shape[1:3]
-        padded = self.prepare(h, w)
         out = []
         for i in range(0, len(images), self.batch):
             part = images[i:i + self.batch]
@@ -144,7 +154,11 @@ class YoloDetector:
             x[:, :, :h, :w] = 0
             x[:len(part), :, :h, :w] = part.transpose(0, 3, 1, 2) / np.float32(255)
             out.append(self._nets[padded](x)[:len(part)])
-        return np.concatenate(out) if out else np.zeros((0, 0, 5 + len(self.model.names)), np.float32)
+        if not out:
+            return np.zeros((0, 0, 5 + len(self.model.names)), np.float32)
+        out = np.concatenate(out)
+        out[..., :4] /= k  # box centres and sizes back to the frames' pixels
+        return out
 
     def finish(self, raw: list[np.ndarray], seg: np.ndarray) -> list[tuple]:
         """This world's (obj, label, conf, box) per frame from :meth:`raw`'s detections."""

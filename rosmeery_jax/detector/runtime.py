@@ -58,6 +58,30 @@ def padded(h: int, w: int) -> tuple[int, int]:
     return h + (-h) % 32, w + (-w) % 32
 
 
+def upscale_factor(imgsz, h: int, w: int) -> int:
+    """How many times frames of h x w are scaled up for weights trained at ``imgsz`` (H, W):
+    the whole k > 1 with (k h, k w) == imgsz, otherwise 1 (the frames as they are)."""
+    if not imgsz or imgsz[0] % h or imgsz[0] // h < 2 or imgsz[0] * w != imgsz[1] * h:
+        return 1
+    return imgsz[0] // h
+
+
+def upscale(images: np.ndarray, k: int) -> np.ndarray:
+    """Frames (I, H, W, 3) uint8 -> (I, k H, k W, 3) uint8: bilinear (torch's, half-pixel
+    centres), rounded, in parts of 256 frames; the frames themselves for k = 1."""
+    if k == 1:
+        return images
+    import torch  # the detector extra: imported only when YOLO runs
+    import torch.nn.functional as F
+
+    out = np.empty((len(images), images.shape[1] * k, images.shape[2] * k, 3), np.uint8)
+    for i in range(0, len(images), 256):
+        x = torch.from_numpy(images[i:i + 256].astype(np.float32)).permute(0, 3, 1, 2)  # a copy: frames may be read-only
+        y = F.interpolate(x, scale_factor=k, mode="bilinear", align_corners=False)
+        out[i:i + 256] = y.round().clamp(0, 255).byte().permute(0, 2, 3, 1).numpy()
+    return out
+
+
 INSTALL = "pip install 'rosmeery-jax[detector]' 'torch==2.13.0'"  # the detector extra, torch pinned
 
 
@@ -107,9 +131,10 @@ def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:
     return Path(out)
 
 
-def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool = False) -> Path:
-    """The ONNX graph of ``weights`` at this shape (int8: quantised), from the cache or
-    built into it now."""
+def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool = False, scale: int = 1) -> Path:
+    """The ONNX graph of ``weights`` at this shape (int8: quantised, calibrated on frames
+    scaled up ``scale`` times, as the network will see them), from the cache or built into
+    it now."""
     digest = hashlib.sha256(Path(weights).read_bytes()).hexdigest()[:20]
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rosmeery-jax" / "detector"
     path = base / f"{digest}-v{EXPORT_VERSION}-b{batch}-{height}x{width}.onnx"
@@ -122,19 +147,20 @@ def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool
                 stale.unlink(missing_ok=True)
     if not int8:
         return path
-    quantised = path.with_suffix(".int8.onnx")
+    quantised = path.with_suffix(".int8.onnx" if scale == 1 else f".x{scale}.int8.onnx")
     if not quantised.is_file():
-        quantise(path, quantised, calibration_frames(height, width))
+        quantise(path, quantised, calibration_frames(height, width, scale))
     return quantised
 
 
-def calibration_frames(height: int, width: int) -> np.ndarray:
+def calibration_frames(height: int, width: int, scale: int = 1) -> np.ndarray:
     """(F, H, W, 3) uint8 frames of :data:`CALIBRATION_WORLDS` (the detector dataset's
-    viewpoints), padded to height x width."""
+    viewpoints), scaled up ``scale`` times and padded to height x width."""
     from rosmeery_jax.detector.dataset import DatasetConfig, generate
 
     cfg = DatasetConfig(worlds=CALIBRATION_WORLDS, per_world=CALIBRATION_FRAMES // len(CALIBRATION_WORLDS), seed=1)
     frames = np.stack([f[3] for f in generate(cfg, splits=("train", "val"), progress=False)])[:CALIBRATION_FRAMES]
+    frames = upscale(frames, scale)
     out = np.full((len(frames), height, width, 3), 114, np.uint8)
     out[:, :frames.shape[1], :frames.shape[2]] = frames
     return out
@@ -226,10 +252,12 @@ class OnnxRuntimeNetwork:
         return self.session.run(None, {"images": x})[0]
 
 
-def network(runtime: str, model, weights: Path, batch: int, height: int, width: int, threads: int | None = None):
+def network(runtime: str, model, weights: Path, batch: int, height: int, width: int, threads: int | None = None,
+            scale: int = 1):
     """The network of ``model`` (loaded from ``weights``) on ``runtime``, for inputs (batch, 3,
-    height, width)."""
+    height, width) of frames scaled up ``scale`` times."""
     check(runtime)
     if runtime == "torch":
         return TorchNetwork(model)
-    return OnnxRuntimeNetwork(cached_export(weights, batch, height, width, int8=runtime.endswith("int8")), threads)
+    graph = cached_export(weights, batch, height, width, int8=runtime.endswith("int8"), scale=scale)
+    return OnnxRuntimeNetwork(graph, threads)
