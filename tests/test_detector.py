@@ -469,7 +469,7 @@ def test_the_twice_the_size_weights_are_the_default_fine_tuned_on_generated_worl
     assert raw["imgsz"] == [256, 320]  # twice the session's 128 x 160 frames
     settings = raw["meta"]["fine_tune"]
     assert settings["base_sha256"] == hashlib.sha256(DEFAULT_WEIGHTS.read_bytes()).hexdigest()
-    assert settings["scale"] == 2
+    assert settings["scale"] == 2 and raw["meta"]["int8_percentile"] == 99.95  # its int8 calibration (model card)
     recipe = Path(__file__).resolve().parents[1] / "experiments" / "detector"
     manifest = json.loads((recipe / "dataset_2x.json").read_text())["dataset"]
     assert raw["meta"]["dataset"] == manifest and len(manifest["worlds"]) == 240

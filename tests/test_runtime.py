@@ -168,6 +168,16 @@ def test_weights_trained_at_twice_the_size_see_frames_scaled_up_and_box_in_the_f
         np.testing.assert_allclose(b[:, 4:], a[:, 4:], atol=1e-5)
 
 
+def test_the_int8_graph_is_calibrated_on_frames_as_the_network_sees_them_at_the_weights_percentile(monkeypatch):
+    seen = []
+    monkeypatch.setattr(runtime, "network", lambda *args: seen.append(args[-1]) or object())
+    assert YoloDetector((), "procedural_2x", runtime="onnxruntime-int8").prepare(128, 160) == (256, 320)
+    assert YoloDetector((), "procedural", runtime="onnxruntime-int8").prepare(128, 160) == (128, 160)
+    assert seen == [runtime.Calibration(2, 99.95), runtime.Calibration(1, runtime.CALIBRATION_PERCENTILE)]
+    assert seen[1].suffix() == ".int8.onnx"  # the default's cached graphs keep their names
+    assert seen[0].suffix() == ".x2-p99.95.int8.onnx"
+
+
 def test_a_stride_4_graph_exports_with_its_fourth_level_and_runs_as_in_torch(tmp_path):
     import onnxruntime as ort
     import torch

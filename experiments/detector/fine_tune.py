@@ -141,7 +141,10 @@ def provenance(args: argparse.Namespace, data: dict) -> dict:
     base = weights_file("procedural")
     settings = {"base": base.name, "base_sha256": hashlib.sha256(base.read_bytes()).hexdigest(), "mode": args.mode,
                 "scale": args.scale, "epochs": args.epochs, "lr": LR, "batch": BATCH, "mosaic": MOSAIC, "seed": 0}
-    return {"fine_tune": settings, "dataset": data.get("config")}
+    meta = {"fine_tune": settings, "dataset": data.get("config")}
+    if args.int8_percentile:
+        meta["int8_percentile"] = args.int8_percentile
+    return meta
 
 
 def main() -> None:
@@ -150,6 +153,8 @@ def main() -> None:
     ap.add_argument("--mode", choices=("plain", "objects", "toilets"), default="toilets")
     ap.add_argument("--epochs", type=int, default=4)
     ap.add_argument("--scale", type=int, choices=(1, 2), default=1, help="images scaled up this many times")
+    ap.add_argument("--int8-percentile", type=float, help="the int8 calibration's percentile the weights name "
+                    "(default: the runtime's)")
     ap.add_argument("--out", required=True, help="the fine-tuned weights")
     args = ap.parse_args()
     torch.manual_seed(0)

@@ -1,8 +1,9 @@
 """Loading detector weights: our own state dicts and official YOLO-v5 checkpoints, safely.
 
 Our shipped format is a plain state dict saved by ``torch.save``: ``{"format":
-"rosmeery-yolov5", "size", "names", "imgsz", "state_dict"}``, read with
-``torch.load(weights_only=True)``.
+"rosmeery-yolov5", "size", "names", "imgsz", "meta", "state_dict"}``, read with
+``torch.load(weights_only=True)``; ``meta`` may name the int8 calibration's percentile
+(``int8_percentile``).
 
 Official checkpoints pickle whole model objects (classes from the YOLO-v5 repository). They
 are read with an unpickler that never imports or runs their code: every class it names
@@ -151,7 +152,8 @@ def load(path: str | Path, device: str = "cpu"):
             raw = None
     if isinstance(raw, dict) and raw.get("format") == FORMAT:
         info = {"state_dict": raw.get("state_dict"), "names": list(raw.get("names", [])),
-                "size": raw.get("size", "n"), "imgsz": raw.get("imgsz")}
+                "size": raw.get("size", "n"), "imgsz": raw.get("imgsz"),
+                "int8_percentile": (raw.get("meta") or {}).get("int8_percentile")}
         info["nc"] = len(info["names"])
         if not isinstance(info["state_dict"], dict):
             raise InputError(str(path), "state_dict", "missing")
@@ -169,7 +171,8 @@ def load(path: str | Path, device: str = "cpu"):
         first = str(err).splitlines()[1].strip() if len(str(err).splitlines()) > 1 else str(err)
         raise InputError(str(path), "state_dict", f"does not match YOLO-v5{info['size']}{'-p2' * p2} with "
                          f"{info['nc']} classes: {first[:160]}") from None
-    model.imgsz = info.get("imgsz")
+    model.imgsz = info.get("imgsz")  # the input size it was trained at
+    model.int8_percentile = info.get("int8_percentile")  # its own int8 calibration, if it names one
     return model.eval().to(device)
 
 

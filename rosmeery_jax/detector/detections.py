@@ -133,8 +133,9 @@ class YoloDetector:
         k = runtimes.upscale_factor(self.model.imgsz, h, w)
         padded = runtimes.padded(k * h, k * w)
         if padded not in self._nets:
+            calibration = runtimes.Calibration(k, self.model.int8_percentile or runtimes.CALIBRATION_PERCENTILE)
             self._nets[padded] = runtimes.network(self.runtime, self.model, self.path, self.batch, *padded,
-                                                  self.threads, k)
+                                                  self.threads, calibration)
         return padded
 
     def head(self, images: np.ndarray) -> np.ndarray:

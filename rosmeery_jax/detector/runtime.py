@@ -28,6 +28,7 @@ import io
 import logging
 import os
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,22 @@ CALIBRATION_WORLDS = ("procedural:apartment:2000", "procedural:office:2000", "pr
                       "procedural:lab:2000")
 CALIBRATION_FRAMES = 128
 CALIBRATION_PERCENTILE = 99.99  # the share of activation values each int8 range holds (docs/detector.md)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """How the int8 graph's activation ranges are calibrated: on frames scaled up ``scale``
+    times (as the network sees them), each range holding ``percentile`` % of the values.
+    Weights may name their own percentile (``meta["int8_percentile"]``)."""
+
+    scale: int = 1
+    percentile: float = CALIBRATION_PERCENTILE
+
+    def suffix(self) -> str:
+        """The quantised graph's file suffix: the default calibration's is plain."""
+        if self == Calibration():
+            return ".int8.onnx"
+        return f".x{self.scale}-p{self.percentile:g}.int8.onnx"
 
 
 def padded(h: int, w: int) -> tuple[int, int]:
@@ -131,10 +148,10 @@ def export(model, out: str | Path, batch: int, height: int, width: int) -> Path:
     return Path(out)
 
 
-def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool = False, scale: int = 1) -> Path:
-    """The ONNX graph of ``weights`` at this shape (int8: quantised, calibrated on frames
-    scaled up ``scale`` times, as the network will see them), from the cache or built into
-    it now."""
+def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool = False,
+                  calibration: Calibration = Calibration()) -> Path:
+    """The ONNX graph of ``weights`` at this shape (int8: quantised as ``calibration``
+    says), from the cache or built into it now."""
     digest = hashlib.sha256(Path(weights).read_bytes()).hexdigest()[:20]
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rosmeery-jax" / "detector"
     path = base / f"{digest}-v{EXPORT_VERSION}-b{batch}-{height}x{width}.onnx"
@@ -147,9 +164,9 @@ def cached_export(weights: Path, batch: int, height: int, width: int, int8: bool
                 stale.unlink(missing_ok=True)
     if not int8:
         return path
-    quantised = path.with_suffix(".int8.onnx" if scale == 1 else f".x{scale}.int8.onnx")
+    quantised = path.with_suffix(calibration.suffix())
     if not quantised.is_file():
-        quantise(path, quantised, calibration_frames(height, width, scale))
+        quantise(path, quantised, calibration_frames(height, width, calibration.scale), calibration.percentile)
     return quantised
 
 
@@ -166,7 +183,7 @@ def calibration_frames(height: int, width: int, scale: int = 1) -> np.ndarray:
     return out
 
 
-def quantise(src: Path, out: Path, frames: np.ndarray) -> Path:
+def quantise(src: Path, out: Path, frames: np.ndarray, percentile: float = CALIBRATION_PERCENTILE) -> Path:
     """ONNX Runtime's static int8 quantisation of the graph ``src`` (QDQ), activation ranges
     from ``frames`` (F, H, W, 3) uint8 in batches of the graph's size; written atomically."""
     import onnxruntime as ort
@@ -187,7 +204,7 @@ def quantise(src: Path, out: Path, frames: np.ndarray) -> Path:
         quantize_static(str(src), str(tmp), Batches(), quant_format=QuantFormat.QDQ, per_channel=True,
                         activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
                         nodes_to_exclude=_decode_nodes(src), calibrate_method=CalibrationMethod.Percentile,
-                        extra_options={"CalibPercentile": CALIBRATION_PERCENTILE})
+                        extra_options={"CalibPercentile": percentile})
     return Path(out)
 
 
@@ -253,11 +270,11 @@ class OnnxRuntimeNetwork:
 
 
 def network(runtime: str, model, weights: Path, batch: int, height: int, width: int, threads: int | None = None,
-            scale: int = 1):
+            calibration: Calibration = Calibration()):
     """The network of ``model`` (loaded from ``weights``) on ``runtime``, for inputs (batch, 3,
-    height, width) of frames scaled up ``scale`` times."""
+    height, width); int8 calibrated as ``calibration`` says."""
     check(runtime)
     if runtime == "torch":
         return TorchNetwork(model)
-    graph = cached_export(weights, batch, height, width, int8=runtime.endswith("int8"), scale=scale)
+    graph = cached_export(weights, batch, height, width, int8=runtime.endswith("int8"), calibration=calibration)
     return OnnxRuntimeNetwork(graph, threads)
