@@ -139,6 +139,10 @@ def test_export_command_writes_a_file_onnxruntime_runs_and_never_overwrites(cach
     assert out.read_bytes() == before and "never overwritten" in capsys.readouterr().err
     assert main(["detector", "export", "--out", str(tmp_path / "b.onnx"), "--size", "160"]) == 2
     assert "WxH" in capsys.readouterr().err and not (tmp_path / "b.onnx").exists()
+    twice = tmp_path / "twice.onnx"  # weights trained on frames scaled up: the graph takes them so
+    assert main(["detector", "export", "--weights", "procedural_2x", "--out", str(twice), "--batch", "1"]) == 0
+    assert ort.InferenceSession(str(twice), providers=["CPUExecutionProvider"]).get_inputs()[0].shape == [1, 3, 256, 320]
+    assert "scaled up 2 times" in capsys.readouterr().out
 
 
 def test_frames_are_scaled_up_only_by_a_whole_factor_to_the_size_the_weights_were_trained_at():

@@ -68,8 +68,8 @@ def add_detector(sub) -> None:
     s.add_argument("--weights", metavar="FILE.pt", help=WEIGHTS_HELP)
     s.add_argument("--out", required=True, metavar="FILE.onnx")
     s.add_argument("--batch", type=int, default=32, help="frames per call (default 32, a session's)")
-    s.add_argument("--size", default="160x128", metavar="WxH", help="frame size, padded to whole strides of 32 "
-                   "(default 160x128, a session's)")
+    s.add_argument("--size", default="160x128", metavar="WxH", help="frame size, scaled up for weights trained "
+                   "on frames scaled up, padded to whole strides of 32 (default 160x128, a session's)")
     s.set_defaults(func=_cmd_detector_export)
 
 
@@ -138,14 +138,17 @@ def _cmd_detector_export(args) -> int:
     except ValueError:
         raise InputError("command line", "--size", f"{args.size!r} is not WxH in whole pixels up to {MAX_PIXELS}, "
                          "e.g. 160x128") from None
-    size = runtimes.padded(h, w)
+    model = checkpoint.load(weights_file(args.weights))
+    k = runtimes.upscale_factor(model.imgsz, h, w)  # weights trained on frames scaled up see them so
+    size = runtimes.padded(k * h, k * w)
     need, have = 4.0 * args.batch * 3 * size[0] * size[1], memory_bytes() * MEMORY_SHARE  # the traced input
     if need > have:
         raise InputError("command line", "--batch", f"{args.batch} frames of {size[1]}x{size[0]} need {need / 1e9:,.1f} "
                          f"GB, more than this machine's {have / 1e9:,.1f} GB allows")
-    model = checkpoint.load(weights_file(args.weights))
     runtimes.export(model, out, args.batch, *size)
-    print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, input {args.batch}x3x{size[0]}x{size[1]}")
+    scaled = f" (frames scaled up {k} times, as these weights were trained)" if k > 1 else ""
+    print(f"wrote {out}: YOLO-v5{model.size}, {len(model.names)} classes, "
+          f"input {args.batch}x3x{size[0]}x{size[1]}{scaled}")
     return 0
 
 

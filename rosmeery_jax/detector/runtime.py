@@ -93,7 +93,7 @@ def upscale(images: np.ndarray, k: int) -> np.ndarray:
 
     out = np.empty((len(images), images.shape[1] * k, images.shape[2] * k, 3), np.uint8)
     for i in range(0, len(images), 256):
-        x = torch.from_numpy(images[i:i + 256].astype(np.float32)).permute(0, 3, 1, 2)  # a copy: frames may be read-only
+        x = torch.from_numpy(images[i:i + 256].astype(np.float32)).permute(0, 3, 1, 2)  # a copy: may be read-only
         y = F.interpolate(x, scale_factor=k, mode="bilinear", align_corners=False)
         out[i:i + 256] = y.round().clamp(0, 255).byte().permute(0, 2, 3, 1).numpy()
     return out
