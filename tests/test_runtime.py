@@ -182,6 +182,18 @@ def test_the_int8_graph_is_calibrated_on_frames_as_the_network_sees_them_at_the_
     assert seen[0].suffix() == ".x2-p99.95.int8.onnx"
 
 
+def test_calibration_frames_are_scaled_up_as_the_network_sees_them_then_padded(monkeypatch):
+    from rosmeery_jax.detector import dataset
+
+    rng = np.random.default_rng(0)
+    rendered = rng.integers(0, 256, (runtime.CALIBRATION_FRAMES, 30, 40, 3), dtype=np.uint8)
+    monkeypatch.setattr(dataset, "generate", lambda cfg, **kw: ((None, None, None, f, None) for f in rendered))
+    got = runtime.calibration_frames(64, 96, scale=2)
+    assert got.shape == (runtime.CALIBRATION_FRAMES, 64, 96, 3)
+    np.testing.assert_array_equal(got[:, :60, :80], runtime.upscale(rendered, 2))
+    assert (got[:, 60:] == 114).all() and (got[:, :, 80:] == 114).all()  # the official grey pad
+
+
 def test_a_stride_4_graph_exports_with_its_fourth_level_and_runs_as_in_torch(tmp_path):
     import onnxruntime as ort
     import torch
