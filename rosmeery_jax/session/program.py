@@ -262,10 +262,10 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
     def decide(carry, _):
         s, pss, k = carry
         k, sub = jax.random.split(k)
-        if len(policies) == 1:
-            action, pss = branch(0)(s, pss, sub)
-        else:
-            action, pss = jax.lax.switch(q, [branch(i) for i in range(len(policies))], s, pss, sub)
+        # Always a branch, a lone policy's twice: compiled inline it was fused with the steps
+        # around it, and a padded bank of worlds rounded its steps otherwise than beside others
+        branches = [branch(i) for i in range(len(policies))] * (2 if len(policies) == 1 else 1)
+        action, pss = jax.lax.switch(q, branches, s, pss, sub)
         s, out = steps(s, action)
         return (s, pss, k), out
 
