@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rosmeery_jax.apps.detector_commands import weights_file
 from rosmeery_jax.detector import checkpoint, dataset
+from rosmeery_jax.detector.detections import weights_file
 from rosmeery_jax.detector.evaluate import evaluate, model_detections
 from rosmeery_jax.detector.loss import YoloLoss
 from rosmeery_jax.detector.runtime import upscale

@@ -158,7 +158,8 @@ class YoloDetector:
         if not out:
             return np.zeros((0, 0, 5 + len(self.model.names)), np.float32)
         out = np.concatenate(out)
-        out[..., :4] /= k  # box centres and sizes back to the frames' pixels
+        if k > 1:
+            out[..., :4] /= k  # box centres and sizes back to the frames' pixels
         return out
 
     def finish(self, raw: list[np.ndarray], seg: np.ndarray) -> list[tuple]:
