@@ -355,6 +355,35 @@ def test_saved_weights_load_back_the_same_and_name_no_temporary_file(tmp_path):
     assert torch.load(out, weights_only=True)["meta"] == {"note": "x"}
 
 
+_FIELD_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
+                          st.text(max_size=8), st.lists(st.integers(-5, 10**5), max_size=3),
+                          st.dictionaries(st.text(max_size=4), st.integers(), max_size=2))
+
+
+@settings(max_examples=40, deadline=None)
+@given(field=st.sampled_from(["names", "size", "imgsz", "meta", "meta.int8_percentile"]), value=_FIELD_VALUES)
+def test_a_weights_file_with_any_field_wrong_loads_or_names_that_field(tmp_path_factory, field, value):
+    """Whatever one field of our format holds, the file loads into a model the detector can
+    use (an input size of two positive whole numbers or none, a percentage or none), or one
+    error names the file and that field."""
+    path = tmp_path_factory.mktemp("w") / "w.pt"
+    raw = {"format": checkpoint.FORMAT, "size": "n", "names": ["a", "b", "c"], "imgsz": [128, 160],
+           "meta": {}, "state_dict": YOLOv5(3, "n", ["a", "b", "c"]).state_dict()}
+    if field == "meta.int8_percentile":
+        raw["meta"] = {"int8_percentile": value}
+    else:
+        raw[field] = value
+    torch.save(raw, path)
+    try:
+        model = checkpoint.load(path)
+    except InputError as err:
+        assert str(err).startswith(f"{path}: ") and field.split(".")[0] in str(err)
+        return
+    assert model.imgsz is None or (len(model.imgsz) == 2 and all(type(v) is int and v > 0 for v in model.imgsz))
+    assert model.int8_percentile is None or 0 < model.int8_percentile <= 100
+    assert all(isinstance(n, str) for n in model.names)
+
+
 def test_a_damaged_weights_archive_is_refused_before_any_unpickler_reads_it(tmp_path, monkeypatch):
     """Three bytes before the first entry shifted every read of torch's zip reader, and its
     unpickler then asked for about 20 GB; a flipped byte inside an entry fails its CRC.

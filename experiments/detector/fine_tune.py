@@ -142,7 +142,7 @@ def provenance(args: argparse.Namespace, data: dict) -> dict:
     settings = {"base": base.name, "base_sha256": hashlib.sha256(base.read_bytes()).hexdigest(), "mode": args.mode,
                 "scale": args.scale, "epochs": args.epochs, "lr": LR, "batch": BATCH, "mosaic": MOSAIC, "seed": 0}
     meta = {"fine_tune": settings, "dataset": data.get("config")}
-    if args.int8_percentile:
+    if args.int8_percentile is not None:
         meta["int8_percentile"] = args.int8_percentile
     return meta
 
@@ -157,6 +157,8 @@ def main() -> None:
                     "(default: the runtime's)")
     ap.add_argument("--out", required=True, help="the fine-tuned weights")
     args = ap.parse_args()
+    if args.int8_percentile is not None and not 0 < args.int8_percentile <= 100:
+        ap.error("--int8-percentile: a percentage in (0, 100]")  # checked before an hour of training
     torch.manual_seed(0)
     torch.set_num_threads(2)
     rng = np.random.default_rng(0)

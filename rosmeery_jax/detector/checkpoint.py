@@ -137,6 +137,36 @@ def _read_official(path: Path) -> dict:
     return {"state_dict": sd, "names": names, "nc": int(yaml.get("nc", len(names))), "size": size}
 
 
+def _number(v, kind) -> bool:
+    return isinstance(v, kind) and not isinstance(v, bool)
+
+
+def _read_ours(path: Path, raw: dict) -> dict:
+    """Our format's fields, each checked: a wrong one is an error naming it, not a
+    traceback later in the detector."""
+    def bad(field: str, why: str):
+        return InputError(str(path), field, why)
+
+    names, imgsz, meta = raw.get("names", []), raw.get("imgsz"), raw.get("meta") or {}
+    if not isinstance(raw.get("state_dict"), dict):
+        raise bad("state_dict", "missing")
+    if not isinstance(names, (list, tuple)) or not names or not all(isinstance(n, str) for n in names):
+        raise bad("names", "must be a list of one or more class names")
+    if imgsz is not None and not (isinstance(imgsz, (list, tuple)) and len(imgsz) == 2
+                                  and all(_number(v, int) and 0 < v <= 8192 for v in imgsz)):
+        raise bad("imgsz", f"must be [height, width] in pixels, got {imgsz!r:.40}")
+    if not isinstance(raw.get("size", "n"), str):
+        raise bad("size", "must be a YOLO-v5 size letter (n, s, m, l, x)")
+    if not isinstance(meta, dict):
+        raise bad("meta", "must be a mapping")
+    percentile = meta.get("int8_percentile")
+    if percentile is not None and not (_number(percentile, (int, float)) and 0 < percentile <= 100):
+        raise bad("meta.int8_percentile", f"must be a percentage in (0, 100], got {percentile!r:.40}")
+    return {"state_dict": raw["state_dict"], "names": list(names), "nc": len(names), "size": raw.get("size", "n"),
+            "imgsz": None if imgsz is None else list(imgsz),
+            "int8_percentile": None if percentile is None else float(percentile)}
+
+
 def load(path: str | Path, device: str = "cpu"):
     """A ready :class:`~rosmeery_jax.detector.yolo.YOLOv5` (eval mode, float32) from our
     state-dict format or an official checkpoint; one clear error for anything else."""
@@ -151,12 +181,7 @@ def load(path: str | Path, device: str = "cpu"):
         except Exception:  # noqa: BLE001 - not our format: maybe an official pickled checkpoint
             raw = None
     if isinstance(raw, dict) and raw.get("format") == FORMAT:
-        info = {"state_dict": raw.get("state_dict"), "names": list(raw.get("names", [])),
-                "size": raw.get("size", "n"), "imgsz": raw.get("imgsz"),
-                "int8_percentile": (raw.get("meta") or {}).get("int8_percentile")}
-        info["nc"] = len(info["names"])
-        if not isinstance(info["state_dict"], dict):
-            raise InputError(str(path), "state_dict", "missing")
+        info = _read_ours(path, raw)
     else:
         info = _read_official(path)
     p2 = "model.31.anchors" in info["state_dict"]  # the yolov5-p2 graph's head is layer 31
