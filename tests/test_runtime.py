@@ -8,6 +8,7 @@ import importlib.util
 import os
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -156,6 +157,23 @@ def test_frames_are_scaled_up_only_by_a_whole_factor_to_the_size_the_weights_wer
     np.testing.assert_array_equal(up[0, 0, :, 1], [0, 50, 150, 200])
     np.testing.assert_array_equal(up[0, 0], up[0, 1])
     assert runtime.upscale(row, 1) is row
+
+
+def test_scaling_up_twice_is_exact_bilinear_rounded_half_to_even_on_any_frame():
+    """Each pixel of a frame scaled up twice is (9 a + 3 b + 3 c + d) / 16 of its four
+    nearest source pixels (edges held), rounded half to even (torch's round), on frames
+    as the session passes them (read-only) or not."""
+    frames = np.random.default_rng(3).integers(0, 256, (3, 7, 5, 3), dtype=np.uint8)
+    frames.flags.writeable = False
+    a = frames.astype(np.int64)
+    near = lambda x, axis, d: np.take(x, np.clip(np.arange(x.shape[axis]) + d, 0, x.shape[axis] - 1), axis)  # noqa: E731
+    rows = np.stack((3 * a + near(a, 1, -1), 3 * a + near(a, 1, 1)), 2).reshape(3, 14, 5, 3)
+    sums = np.stack((3 * rows + near(rows, 2, -1), 3 * rows + near(rows, 2, 1)), 3).reshape(3, 14, 10, 3)
+    want = np.round(sums / 16)  # numpy rounds half to even, as torch does
+    assert ((sums % 16) == 8).any()  # ties present: the rounding rule is tested
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(runtime.upscale(frames, 2), want)
 
 
 def test_weights_trained_at_twice_the_size_see_frames_scaled_up_and_box_in_the_frames_pixels(frames):
