@@ -85,18 +85,23 @@ def upscale_factor(imgsz, h: int, w: int) -> int:
 
 def upscale(images: np.ndarray, k: int) -> np.ndarray:
     """Frames (I, H, W, 3) uint8 -> (I, k H, k W, 3) uint8: bilinear (torch's, half-pixel
-    centres), rounded; the frames themselves for k = 1."""
+    centres), rounded, in parts of 256 frames (a training set's float copy would not fit in
+    memory at once); the frames themselves for k = 1."""
     if k == 1:
         return images
     import torch  # the detector extra: imported only when YOLO runs
     import torch.nn.functional as F
 
-    # (I, H, W, 3) seen as (I, 3, H, W) in channels-last order: no copies around the
-    # interpolation, twice as fast as contiguous channels (the same values: a frame's are
-    # exact multiples of 1/16 before rounding). Writable: torch warns on read-only arrays.
-    x = torch.from_numpy(np.require(images, np.uint8, ("C", "W"))).permute(0, 3, 1, 2).float()
-    y = F.interpolate(x, scale_factor=k, mode="bilinear", align_corners=False)
-    return y.round_().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    images = np.require(images, np.uint8, ("C", "W"))  # writable: torch warns on read-only arrays
+    out = np.empty((len(images), images.shape[1] * k, images.shape[2] * k, 3), np.uint8)
+    for i in range(0, len(images), 256):
+        # (I, H, W, 3) seen as (I, 3, H, W) in channels-last order: no copies around the
+        # interpolation, twice as fast as contiguous channels, the same values (exact
+        # multiples of 1/16 before rounding, for k = 2)
+        x = torch.from_numpy(images[i:i + 256]).permute(0, 3, 1, 2).float()
+        y = F.interpolate(x, scale_factor=k, mode="bilinear", align_corners=False)
+        torch.from_numpy(out[i:i + 256]).permute(0, 3, 1, 2).copy_(y.round_())  # cast in place
+    return out
 
 
 INSTALL = "pip install 'rosmeery-jax[detector]' 'torch==2.13.0'"  # the detector extra, torch pinned
