@@ -63,6 +63,12 @@ class Calibration:
     scale: int = 1
     percentile: float = CALIBRATION_PERCENTILE
 
+    @classmethod
+    def of(cls, scale: int, percentile: float | None) -> "Calibration":
+        """The calibration for frames scaled up ``scale`` times, at weights' own percentile
+        if they name one (None: the default)."""
+        return cls(scale) if percentile is None else cls(scale, percentile)
+
     def suffix(self) -> str:
         """The quantised graph's file suffix: the default calibration's is plain."""
         if self == Calibration():
