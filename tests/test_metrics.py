@@ -280,9 +280,27 @@ def test_metric_invariants_on_random_trajectories(poses, det_seed):
         assert np.all(np.diff(c["opi"]) >= -1e-9)
         assert np.all(c["cori"] <= c["ori"] + 1e-9)
         assert np.all(c["cori_any"] <= c["ori"] + 1e-9)
+    # c_t(n) is what a map of the held labels earns: their confidence where they are right
+    right = det_logs.label == np.asarray(env.world.truth.category_index)
+    np.testing.assert_array_equal(det_logs.conf_true, np.where(right, det_logs.conf_any, 0.0))
     again = replay(env, times, poses)
     for a, b in zip(run.logs, again.logs):
         np.testing.assert_array_equal(a, b)
+
+
+def test_cori_weighs_the_held_label_only_while_it_is_right():
+    """One object, by hand: right at 0.5, outbid by a wrong label at 0.8 (a right 0.6 does
+    not win it back), then right at 0.9. c_t follows the held label, as the map's file does."""
+    env = _small_office()
+    right = int(env.world.truth.category_index[0])
+    wrong = (right + 1) % len(env.world.taxonomy.names)
+    k, held = env.sk.init(), []
+    for label, conf in ((right, 0.5), (wrong, 0.8), (right, 0.6), (right, 0.9)):
+        k = env.sk.attach(k, jnp.asarray([0], jnp.int32), jnp.asarray([label], jnp.int32),
+                          jnp.asarray([conf], jnp.float32))
+        held.append((int(k.label[0]), float(k.conf_true[0]), float(k.conf_any[0])))
+    assert held == [(right, 0.5, 0.5), (wrong, 0.0, pytest.approx(0.8)), (wrong, 0.0, pytest.approx(0.8)),
+                    (right, pytest.approx(0.9), pytest.approx(0.9))]
 
 
 def test_env_rollout_coverage_grows_and_logs_vmap():

@@ -207,7 +207,7 @@ def test_an_exported_map_evaluates_to_the_sessions_own_scores(session_dir, tmp_p
     df = results.load(session_dir)
     run = df[(df.policy == "random") & (df.seed == 1)]  # other tests add runs to this folder
     final = run[run.time_s == run.time_s.max()].set_index("metric").value
-    for metric in ("ori", "opi", "opi_strict"):
+    for metric in ("ori", "cori", "opi", "opi_strict"):
         assert ours[metric] == pytest.approx(final[metric], abs=1e-6), metric
     assert ours["ori"] > 0  # the robot saw something: the equality is not 0 == 0
 

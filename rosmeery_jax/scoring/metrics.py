@@ -8,7 +8,8 @@ session picks its active set by name.
 
 Built in:
 - ``ori``: 1 - min(1, mean_n |ps_G - ps_t| / ps_G)                        (paper Eq. 3)
-- ``cori``: the same with c_t(n) ps_t(n), c_t the best true-label confidence (Eq. 4)
+- ``cori``: the same with c_t(n) ps_t(n), c_t the held label's confidence when it is n's
+  category, else 0 (Eq. 4)
 - ``cori_any``: label-agnostic cORI: the best confidence of any label
 - ``opi``: 1 - min(1, mean_n |P_G - p_t| / P_G), p_t predicates declared   (Eq. 5)
 - ``opi_strict``: only correct predicates count and each false one adds an error:

@@ -38,7 +38,8 @@ class KnowledgeConfig:
 
 class Knowledge(NamedTuple):
     """One env's SK. seen (S,) bool (float in soft coverage); label (N,) int32 category index
-    or -1; confidence (N,) of the held label; conf_true (N,) c_t(n); conf_any (N,)."""
+    or -1; confidence (N,) of the held label; conf_true (N,) c_t(n), that confidence when the
+    held label is the object's category, else 0; conf_any (N,) the best confidence of any label."""
 
     seen: jax.Array
     label: jax.Array
@@ -114,9 +115,7 @@ class SpatialKnowledge:
         valid = obj >= 0
         idx = jnp.where(valid, obj, n)  # out of range: dropped
         c = jnp.where(valid, conf, 0.0)
-        is_true = label == self.true_category[jnp.clip(obj, 0, n - 1)]
         conf_any = k.conf_any.at[idx].max(c, mode="drop")
-        conf_true = k.conf_true.at[idx].max(jnp.where(is_true, c, 0.0), mode="drop")
         # Held label: the most confident detection so far (ties keep the older label).
         best = jnp.full(n, -1.0).at[idx].max(c, mode="drop")
         winner = jnp.full(n, -1, jnp.int32).at[jnp.where(valid & (c >= best[jnp.clip(obj, 0, n - 1)]), obj, n)].max(
@@ -124,6 +123,9 @@ class SpatialKnowledge:
         take = (winner >= 0) & (best > k.confidence)
         new_label = jnp.where(take, label[jnp.maximum(winner, 0)], k.label)
         new_conf = jnp.where(take, best, k.confidence)
+        # c_t(n) is the held label's confidence when that label is n's category, as a map holding
+        # these labels is scored: a right label once seen, then outbid by a wrong one, earns nothing
+        conf_true = jnp.where((new_label >= 0) & (new_label == self.true_category), new_conf, 0.0)
         return Knowledge(k.seen, new_label.astype(jnp.int32), new_conf, conf_true, conf_any)
 
     def label_observed(self, k: Knowledge) -> Knowledge:
