@@ -303,6 +303,33 @@ def test_cori_weighs_the_held_label_only_while_it_is_right():
                     (right, pytest.approx(0.9), pytest.approx(0.9))]
 
 
+def test_an_exported_map_with_outbid_labels_scores_the_sessions_cori(tmp_path):
+    """A turn on the spot, then every seen object labelled: the even ones right at 0.7, the
+    odd ones right at 0.5 and then outbid by a wrong label at 0.8. The exported map of that
+    knowledge, scored as any map is, gives the session's cORI."""
+    from rosmeery_jax.scoring.evaluate import evaluate
+    from rosmeery_jax.scoring.semantic_map import write_semantic_map
+
+    env = _small_office()
+    sx, sy, syaw = env.world.spawn
+    run = replay(env, np.arange(8.0), np.stack([np.full(8, sx), np.full(8, sy), syaw + np.linspace(0, 6.3, 8)], 1))
+    k = env.sk.init()._replace(seen=jnp.asarray(run.knowledge.seen))
+    seen = np.flatnonzero(np.asarray(env.sk.log(k).ps) > 0)
+    right = np.asarray(env.world.truth.category_index)[seen]
+    wrong = (right + 1) % len(env.world.taxonomy.names)
+    odd = seen % 2 == 1
+    for label, conf in ((right, np.where(odd, 0.5, 0.7)), (np.where(odd, wrong, right), np.where(odd, 0.8, 0.0))):
+        k = env.sk.attach(k, jnp.asarray(seen, jnp.int32), jnp.asarray(label, jnp.int32), jnp.asarray(conf, jnp.float32))
+    assert odd.any() and (~odd).any()  # both kinds are in the map
+    log = jax.tree.map(lambda a: np.asarray(a)[None], env.sk.log(k))
+    ours = metrics.compute(log, env.sk.truth)
+    write_semantic_map(tmp_path, "m", env.world, jax.tree.map(np.asarray, k), 8.0)
+    scored = evaluate(env.world, tmp_path / "m.ply")[3]
+    for m in ("ori", "cori", "opi"):
+        assert scored[m] == pytest.approx(float(ours[m][-1]), abs=1e-6), m
+    assert scored["cori"] < scored["ori"]
+
+
 def test_env_rollout_coverage_grows_and_logs_vmap():
     env = _small_office()
     keys = jax.random.split(jax.random.key(0), 2)
