@@ -298,7 +298,8 @@ def test_cori_weighs_the_held_label_only_while_it_is_right():
     for label, conf in ((right, 0.5), (wrong, 0.8), (right, 0.6), (right, 0.9)):
         k = env.sk.attach(k, jnp.asarray([0], jnp.int32), jnp.asarray([label], jnp.int32),
                           jnp.asarray([conf], jnp.float32))
-        held.append((int(k.label[0]), float(k.conf_true[0]), float(k.conf_any[0])))
+        log = env.sk.log(k)
+        held.append((int(log.label[0]), float(log.conf_true[0]), float(log.conf_any[0])))
     assert held == [(right, 0.5, 0.5), (wrong, 0.0, pytest.approx(0.8)), (wrong, 0.0, pytest.approx(0.8)),
                     (right, pytest.approx(0.9), pytest.approx(0.9))]
 

@@ -103,6 +103,6 @@ def score(env: Env, state: State, kind: str) -> jax.Array:
     real = ps_G < wd.NEVER
     if kind == "coverage":
         return jnp.sum(jnp.where(real, ps, 0.0)) / jnp.sum(jnp.where(real, ps_G, 0.0))
-    weighted = ps * k.conf_true if kind == "cori" else ps
+    weighted = ps * env.sk.right_confidence(k) if kind == "cori" else ps
     errors = jnp.where(real, jnp.abs(ps_G - weighted) / ps_G, 0.0)
     return 1.0 - jnp.minimum(1.0, jnp.sum(errors) / jnp.maximum(jnp.sum(real), 1))

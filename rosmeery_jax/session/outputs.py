@@ -76,8 +76,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         log = jax.tree.map(lambda a: a[i], logs)
         if "oracle" in cfg.mappers:
             k = jax.tree.map(lambda a: np.asarray(a)[i], run.knowledge)
-            k = k._replace(seen=k.seen[:s], **{f: getattr(k, f)[:n] for f in ("label", "confidence", "conf_true",
-                                                                                "conf_any")})
+            k = k._replace(seen=k.seen[:s], label=k.label[:n], confidence=k.confidence[:n])
             write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
             c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
             curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,

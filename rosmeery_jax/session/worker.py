@@ -118,8 +118,7 @@ class Worker:
         if self.detectors is None:
             return knowledge
         lab = self.labels
-        return knowledge._replace(label=lab.label, confidence=lab.confidence, conf_true=lab.conf_true,
-                                  conf_any=lab.conf_any)
+        return knowledge._replace(label=lab.label, confidence=lab.confidence)
 
     def maps(self) -> dict | None:
         """Per mapper entry, the real envs' :class:`Mapped` in row order; None without mappers."""

@@ -38,19 +38,18 @@ class KnowledgeConfig:
 
 class Knowledge(NamedTuple):
     """One env's SK. seen (S,) bool (float in soft coverage); label (N,) int32 category index
-    or -1; confidence (N,) of the held label; conf_true (N,) c_t(n), that confidence when the
-    held label is the object's category, else 0; conf_any (N,) the best confidence of any label."""
+    or -1, the held label; confidence (N,) its confidence, the best of any label so far."""
 
     seen: jax.Array
     label: jax.Array
     confidence: jax.Array
-    conf_true: jax.Array
-    conf_any: jax.Array
 
 
 class ObjectLog(NamedTuple):
     """Per object at one step (add leading axes for T steps and B envs): ps (N,) observed
-    samples; conf_true, conf_any (N,); label (N,) int32; declared (N,) predicates declared;
+    samples; conf_true (N,) cORI's c_t(n), the held label's confidence when that label is n's
+    category, else 0 (what a map of the held labels earns); conf_any (N,) the held label's
+    confidence, right or wrong; label (N,) int32; declared (N,) predicates declared;
     correct (N,) declared predicates that are true."""
 
     ps: jax.Array
@@ -103,7 +102,7 @@ class SpatialKnowledge:
     def init(self) -> Knowledge:
         n = self.table.num_objects
         z = jnp.zeros(n, jnp.float32)
-        return Knowledge(coverage.empty(self.table, self.cfg.coverage), jnp.full(n, -1, jnp.int32), z, z, z)
+        return Knowledge(coverage.empty(self.table, self.cfg.coverage), jnp.full(n, -1, jnp.int32), z)
 
     def observe(self, k: Knowledge, pose: jax.Array, depth: jax.Array) -> Knowledge:
         """Fold one depth frame taken at robot pose (3,) into the coverage."""
@@ -115,7 +114,6 @@ class SpatialKnowledge:
         valid = obj >= 0
         idx = jnp.where(valid, obj, n)  # out of range: dropped
         c = jnp.where(valid, conf, 0.0)
-        conf_any = k.conf_any.at[idx].max(c, mode="drop")
         # Held label: the most confident detection so far (ties keep the older label).
         best = jnp.full(n, -1.0).at[idx].max(c, mode="drop")
         winner = jnp.full(n, -1, jnp.int32).at[jnp.where(valid & (c >= best[jnp.clip(obj, 0, n - 1)]), obj, n)].max(
@@ -123,10 +121,7 @@ class SpatialKnowledge:
         take = (winner >= 0) & (best > k.confidence)
         new_label = jnp.where(take, label[jnp.maximum(winner, 0)], k.label)
         new_conf = jnp.where(take, best, k.confidence)
-        # c_t(n) is the held label's confidence when that label is n's category, as a map holding
-        # these labels is scored: a right label once seen, then outbid by a wrong one, earns nothing
-        conf_true = jnp.where((new_label >= 0) & (new_label == self.true_category), new_conf, 0.0)
-        return Knowledge(k.seen, new_label.astype(jnp.int32), new_conf, conf_true, conf_any)
+        return Knowledge(k.seen, new_label.astype(jnp.int32), new_conf)
 
     def label_observed(self, k: Knowledge) -> Knowledge:
         """Detector off: label every object with >= min_fraction observed with its true
@@ -134,8 +129,7 @@ class SpatialKnowledge:
         ps = coverage.per_object(k.seen, self.table).astype(jnp.float32)
         named = ps >= self.cfg.min_fraction * self.ps_G
         one = jnp.where(named, 1.0, 0.0)
-        return Knowledge(k.seen, jnp.where(named, self.true_category, k.label), jnp.maximum(k.confidence, one),
-                         jnp.maximum(k.conf_true, one), jnp.maximum(k.conf_any, one))
+        return Knowledge(k.seen, jnp.where(named, self.true_category, k.label), jnp.maximum(k.confidence, one))
 
     def log(self, k: Knowledge) -> ObjectLog:
         """The per-object row every metric is computed from."""
@@ -148,4 +142,10 @@ class SpatialKnowledge:
         lab = jnp.maximum(k.label, 0)
         declared = jnp.where(has, self.declared[lab], 0)
         correct = jnp.where(has, jnp.take_along_axis(self.correct, lab[:, None], 1)[:, 0], 0)
-        return k.conf_true, k.conf_any, k.label, declared, correct
+        return self.right_confidence(k), k.confidence, k.label, declared, correct
+
+    def right_confidence(self, k: Knowledge) -> jax.Array:
+        """cORI's c_t(n) (N,): the held label's confidence when that label is n's category, else
+        0, as a map holding these labels is scored (a right label outbid by a wrong one earns
+        nothing)."""
+        return jnp.where((k.label >= 0) & (k.label == self.true_category), k.confidence, 0.0)
