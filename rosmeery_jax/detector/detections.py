@@ -126,27 +126,27 @@ class YoloDetector:
         (default: the detector's threshold)."""
         return nms(self.head(images), self.conf if conf is None else conf, iou, max_det)
 
-    def _input(self, h: int, w: int) -> tuple[int, tuple[int, int]]:
-        """For frames of h x w: how many times they are scaled up, and the network's padded (H, W)."""
-        k = runtimes.upscale_factor(self.model.imgsz, h, w)
-        return k, runtimes.padded(k * h, k * w)
-
     def prepare(self, h: int, w: int) -> tuple[int, int]:
         """Build the network for frames of h x w (scaled up as ``runtime.upscale_factor``
         says, padded to whole strides), exporting its graph on first use; a session calls it
         while it compiles. Returns the network's padded (H, W)."""
-        k, padded = self._input(h, w)
+        return self._built(h, w)[1]
+
+    def _built(self, h: int, w: int) -> tuple[int, tuple[int, int]]:
+        """For frames of h x w: how many times they are scaled up and the network's padded
+        (H, W), its network built if it is not yet."""
+        k = runtimes.upscale_factor(self.model.imgsz, h, w)
+        padded = runtimes.padded(k * h, k * w)
         if padded not in self._nets:
             calibration = runtimes.Calibration.of(k, self.model.int8_percentile)
             self._nets[padded] = runtimes.network(self.runtime, self.model, self.path, self.batch, *padded,
                                                   self.threads, calibration)
-        return padded
+        return k, padded
 
     def head(self, images: np.ndarray) -> np.ndarray:
         """images (I, H, W, 3) uint8 -> the network's decoded head (I, A, 5 + C) on the
         runtime, boxes in the frames' pixels."""
-        k, padded = self._input(*images.shape[1:3])
-        self.prepare(*images.shape[1:3])
+        k, padded = self._built(*images.shape[1:3])
         images = runtimes.upscale(images, k)
         h, w = images.shape[1:3]
         out = []
