@@ -77,7 +77,7 @@ def test_evaluate_takes_a_world_file_and_map_files_and_refuses_no_maps_and_a_bad
     with pytest.raises(InputError, match="maps: is empty"):
         evaluate(world, [])
     assert evaluate(world, m.path)[3] == evaluate(world, [str(m.path)])[3] == by_file  # its file, alone or listed
-    with pytest.raises(InputError, match=r"nope\.json: file: not found"):
+    with pytest.raises(InputError, match=r"nope\.ply: file: not found"):
         evaluate(world, tmp_path / "nope.ply")  # a path was taken letter by letter (an AttributeError)
     for bad in (None, 3, [m, 3]):
         with pytest.raises(TypeError, match="evaluate: maps must be"):

@@ -75,6 +75,8 @@ def read_map(ply: str | Path, taxonomy) -> SemanticMap:
     and field."""
     ply = Path(ply)
     meta_path = ply.with_suffix(".json")
+    if not ply.is_file():  # before its JSON: a mistyped map path names the map
+        raise InputError(ply, "file", "not found")
     if not meta_path.is_file():
         raise InputError(meta_path, "file", "not found: each map needs its JSON beside it (frame.world, "
                          "frame.time_s, objects), the format `rosmeery run` writes")
