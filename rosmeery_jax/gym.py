@@ -27,7 +27,7 @@ Robot i lives in ``worlds[i % len(worlds)]``; every world compiles into one func
   earlier). The vector env resets a finished robot on the next ``step`` (Gymnasium's
   next-step autoreset).
 - **Maps**: an agent that maps for itself hands its map to :meth:`VectorEnv.submit_map` at
-  any step; it is scored like a ``--mapper`` (:mod:`rosmeery_jax.scoring.mapper`) and the
+  any step; it is scored like a ``--mapper`` (:mod:`rosmeery_jax.mapping.protocol`) and the
   metrics come back in a dict.
 
 - **Agents in sessions**: a subclass of :class:`Agent` named ``agent:FILE.py:Name`` in a
@@ -57,10 +57,10 @@ from rosmeery_jax.env import EnvConfig, Track
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
 from rosmeery_jax.rl.task import REWARDS, score
-from rosmeery_jax.scoring import metrics
-from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.mapper import MapState, OnlineScorer, check_map
-from rosmeery_jax.scoring.results import MAX_SEED, plain_name
+from rosmeery_jax import metrics
+from rosmeery_jax.metrics.map_score import TOLERANCE
+from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, check_map
+from rosmeery_jax.results.tables import MAX_SEED, plain_name
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 

@@ -1,11 +1,11 @@
 """Re-author the four paper worlds as MJCF from the measured reference layouts.
 
-    python scripts/author_paper_worlds.py --reference DIR_OF_LAYOUT_JSON [--out rosmeery_jax/world/builtin]
+    python scripts/author_paper_worlds.py --reference DIR_OF_LAYOUT_JSON [--out worlds]
 
 Reads the measured layouts (walls, object poses and sizes, spawn) of the original Gazebo
 worlds, builds each object from box primitives shaped like the real thing
 (``rosmeery_jax.world.furniture``), applies the documented edits that bring each world to
-the paper's object count, and writes ``rosmeery_jax/world/builtin/<name>.xml`` plus ``NOTES.md`` beside them.
+the paper's object count, and writes ``worlds/<name>.xml`` plus ``NOTES.md`` beside them.
 The generated files are committed; this script is how they were made.
 """
 

@@ -25,7 +25,7 @@ PLUGINS = '''
 import numpy as np
 from rosmeery_jax.gym import Agent
 from rosmeery_jax.policies.frontier import FrontierPolicy
-from rosmeery_jax.scoring.perceived import PerceivedMapper
+from rosmeery_jax.mapping.perceived import PerceivedMapper
 
 
 class PluginFrontier(FrontierPolicy):

@@ -20,14 +20,14 @@ import pandas as pd
 from scipy import stats
 
 from rosmeery_jax.core.errors import one_line
-from rosmeery_jax.scoring import results
+from rosmeery_jax.results import tables
 
 KEYS = ["world", "policy", "mapper", "metric"]
 
 
 def per_seed(folder: Path, metrics: list[str]) -> pd.DataFrame:
     """One row per (world, policy, mapper, metric, seed): final value and AUC."""
-    df = results.load(folder)
+    df = tables.load(folder)
     df = df[df.metric.isin(metrics)]
     end = df.time_s.max()
 

@@ -10,7 +10,7 @@ docs/learned.md):
 
     .venv/bin/python scripts/learned_table.py results/learned_eval --with results/gradient_variants --against semantic_nbv
 
-ORI AUC is the time average of a run's ORI curve (``rosmeery_jax.scoring.metrics.summarize``).
+ORI AUC is the time average of a run's ORI curve (``rosmeery_jax.metrics.indices.summarize``).
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ from pathlib import Path
 import pandas as pd
 
 from rosmeery_jax.core.errors import one_line
-from rosmeery_jax.scoring import results, stats
-from rosmeery_jax.scoring.metrics import summarize
+from rosmeery_jax.results import tables
+from rosmeery_jax.results import statistics
+from rosmeery_jax.metrics.indices import summarize
 
 PAPER = ("kitchen", "laboratory", "small_office", "large_office")
 POLICIES = ("learned", "gradient_nbv", "frontier", "random", "semantic_nbv")
@@ -59,7 +60,7 @@ def table(runs: pd.DataFrame, policies: list[str]) -> None:
             auc = g.pivot_table(index="seed", columns="policy", values="auc")
             final = g.groupby("policy").final.mean()
             ran = [p for p in policies if p in auc]  # a measure may run some worlds only
-            cells = dict(zip(ran, stats.bold_cells(
+            cells = dict(zip(ran, statistics.bold_cells(
                 auc, ran, lambda p, ci: f"{ci.mean:.3f} {ci.bounds('.3f')} ({final[p]:.2f})")))
             print(f"| {label(w)} | " + " | ".join(cells.get(p, "-") for p in policies) + " |")
         if worlds:
@@ -75,7 +76,7 @@ def paired(runs: pd.DataFrame, a: str, b: str) -> None:
     print(f"\n{b} - {a}, ORI AUC paired by seed (95 % interval, sign-flip test):")
     for w, g in runs.groupby("world", sort=False):
         auc = g.pivot_table(index="seed", columns="policy", values="auc")
-        r = stats.paired(auc[a], auc[b])
+        r = statistics.paired(auc[a], auc[b])
         print(f"  {w:<26}{r.diff.mean:+.3f} {r.diff.bounds('+.3f')}  p = {r.p:.4f}"
               f"  {'significant' if r.significant else 'no difference shown'} at 95 % ({r.seeds} seeds)")
 
@@ -112,7 +113,7 @@ def against(runs: pd.DataFrame, base: str) -> None:
             auc = g.pivot_table(index="seed", columns="policy", values="auc")
             both = auc[[base, p]].dropna() if p in auc and base in auc else ()  # the seeds both ran
             if len(both):
-                r = stats.paired(both[base], both[p])
+                r = statistics.paired(both[base], both[p])
                 sds = f"{r.in_sds:+.1f}" if math.isfinite(r.in_sds) else "no spread"
                 cells.append(f"{label(w)} {r.diff.mean:+.3f} ({sds}) p {r.p:.3f}"
                              + (f" ({r.seeds} seeds)" if r.seeds < len(auc) else ""))
@@ -122,7 +123,7 @@ def against(runs: pd.DataFrame, base: str) -> None:
 def figures(df: pd.DataFrame, directory: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from rosmeery_jax.scoring.plots import plot_curves, save_figure
+    from rosmeery_jax.results.plots import plot_curves, save_figure
 
     worlds = list(dict.fromkeys(df.world))
     fig, axes = plt.subplots((len(worlds) + 1) // 2, 2, figsize=(12, 3.4 * ((len(worlds) + 1) // 2)), squeeze=False)
@@ -142,7 +143,7 @@ def main() -> None:
                     help="another results folder of the same worlds and seeds (repeatable)")
     ap.add_argument("--against", default="", help="compare every policy with this one, per world")
     args = ap.parse_args()
-    df = pd.concat([results.load(f) for f in [args.folder, *args.more]], ignore_index=True)
+    df = pd.concat([tables.load(f) for f in [args.folder, *args.more]], ignore_index=True)
     runs = per_run(df)
     policies = [p for p in POLICIES if p in set(runs.policy)] + sorted(set(runs.policy) - set(POLICIES))
     table(runs, policies)

@@ -13,8 +13,9 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError, one_line
-from rosmeery_jax.scoring import results, stats
+from rosmeery_jax.results import tables
 
+from rosmeery_jax.results import statistics
 TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Small Office",
           "large_office": "Large Office"}
 POLICIES = ("frontier", "random", "semantic_nbv")
@@ -33,7 +34,7 @@ def table(final: pd.DataFrame) -> None:
     for w, title in TITLES.items():
         for m in ("ori", "cori", "opi"):
             seeds = _per_seed(final, w, m)
-            cells = stats.bold_cells(seeds, POLICIES, lambda p, ci: f"{ci.mean:.2f} {ci.bounds()}")
+            cells = statistics.bold_cells(seeds, POLICIES, lambda p, ci: f"{ci.mean:.2f} {ci.bounds()}")
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
 
 
@@ -44,7 +45,7 @@ def comparisons(final: pd.DataFrame, metric: str = "ori") -> None:
     for w, title in TITLES.items():
         seeds = _per_seed(final, w, metric)
         for a, b in ((a, b) for i, a in enumerate(POLICIES) for b in POLICIES[i + 1:]):
-            r = stats.paired(seeds[a], seeds[b])
+            r = statistics.paired(seeds[a], seeds[b])
             verdict = (f"{b if r.diff.mean > 0 else a} ahead" if r.significant else "no difference shown")
             print(f"  {title:<13}{b:>13} - {a:<13}{r.diff.mean:+.3f} {r.diff.bounds('+.3f')}  "
                   f"p = {r.p:.4f}  ({r.seeds} seed{'s' * (r.seeds != 1)}): {verdict}")
@@ -61,9 +62,9 @@ def _check_runs(full: pd.DataFrame, out: Path) -> None:
 
 def main(folder: str) -> None:
     out = Path(folder)
-    full = results.load(out)
+    full = tables.load(out)
     _check_runs(full, out)
-    fewest, needed = int(full.groupby(["world", "policy"]).seed.nunique().min()), stats.seeds_needed()
+    fewest, needed = int(full.groupby(["world", "policy"]).seed.nunique().min()), statistics.seeds_needed()
     if fewest < needed:
         print(f"note: {fewest} seed{'s' * (fewest > 1)} in the smallest run group: an interval needs 3, and a "
               f"paired test {needed} to show a difference at 95 %")
@@ -92,7 +93,7 @@ def main(folder: str) -> None:
         print(f"  {w:<13}{p:<14} gain {gain:+.3f}   t90 {np.mean(t90):6.0f} s")
     strict = final[final.metric.isin(["opi", "opi_strict"])].groupby(["world", "policy", "metric"]).value.mean()
     print("\nOPI vs OPI-strict:\n", strict.unstack().round(2).to_string())
-    traj = results.read_table(out / "trajectories.csv", ["world", "policy", "seed", "time_s", "x", "y"])
+    traj = tables.read_table(out / "trajectories.csv", ["world", "policy", "seed", "time_s", "x", "y"])
     dist = traj.sort_values("time_s").groupby(["world", "policy", "seed"])[["x", "y"]].apply(
         lambda g: float(np.hypot(np.diff(g.x), np.diff(g.y)).sum()))
     print("\nmetres driven (mean over seeds, 1 s samples):\n", dist.groupby(["world", "policy"]).mean().round(0)

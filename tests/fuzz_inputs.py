@@ -70,7 +70,7 @@ def number_swaps(text: str):
 
 
 def recording_text() -> str:
-    from rosmeery_jax.policies.recording import world_hash
+    from rosmeery_jax.policies.teleop_file import world_hash
     from rosmeery_jax.world import load_world
 
     w = load_world("small_office")
@@ -95,8 +95,8 @@ def load_session_config(path: Path):
 
 
 def load_recording(path: Path):
-    from rosmeery_jax.policies.replay import recordings_by_world
-    from rosmeery_jax.policies.recording import check_world
+    from rosmeery_jax.policies.teleop_replay import recordings_by_world
+    from rosmeery_jax.policies.teleop_file import check_world
     from rosmeery_jax.world import load_world
 
     for recs in recordings_by_world(f"replay:{path}").values():
@@ -105,14 +105,14 @@ def load_recording(path: Path):
 
 
 def load_poses(path: Path):
-    from rosmeery_jax.scoring.pose_replay import read_poses
+    from rosmeery_jax.metrics.trajectory import read_poses
 
     return read_poses(path)
 
 
 def load_trajectories(path: Path):
     """One run of a session's trajectories, as ``rosmeery replay --run random:0`` picks it."""
-    from rosmeery_jax.scoring.pose_replay import read_poses
+    from rosmeery_jax.metrics.trajectory import read_poses
 
     return read_poses(path, run=("random", 0))
 
@@ -144,15 +144,15 @@ def load_map_json(path: Path):
 
 
 def _score_map(ply: Path):
-    from rosmeery_jax.scoring import evaluate
+    from rosmeery_jax.metrics import map_score
     from rosmeery_jax.world import load_world
 
     world = load_world("small_office")
-    return evaluate.evaluate(world, [evaluate.read_map(ply, world.taxonomy)])
+    return map_score.evaluate(world, [map_score.read_map(ply, world.taxonomy)])
 
 
 def load_transform(path: Path):
-    from rosmeery_jax.scoring.align import read_transform
+    from rosmeery_jax.metrics.align import read_transform
 
     return read_transform(path)
 

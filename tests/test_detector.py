@@ -20,7 +20,7 @@ from rosmeery_jax.apps.cli import main  # noqa: E402
 from rosmeery_jax.detector import checkpoint  # noqa: E402
 from rosmeery_jax.detector.dataset import aim_shares, visible_boxes  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, OracleDetector, associate  # noqa: E402
-from rosmeery_jax.detector.evaluate import average_precision, mean_ap  # noqa: E402
+from rosmeery_jax.detector.mean_ap import average_precision, mean_ap  # noqa: E402
 from rosmeery_jax.detector.boxes import nms  # noqa: E402
 from rosmeery_jax.detector.yolo import YOLOv5  # noqa: E402
 from rosmeery_jax.core.errors import InputError  # noqa: E402
@@ -159,8 +159,8 @@ def test_dataset_frames_are_the_unpadded_scenes_bitwise_and_share_one_compile():
     import jax
 
     from rosmeery_jax.detector import dataset
-    from rosmeery_jax.sim.raycast import ray_scene
-    from rosmeery_jax.sim.sensors import CameraConfig, rgb
+    from rosmeery_jax.raycast.kernel import ray_scene
+    from rosmeery_jax.raycast.sensors import CameraConfig, rgb
     from rosmeery_jax.world import load_world
 
     worlds = [load_world(n) for n in ("kitchen", "large_office")]  # 205 and 226 boxes: one bucket
@@ -445,7 +445,7 @@ def test_a_mosaic_puts_each_frame_at_half_size_in_its_quadrant_with_its_boxes():
 
 
 def test_the_jax_core_never_imports_torch():
-    code = ("import sys, rosmeery_jax, rosmeery_jax.env.environment, rosmeery_jax.session.runner, rosmeery_jax.scoring.metrics, "
+    code = ("import sys, rosmeery_jax, rosmeery_jax.env.environment, rosmeery_jax.session.runner, rosmeery_jax.metrics.indices, "
             "rosmeery_jax.detector.dataset; assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -549,7 +549,7 @@ def test_yolo_detections_do_not_depend_on_batch_mates_or_place_in_the_batch():
     from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.detector.detections import make_detector
     from rosmeery_jax.env import make
-    from rosmeery_jax.sim.sensors import rgbd
+    from rosmeery_jax.raycast.sensors import rgbd
 
     env = make("small_office")
     poses = jnp.asarray(random_targets(env.world, 70, 4))
@@ -574,7 +574,7 @@ def test_yolo_sees_each_distinct_image_once_and_remembers_the_latest():
     from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.detector.detections import make_detector
     from rosmeery_jax.env import make
-    from rosmeery_jax.sim.sensors import rgb
+    from rosmeery_jax.raycast.sensors import rgb
 
     env = make("small_office")
     poses = jnp.asarray(random_targets(env.world, 26, 4))
@@ -662,7 +662,7 @@ def test_a_bad_dataset_is_one_error_naming_file_and_row(tmp_path, case, where):
 
 
 def _fine_tune_module():
-    """experiments/detector/fine_tune.py (a script, not a package module)."""
+    """detector/fine_tune.py (a script, not a package module)."""
     import importlib.util
 
     path = Path(__file__).resolve().parents[1] / "experiments" / "detector" / "fine_tune.py"

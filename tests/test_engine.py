@@ -13,7 +13,7 @@ import pytest
 
 from rosmeery_jax.session import worker
 
-from rosmeery_jax.scoring import results
+from rosmeery_jax.results import tables
 from rosmeery_jax.apps.cli import compilation_cache, main
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import ObjectLog
@@ -29,7 +29,7 @@ BODIES = """
 """
 CATEGORIES = {"table_1": "desk", "chair_1": "chair", "fridge_1": "refrigerator"}
 ONE_VIEW = """
-from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper
+from rosmeery_jax.mapping.perceived import PerceivedConfig, PerceivedMapper
 
 
 class OneView(PerceivedMapper):
@@ -72,7 +72,7 @@ def _run(out, worlds, policies, seeds, *extra) -> pd.DataFrame:
     args = ["run", "--worlds", worlds, "--policies", policies, "--seeds", str(seeds), "--duration", "10",
             "--quiet", "--out", str(out), *extra]
     assert main(args) == 0
-    return results.load(out)
+    return tables.load(out)
 
 
 def _rows(df, world, policy, seeds) -> pd.DataFrame:

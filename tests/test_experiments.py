@@ -48,7 +48,7 @@ def test_an_experiment_config_validates(path, monkeypatch):
 
 def test_the_training_config_validates(monkeypatch):
     monkeypatch.chdir(ROOT)
-    cfg = ppo.load_config("experiments/learned/ppo.toml")
+    cfg = ppo.load_train_config("experiments/learned/ppo.toml")
     assert not any(w.startswith(("kitchen", "laboratory", "small_office", "large_office")) for w in cfg.worlds)
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from conftest import room_xml
 from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable, observed_soft
-from rosmeery_jax.sim.sensors import CameraConfig
+from rosmeery_jax.raycast.sensors import CameraConfig
 
 BODIES = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>
@@ -143,7 +143,7 @@ def test_no_policy_reads_hidden_ground_truth(midrun, name):
 
     assert set(POLICIES) == {"random", "frontier", "frontier_nearest", "semantic_nbv", "gradient_nbv", "learned"}
     env, state = midrun
-    with pytest.raises(TypeError, match=r"^make_policy: env must be an Env .*not str"):
+    with pytest.raises(TypeError, match=r"^make_policy: env must be a RobotEnv .*not str"):
         make_policy(name, "kitchen")  # a world's name was taken, and failed at the first decision
     policy = make_policy(name, env)
     key = jax.random.key(3)

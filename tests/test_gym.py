@@ -12,7 +12,7 @@ import pytest
 
 from conftest import room_xml
 from rosmeery_jax.gym import Env, GymConfig, VectorEnv
-from rosmeery_jax.scoring.mapper import MapState
+from rosmeery_jax.mapping.protocol import MapState
 
 BODIES = """
 <body name="chair_1"><geom type="box" pos="1.0 0.6 0.25" size="0.25 0.25 0.25"/></body>

@@ -11,8 +11,8 @@ import trimesh
 
 from conftest import room_xml
 from rosmeery_jax.apps.cli import main
-from rosmeery_jax.scoring.evaluate import read_map, score
-from rosmeery_jax.scoring.metrics import compute
+from rosmeery_jax.metrics.map_score import read_map, score
+from rosmeery_jax.metrics.indices import compute
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.world import load_world
 
@@ -68,7 +68,7 @@ def test_a_perfect_map_scores_one_and_a_denser_copy_scores_the_same(world, tmp_p
 
 def test_evaluate_takes_a_world_file_and_map_files_and_refuses_no_maps_and_a_bad_tolerance(world, tmp_path):
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.scoring.evaluate import evaluate
+    from rosmeery_jax.metrics.map_score import evaluate
 
     chair, _ = _parts(world)
     m = read_map(_write(tmp_path, world, chair, np.zeros(len(chair)), {0: ("chair", 1.0)}), world.taxonomy)
@@ -182,7 +182,7 @@ def _moved(yaw_deg: float, t) -> np.ndarray:
 
 
 def test_alignment_recovers_a_known_transform_and_a_given_one_is_applied(tmp_path, capsys):
-    from rosmeery_jax.scoring.align import apply
+    from rosmeery_jax.metrics.align import apply
 
     world = load_world("small_office")
     pts, obj = np.asarray(world.truth.samples.points, float), np.asarray(world.truth.samples.object)

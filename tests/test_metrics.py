@@ -20,12 +20,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import room_xml
-from rosmeery_jax.scoring import metrics
+from rosmeery_jax import metrics
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
-from rosmeery_jax.scoring.semantic_map import load_schema
+from rosmeery_jax.metrics.map_file import load_schema
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
-from rosmeery_jax.scoring.pose_replay import replay
+from rosmeery_jax.metrics.trajectory import replay
 from rosmeery_jax.world.taxonomy import load_taxonomy
 
 # A room 8 m across. The camera (robot at the origin facing +x: camera at (0.1, 0, 0.5))
@@ -96,7 +96,7 @@ def test_soft_coverage_is_a_smooth_version_of_the_hard_test(three_box_world):
     assert soft.logs.ps[-1, front] == pytest.approx(hard.logs.ps[-1, front], rel=0.1)
     # and it has a gradient with respect to the pose
     from rosmeery_jax.sim import coverage
-    from rosmeery_jax.sim.sensors import depth_seg
+    from rosmeery_jax.raycast.sensors import depth_seg
 
 
     def covered(x):
@@ -308,8 +308,8 @@ def test_an_exported_map_with_outbid_labels_scores_the_sessions_cori(tmp_path):
     """A turn on the spot, then every seen object labelled: the even ones right at 0.7, the
     odd ones right at 0.5 and then outbid by a wrong label at 0.8. The exported map of that
     knowledge, scored as any map is, gives the session's cORI."""
-    from rosmeery_jax.scoring.evaluate import evaluate
-    from rosmeery_jax.scoring.semantic_map import write_semantic_map
+    from rosmeery_jax.metrics.map_score import evaluate
+    from rosmeery_jax.metrics.map_file import write_semantic_map
 
     env = _small_office()
     sx, sy, syaw = env.world.spawn
@@ -344,7 +344,7 @@ def test_env_rollout_coverage_grows_and_logs_vmap():
     last = log(state)
     assert np.all(np.asarray(last.ps.sum(-1)) > np.asarray(first))
     assert np.all(np.asarray(last.ps) <= np.asarray(env.world.truth.ps_G))
-    # The same through Env.rollout, which logs every step: ORI non-decreasing per env.
+    # The same through RobotEnv.rollout, which logs every step: ORI non-decreasing per env.
     state = jax.jit(jax.vmap(env.reset))(keys)
     _, logs = jax.jit(jax.vmap(env.rollout))(state, jnp.broadcast_to(target[:, None], (2, 15, 3)))
     ori = metrics.compute(jax.tree.map(np.asarray, logs), env.sk.truth, ["ori"])["ori"]
@@ -410,13 +410,13 @@ def replay_dir(tmp_path_factory):
 
 
 def test_metric_times_are_written_to_the_microsecond():
-    from rosmeery_jax.scoring.results import metric_frame
+    from rosmeery_jax.results.tables import metric_frame
 
     df = metric_frame({"ori": np.array([0.0, 0.25, 0.5, 0.5])}, np.arange(4) * 0.1, world="w", policy="p",
                       detector="off", seed=0)
     assert df.time_s.tolist() == [0.0, 0.1, 0.2, 0.3]  # 3 * 0.1 is 0.30000000000000004
     assert "0.3,ori,0.5" in df.to_csv(index=False)
-    from rosmeery_jax.scoring.results import seconds
+    from rosmeery_jax.results.tables import seconds
 
     with warnings.catch_warnings():  # a map's time of 1e308 s: kept, not overflowed to inf
         warnings.simplefilter("error")
@@ -468,7 +468,7 @@ def test_bad_pose_file_is_one_line_naming_file_and_field(tmp_path, capsys, text,
 
 def test_replay_takes_one_run_of_a_session_trajectory_file(tmp_path, capsys):
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.scoring.pose_replay import read_poses
+    from rosmeery_jax.metrics.trajectory import read_poses
     from rosmeery_jax.world import load_world
 
     office, kitchen = load_world("small_office"), load_world("kitchen")
@@ -620,7 +620,7 @@ def test_the_paper_table_of_one_seed_says_it_has_no_intervals_and_why(tmp_path):
 
 
 def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it_cannot_read(tmp_path):
-    from rosmeery_jax.scoring.plots import plot_results
+    from rosmeery_jax.results.plots import plot_results
 
     rows = [dict(world=w, policy="random", detector="off", seed=s, time_s=t, metric=m, value=t / 2)
             for w in ("a", "b") for s in (0, 1) for t in (0.0, 1.0) for m in ("ori", "opi")]

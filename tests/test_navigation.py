@@ -15,8 +15,9 @@ from conftest import SMALL_RUN, room_xml
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.policies.random_walk import RandomPolicy
-from rosmeery_jax.scoring import navigation
-from rosmeery_jax.sim import grid, occupancy
+from rosmeery_jax.results import time_use
+from rosmeery_jax.sim import occupancy
+from rosmeery_jax.core import grid
 from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STATUS_NAMES, STUCK, UNREACHABLE
 from rosmeery_jax.world import load_world
 
@@ -160,15 +161,15 @@ def test_account_by_hand():
     status = np.array([IDLE] + [MOVING] * 10 + [RECOVERING] * 10 + [STUCK] * 5 + [REACHED] * 5)
     x = np.concatenate([0.2 * np.arange(11), np.full(20, 2.0)])
     poses = np.stack([x, np.zeros(31), np.zeros(31)], -1)
-    row = navigation.account(status, poses, 0.1)
+    row = time_use.account(status, poses, 0.1)
     assert row["moving_s"] == 1.0 and row["recovering_s"] == 1.0 and row["stuck_s"] == 0.5
     assert row["idle_s"] == 0.5 and row["unreachable_s"] == 0.0 and row["timeout_s"] == 0.0
     # Driving yet within 0.1 m of one spot: the last moving step and the 10 recovering ones.
     assert row["longest_stuck_s"] == 1.1
     assert row["still_s"] == 0.0  # 3 s: no whole 10 s window
-    still = navigation.account(np.full(201, MOVING), np.zeros((201, 3)), 0.1)
+    still = time_use.account(np.full(201, MOVING), np.zeros((201, 3)), 0.1)
     assert still["still_s"] == 20.0 and still["longest_stuck_s"] == 20.0
-    three = navigation.account(np.array([IDLE] + [MOVING] * 3 + [UNREACHABLE] * 7), np.zeros((11, 3)), 0.1)
+    three = time_use.account(np.array([IDLE] + [MOVING] * 3 + [UNREACHABLE] * 7), np.zeros((11, 3)), 0.1)
     assert three["moving_s"] == 0.3 and three["unreachable_s"] == 0.7  # not 0.30000000000000004, 0.7000000000000001
 
 
@@ -177,7 +178,7 @@ def test_session_names_a_cause_for_every_second(tmp_path, capsys):
     assert main([*SMALL_RUN, "--seeds", "2", "--out", str(out)]) == 0  # the suite's shared 4 s program
     df = pd.read_csv(out / "navigation.csv")
     assert len(df) == 4 and set(df.policy) == {"random", "frontier"}
-    causes = df[[f"{c}_s" for c in navigation.CAUSES]].sum(axis=1)
+    causes = df[[f"{c}_s" for c in time_use.CAUSES]].sum(axis=1)
     np.testing.assert_allclose(causes, 4.0, atol=1e-9)
     assert (df.moving_s > 0).all()
     assert "navigation: moving" in capsys.readouterr().out

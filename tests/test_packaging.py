@@ -19,7 +19,7 @@ def test_a_built_wheel_installed_outside_the_repo_finds_its_worlds(tmp_path):
     wheel = next(wheels.glob("rosmeery_jax-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
     for world in ("kitchen", "laboratory", "small_office", "large_office"):
-        assert f"rosmeery_jax/world/builtin/{world}.xml" in names
+        assert f"worlds/{world}.xml" in names
     assert {"rosmeery_jax/world/taxonomy.toml", "rosmeery_jax/apps/teleop/static/app.js",
             "rosmeery_jax/detector/weights/yolov5n_procedural.pt",
             "rosmeery_jax/detector/weights/yolov5n_paper_worlds.pt"} <= names

@@ -15,14 +15,15 @@ from conftest import room_xml
 from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.knowledge import GroundTruthTable
-from rosmeery_jax.scoring.evaluate import read_map, score, tie
-from rosmeery_jax.scoring.mapper import Camera, DepthFrame, OnlineScorer
-from rosmeery_jax.scoring import metrics, perceived
-from rosmeery_jax.scoring.perceived import PerceivedConfig, PerceivedMapper
-from rosmeery_jax.scoring.voxel_table import KeyTable, Rows, cube_keys, first_claims
-from rosmeery_jax.sim.sensors import rgbd
+from rosmeery_jax.metrics.map_score import read_map, score, tie
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, OnlineScorer
+from rosmeery_jax import metrics
+from rosmeery_jax.mapping import perceived
+from rosmeery_jax.mapping.perceived import PerceivedConfig, PerceivedMapper
+from rosmeery_jax.mapping.voxel_table import KeyTable, Rows, cube_keys, first_claims
+from rosmeery_jax.raycast.sensors import rgbd
 from rosmeery_jax.world.taxonomy import load_taxonomy
-from rosmeery_jax.scoring.semantic_map import build_map, write_map
+from rosmeery_jax.metrics.map_file import build_map, write_map
 
 # Apart: a chair (0.4 m cube) and a desk (0.6 m cube) 2 m apart; together: the same two
 # touching, side by side at the same distance from the camera.

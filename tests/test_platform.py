@@ -20,7 +20,7 @@ from rosmeery_jax.sim import occupancy
 from rosmeery_jax.env import make
 from rosmeery_jax.sim.navigation import STATUS_NAMES
 from rosmeery_jax.sim.robot import penetration
-from rosmeery_jax.sim.raycast import cast, ray_scene
+from rosmeery_jax.raycast.kernel import cast, ray_scene
 from rosmeery_jax.world import PAPER_WORLDS, WALL, load_world
 from rosmeery_jax.world.freespace import rasterize
 
@@ -65,7 +65,7 @@ def test_laser_on_the_boxes_crossing_its_plane_is_the_full_cast(name):
     labels as against every box, at the default height and at heights where furniture tops
     and bottoms lie exactly on the plane."""
     from rosmeery_jax.apps.bench import random_targets
-    from rosmeery_jax.sim import sensors
+    from rosmeery_jax.raycast import sensors
 
     w = load_world(name)
     poses = jnp.asarray(random_targets(w, 64, 4))
@@ -87,7 +87,7 @@ def test_camera_column_kernel_and_cull_agree_with_plain_cast(name):
     from dataclasses import replace
 
     from rosmeery_jax.apps.bench import random_targets
-    from rosmeery_jax.sim import sensors
+    from rosmeery_jax.raycast import sensors
 
     w = load_world(name)
     rs = ray_scene(w.scene)
@@ -117,8 +117,9 @@ def test_boxes_per_scan_step_change_no_hit(monkeypatch):
     for both kernels; a value that does not divide a chunk is one line naming the variable."""
     from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.sim import raycast, sensors
+    from rosmeery_jax.raycast import kernel
 
+    from rosmeery_jax.raycast import sensors
     w = load_world("kitchen")
     rs = ray_scene(w.scene)
     cfg = sensors.CameraConfig()
@@ -128,8 +129,8 @@ def test_boxes_per_scan_step_change_no_hit(monkeypatch):
         def one(p):
             o, _ = sensors.camera_pose(cfg, p)
             d = sensors._yaw_rotate(jnp.asarray(sensors.camera_rays(cfg, cfg.width, cfg.height)), p[2])
-            return (raycast.cast(rs, o, d, cfg.max_range, boxes_per_step=per_step),
-                    raycast.cast_columns(rs, o, d.reshape(cfg.height, cfg.width, 3), cfg.max_range,
+            return (kernel.cast(rs, o, d, cfg.max_range, boxes_per_step=per_step),
+                    kernel.cast_columns(rs, o, d.reshape(cfg.height, cfg.width, 3), cfg.max_range,
                                          boxes_per_step=per_step))
         return jax.tree.map(np.asarray, jax.jit(jax.vmap(one))(poses))
 
@@ -139,14 +140,14 @@ def test_boxes_per_scan_step_change_no_hit(monkeypatch):
         jax.tree.map(np.testing.assert_array_equal, hits(per_step), ref)
     monkeypatch.setenv("ROSMEERY_RAYCAST_UNROLL", "3")
     with pytest.raises(InputError, match=r"ROSMEERY_RAYCAST_UNROLL.*'3' is not a divisor of 16"):
-        raycast.unroll()
+        kernel.unroll()
 
 
 def test_wide_vectors_change_no_sensor_or_coverage_value():
     """``rosmeery_jax.core.xla`` lets LLVM use 512-bit vectors as a speed choice: the laser, the
     depth and label images and the coverage counts are bitwise those of XLA's default."""
     from rosmeery_jax.apps.bench import random_targets
-    from rosmeery_jax.sim import sensors
+    from rosmeery_jax.raycast import sensors
 
     env = _env("target")
     poses = jnp.asarray(random_targets(env.world, 16, seed=5))
@@ -188,7 +189,7 @@ def _rollout(mode, steps, optimized=False):
 
 
 def test_materialized_changes_no_value():
-    from rosmeery_jax.sim.raycast import materialized
+    from rosmeery_jax.raycast.kernel import materialized
 
     x = jnp.array([0.0, -0.0, 8.0, 1e-30, -3e38, np.finfo(np.float32).min, np.inf, 7.5], jnp.float32)
     np.testing.assert_array_equal(np.asarray(jax.jit(materialized)(x)), np.asarray(x))
@@ -335,7 +336,7 @@ def test_navigation_sweep_is_the_eight_neighbour_bellman_update():
 def test_block_any_and_grow_match_a_plain_reference(h, w, f, seed):
     """block_any: an f x f block is True when any of its cells is (the grid padded with False
     to whole blocks); grow: the 3 x 3 dilation (scipy's), cells off the grid counting as False."""
-    from rosmeery_jax.sim import grid
+    from rosmeery_jax.core import grid
 
     mask = np.random.default_rng(seed).random((h, w)) < 0.15
     hc, wc = -(-h // f), -(-w // f)
@@ -373,7 +374,7 @@ def test_occupancy_map_marks_seen_walls_occupied_and_space_free():
 def test_hit_normals_labels_and_distances_by_hand():
     """One box turned 30 degrees (centre (2, 0, 0.5), half 0.5) and the floor: the face a ray
     enters gives the normal, turned with the box; the floor's is +z; a miss has none."""
-    from rosmeery_jax.sim.raycast import RayScene
+    from rosmeery_jax.raycast.kernel import RayScene
     from rosmeery_jax.world.scene import FLOOR, NOTHING
 
     yaw = np.pi / 6

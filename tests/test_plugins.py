@@ -30,7 +30,7 @@ class MyFrontier(FrontierPolicy):
 '''
 
 SAME_AS_PERCEIVED = '''
-from rosmeery_jax.scoring.perceived import PerceivedMapper
+from rosmeery_jax.mapping.perceived import PerceivedMapper
 
 
 class MyPerceived(PerceivedMapper):
@@ -123,7 +123,7 @@ def test_plugins_run_like_builtins_in_one_session(tmp_path, capsys):
 SWEEPER = '''
 import numpy as np
 
-from rosmeery_jax.scoring.mapper import Mapper, MapState
+from rosmeery_jax.mapping.protocol import Mapper, MapState
 
 OUT = {out!r}
 

@@ -245,7 +245,7 @@ def test_a_bank_of_generated_worlds_runs_in_one_session_with_one_compile(tmp_pat
 
 
 def test_world_bank_steps_each_world_as_that_world_alone():
-    from rosmeery_jax.env import Env
+    from rosmeery_jax.env import RobotEnv
     from rosmeery_jax.env.world_bank import world_bank
 
     bank = world_bank(["procedural:lab:0-1:rooms=1:objects=4"])
@@ -257,7 +257,7 @@ def test_world_bank_steps_each_world_as_that_world_alone():
 
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     both = jax.jit(jax.vmap(lambda i, k: first_step(bank.env_at(i), k)))(jnp.arange(2), keys)
-    alone = Env(bank.worlds[1], bank.env.config, bank.env.sizes)  # not the bank's template world
+    alone = RobotEnv(bank.worlds[1], bank.env.config, bank.env.sizes)  # not the bank's template world
     np.testing.assert_allclose(both[1], jax.jit(lambda k: first_step(alone, k))(keys[1]), atol=1e-5)
     np.testing.assert_allclose(both[:, :2], np.stack([w.spawn[:2] for w in bank.worlds]), atol=0.05)
     assert not np.allclose(both[0], both[1])  # different spawns: each env really is in its own world

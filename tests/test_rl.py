@@ -180,7 +180,7 @@ def test_an_untrained_network_picks_uniformly_among_the_offered_candidates():
 
 def test_reward_is_the_increase_of_the_metric(rl, worlds):
     """score() is the session's ORI of the world alone (padding objects left out)."""
-    from rosmeery_jax.scoring import metrics
+    from rosmeery_jax import metrics
 
     env, params, reset, step = rl
     steps = _episode(rl, 1, [1, 2])
@@ -370,7 +370,7 @@ def test_a_short_training_run_raises_the_return(trained):
 def test_learned_and_gradient_nbv_run_in_a_session(worlds, trained, tmp_path):
     """Both new policies in one session (one set-up and compile for the two)."""
     from rosmeery_jax.apps.cli import main
-    from rosmeery_jax.scoring.results import load
+    from rosmeery_jax.results.tables import load
 
     out = tmp_path / "session"
     spec = f"learned:{trained / 'policy.msgpack'}"
@@ -502,7 +502,7 @@ def test_training_settings_out_of_range_are_refused(override, field):
     from rosmeery_jax.core.errors import InputError
 
     with pytest.raises(InputError, match=field):
-        ppo.load_config(None, **override)
+        ppo.load_train_config(None, **override)
 
 
 @pytest.mark.parametrize("change, needle", [

@@ -40,7 +40,7 @@ def frames():
 
     from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.env import make
-    from rosmeery_jax.sim.sensors import rgb
+    from rosmeery_jax.raycast.sensors import rgb
 
     env = make("small_office")
     poses = jnp.asarray(random_targets(env.world, 32, 4))

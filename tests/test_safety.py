@@ -19,7 +19,7 @@ from conftest import SMALL_RUN, one_line_error
 from rosmeery_jax.apps import cli
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.files import folder_lock
-from rosmeery_jax.scoring.results import METRIC_COLUMNS
+from rosmeery_jax.results.tables import METRIC_COLUMNS
 
 RUN = SMALL_RUN  # test_hardening's setting: its compiled program is in the cache
 PLY = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
@@ -270,7 +270,7 @@ def test_ctrl_c_always_stops_a_run_and_leaves_it_resumable(tmp_path):
 def test_a_full_disk_is_one_line(tmp_path, capsys, monkeypatch):
     import errno
 
-    from rosmeery_jax.scoring import results
+    from rosmeery_jax.results import tables
 
     def full(df, path):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
@@ -398,7 +398,7 @@ def test_replayed_poses_outside_the_world_or_before_zero(tmp_path, capsys):
 
 
 def test_an_absolute_replay_glob_is_read(tmp_path):
-    from rosmeery_jax.policies.replay import replay_files
+    from rosmeery_jax.policies.teleop_replay import replay_files
 
     for name in ("a.jsonl", "b.jsonl"):
         (tmp_path / name).write_text("{}\n")
@@ -410,7 +410,7 @@ def test_train_refuses_a_range_of_worlds_by_its_size():
     from rosmeery_jax.rl import ppo
 
     with pytest.raises(InputError, match="at most 10,000"):
-        ppo.load_config(None, worlds=["procedural:office:0-100000000"])
+        ppo.load_train_config(None, worlds=["procedural:office:0-100000000"])
 
 
 @pytest.mark.parametrize("option", [["--batches", "1,100000000"], ["--memory-batch", "100000000"]])

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.scoring import results
+from rosmeery_jax.results import tables
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.env import make
@@ -33,7 +33,7 @@ def session_dir(tmp_path_factory):
 
 
 def test_session_writes_the_results_folder(session_dir):
-    df = results.load(session_dir)
+    df = tables.load(session_dir)
     assert list(df.columns) == ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
     assert set(df.seed) == {0, 1} and set(df.policy) == {"random"}
     assert set(df.metric) >= {"ori", "cori", "opi"}
@@ -60,14 +60,14 @@ def test_existing_results_are_refused_without_resume_and_resume_skips_finished_r
     table = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith(("world ", "small_office "))]
     assert table[0].split()[:3] == ["world", "policy", "metric"] and len(table) == 1 + 2 * 5
     assert {ln.index("[< 3 seeds]") for ln in table[1:]} == {table[0].index("95% CI")}  # columns line up
-    df = results.load(session_dir)
+    df = tables.load(session_dir)
     assert set(df.policy) == {"random", "frontier"}
     # The interrupted-then-resumed folder equals one uninterrupted session.
     whole = session_dir.parent / "whole"
     assert main(["run", *_ARGS, "--policies", "random,frontier", "--out", str(whole)]) == 0
     key = ["world", "policy", "seed", "metric", "time_s"]
     a = df.sort_values(key).reset_index(drop=True)
-    b = results.load(whole).sort_values(key).reset_index(drop=True)
+    b = tables.load(whole).sort_values(key).reset_index(drop=True)
     pd.testing.assert_frame_equal(a, b)
     # A resume with a different setting is refused, naming the field.
     assert main(["run", *_ARGS[:-3], "--duration", "8", "--quiet", "--out", str(session_dir), "--resume"]) == 2
@@ -204,7 +204,7 @@ def test_an_exported_map_evaluates_to_the_sessions_own_scores(session_dir, tmp_p
     ply = session_dir / "maps" / "small_office__random__seed1.ply"
     assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(out)]) == 0
     ours = pd.read_csv(out / "metrics.csv").set_index("metric").value
-    df = results.load(session_dir)
+    df = tables.load(session_dir)
     run = df[(df.policy == "random") & (df.seed == 1)]  # other tests add runs to this folder
     final = run[run.time_s == run.time_s.max()].set_index("metric").value
     for metric in ("ori", "cori", "opi", "opi_strict"):

@@ -17,14 +17,14 @@ import pandas as pd
 import pytest
 
 from rosmeery_jax.apps.cli import main
-from rosmeery_jax.policies.recording import read
+from rosmeery_jax.policies.teleop_file import read
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 WORLD = "small_office"
 
 
 def _header(**over) -> str:
-    from rosmeery_jax.policies.recording import world_hash
+    from rosmeery_jax.policies.teleop_file import world_hash
     from rosmeery_jax.world import load_world
 
     w = load_world(WORLD)

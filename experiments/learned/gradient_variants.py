@@ -13,7 +13,8 @@ import jax.numpy as jnp
 from rosmeery_jax.core.plugins import load
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
 from rosmeery_jax.rl.candidates import surface_maps
-from rosmeery_jax.sim import grid, occupancy
+from rosmeery_jax.sim import occupancy
+from rosmeery_jax.core import grid
 from rosmeery_jax.sim.coverage import FAR
 
 # the ground truth's gain of a view, from the view_oracle measure beside this file

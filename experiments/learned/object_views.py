@@ -9,7 +9,7 @@ import jax.numpy as jnp
 from rosmeery_jax.policies.learned import LearnedPolicy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy, facing
 from rosmeery_jax.rl.candidates import Offer, describe
-from rosmeery_jax.sim import grid
+from rosmeery_jax.core import grid
 
 
 class LearnedViews(LearnedPolicy):

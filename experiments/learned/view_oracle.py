@@ -20,7 +20,8 @@ from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.learned import Choice  # learned's state: target and when it was chosen
 from rosmeery_jax.policies.semantic_nbv import facing
 from rosmeery_jax.rl.candidates import driving
-from rosmeery_jax.sim import coverage, grid, occupancy
+from rosmeery_jax.sim import coverage, occupancy
+from rosmeery_jax.core import grid
 from rosmeery_jax.sim.coverage import FAR
 
 

@@ -46,8 +46,8 @@ from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.config import env_bytes
 from rosmeery_jax.session.program import Replicas
-from rosmeery_jax.sim import grid
-from rosmeery_jax.sim.sensors import camera_rays, depth_seg, laser, laser_dirs
+from rosmeery_jax.core import grid
+from rosmeery_jax.raycast.sensors import camera_rays, depth_seg, laser, laser_dirs
 
 
 @dataclass(frozen=True)

@@ -20,17 +20,21 @@ from rosmeery_jax.apps import detector_commands, world_commands
 from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.columns import columns
-from rosmeery_jax.apps.record import RecordConfig, record
+from rosmeery_jax.apps.sensor_streams import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.env import make
-from rosmeery_jax.scoring import evaluate as map_eval
-from rosmeery_jax.scoring import metrics, navigation, plots, results, stats
-from rosmeery_jax.scoring.align import to_world
-from rosmeery_jax.scoring.pose_replay import read_poses, replay
-from rosmeery_jax.scoring.semantic_map import write_semantic_map
+from rosmeery_jax.metrics import map_score
+from rosmeery_jax import metrics
+from rosmeery_jax.results import time_use
+from rosmeery_jax.results import plots
+from rosmeery_jax.results import tables
+from rosmeery_jax.results import statistics
+from rosmeery_jax.metrics.align import to_world
+from rosmeery_jax.metrics.trajectory import read_poses, replay
+from rosmeery_jax.metrics.map_file import write_semantic_map
 from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
@@ -69,8 +73,8 @@ def _cmd_replay(args) -> int:
     tags = dict(policy="replay", detector="off", seed=0)
     final = jax.tree.map(lambda a: a[-1], run.logs)
     with output_folder(out):
-        results.write_csv(results.metric_frame(curves, times, world=env.world.name, **tags), out / "metrics.csv")
-        results.write_csv(results.object_frame(env.world, final, **tags), out / "objects.csv")
+        tables.write_csv(tables.metric_frame(curves, times, world=env.world.name, **tags), out / "metrics.csv")
+        tables.write_csv(tables.object_frame(env.world, final, **tags), out / "objects.csv")
         write_semantic_map(out, "semantic_map", env.world, run.knowledge, float(times[-1]))
     print(f"{env.world.title}: {len(times)} poses over {times[-1] - times[0]:.1f} s")
     rows = []
@@ -98,19 +102,19 @@ def _cmd_run(args) -> int:
 
 
 def _print_summary(out: Path) -> None:
-    df = results.load(out)
+    df = tables.load(out)
     df["policy"] = df.policy.where(df.mapper == "oracle", df.policy + " [" + df.mapper + "]")
     rows = []
     for (w, p, m), g in df.groupby(["world", "policy", "metric"], sort=False):
         per_seed = [metrics.summarize(s.time_s.to_numpy(), s.value.to_numpy()) for _, s in g.groupby("seed")]
-        final = stats.interval([x["final"] for x in per_seed])
+        final = statistics.interval([x["final"] for x in per_seed])
         auc = sum(x["auc"] for x in per_seed) / len(per_seed)
         t90 = sum(x["t90_s"] for x in per_seed) / len(per_seed)
         rows.append((w, p, m, f"{final.mean:.3f}", final.bounds(".3f"), f"{auc:.3f}", f"{t90:.1f}"))
     print(columns(("world", "policy", "metric", "final", "95% CI over seeds", "auc", "t90 s"), rows,
                   right=(3, 5, 6)))
     if (out / "navigation.csv").exists():
-        print(navigation.summary(pd.read_csv(out / "navigation.csv")))
+        print(time_use.summary(pd.read_csv(out / "navigation.csv")))
     if (out / "timing.json").exists():
         t = json.loads((out / "timing.json").read_text())
         print(f"engine: {t['env_steps']:,} env-steps in {t['wall_s']:.1f} s ({t['env_steps_per_s']:,.0f} env-steps/s "
@@ -165,23 +169,23 @@ def _cmd_teleop(args) -> int:
 
 
 def _cmd_evaluate(args) -> int:
-    map_eval.check_tolerance(args.tolerance, "command line", "--tolerance")
-    if not results.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
+    map_score.check_tolerance(args.tolerance, "command line", "--tolerance")
+    if not tables.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
         raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
     world = load_world(args.world)
-    maps = [map_eval.read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
+    maps = [map_score.read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
     maps, frame = to_world(world, maps, args.transform, args.align)
     if frame and frame["source"] == "icp":
         print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
               f"{100 * frame['inliers']:.0f}% of points, {frame['iterations']} iterations")
-    metric_df, objects, classes, summary = map_eval.evaluate(world, maps, args.tolerance, args.name)
+    metric_df, objects, classes, summary = map_score.evaluate(world, maps, args.tolerance, args.name)
     if frame:
         summary["alignment"] = frame
     with output_folder(out):
-        results.write_csv(metric_df, out / "metrics.csv")
-        results.write_csv(objects, out / "objects.csv")
-        results.write_csv(classes, out / "classes.csv")
+        tables.write_csv(metric_df, out / "metrics.csv")
+        tables.write_csv(objects, out / "objects.csv")
+        tables.write_csv(classes, out / "classes.csv")
         write_atomic(out / "summary.json", json.dumps(summary, indent=2))
     print(", ".join(f"{k} {summary[k]:.3f}" for k in ("ori", "cori", "opi", "opi_strict")) +
           f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
@@ -205,7 +209,7 @@ def _cmd_record(args) -> int:
 def _cmd_train(args) -> int:
     from rosmeery_jax.rl import ppo  # gymnax (1-2 s to import) only for the command that trains
 
-    cfg = ppo.load_config(args.config)
+    cfg = ppo.load_train_config(args.config)
     out = ppo.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
     print(trained_summary(ppo.read_curve(out), out))
     return 0
@@ -236,7 +240,7 @@ def _cmd_join(args) -> int:
 
 def _cmd_plot(args) -> int:
     d = Path(args.dir)
-    df = results.load(d)
+    df = tables.load(d)
     if df.empty:
         raise InputError(str(d / "metrics.csv"), "rows", "none: nothing to plot")
     written = plots.plot_results(df, d / "plots")
@@ -388,8 +392,8 @@ def _evaluate_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--map", required=True, nargs="+", metavar="MAP.ply", help="one or more maps of one run "
                    "(with MAP.json beside each: frame, labels; several maps with times give curves)")
     p.add_argument("--out", default="out/evaluate", metavar="DIR")
-    p.add_argument("--tolerance", type=float, default=map_eval.TOLERANCE, metavar="M",
-                   help=f"a point within M metres of a surface sample lies on it (default {map_eval.TOLERANCE:g})")
+    p.add_argument("--tolerance", type=float, default=map_score.TOLERANCE, metavar="M",
+                   help=f"a point within M metres of a surface sample lies on it (default {map_score.TOLERANCE:g})")
     p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
     frame = p.add_mutually_exclusive_group()
     frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")

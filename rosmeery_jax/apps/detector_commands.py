@@ -14,7 +14,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector import dataset
-from rosmeery_jax.detector import evaluate as detector_eval
+from rosmeery_jax.detector import mean_ap
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import weights_file
 from rosmeery_jax.env.config import MAX_PIXELS
@@ -106,7 +106,7 @@ def _more(text: str) -> tuple[tuple[str, float], ...]:
 
 def _cmd_detector_train(args) -> int:
     runtimes.require("command line", "detector train")
-    from rosmeery_jax.detector.train import TrainConfig, log_file, train  # torch (the detector extra): only here
+    from rosmeery_jax.detector.train import DetectorTrainConfig, log_file, train  # torch (the detector extra): only here
 
     positive(args, "epochs", "batch", "max_images", "seed")
     out = require_new(args.out, kind="file")  # earlier weights are never replaced, nor their log
@@ -117,7 +117,7 @@ def _cmd_detector_train(args) -> int:
                              "`rosmeery detector dataset`")
     if not 0 <= args.mosaic <= 1:
         raise InputError("command line", "--mosaic", f"{args.mosaic} is not a share between 0 and 1")
-    cfg = TrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
+    cfg = DetectorTrainConfig(size=args.size, epochs=args.epochs, batch=args.batch, seed=args.seed,
                       max_images=args.max_images or 0, mosaic=args.mosaic, p2=args.p2)
     with output_folder(out.parent):
         best = train(args.data, out, cfg, progress=not args.quiet)
@@ -167,7 +167,7 @@ def _cmd_detector_eval(args) -> int:
         images = np.stack([f[3] for f in frames])
         rows = [f[4] for f in frames]
         source = "default dataset, held-out viewpoints (rendered now)"
-    r = detector_eval.evaluate(detector.forward(images, **detector_eval.SCORING_NMS), images, rows, model.nc)
+    r = mean_ap.evaluate(detector.forward(images, **mean_ap.SCORING_NMS), images, rows, model.nc)
     names = model.names
     if args.json:
         print(json.dumps({"weights": str(weights), "runtime": args.runtime, "data": source, "images": len(images),

@@ -15,7 +15,7 @@ from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import picture_format, save_world_picture
 from rosmeery_jax.world.generate import GenOptions, check_options, generate
 from rosmeery_jax.world.procedural import MAX_WORLDS, check_unchanged, write_world
-from rosmeery_jax.world.stats import stats_table, summary, world_names_in
+from rosmeery_jax.world.census import stats_table, summary, world_names_in
 
 
 def add_worlds(sub) -> None:

@@ -35,8 +35,8 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.sim.raycast import SMALL_BITS, RayScene, padded_boxes, ray_scene
-from rosmeery_jax.sim.sensors import CameraConfig, rgb
+from rosmeery_jax.raycast.kernel import SMALL_BITS, RayScene, padded_boxes, ray_scene
+from rosmeery_jax.raycast.sensors import CameraConfig, rgb
 from rosmeery_jax.world import load_world
 from rosmeery_jax.world.taxonomy import load_taxonomy
 

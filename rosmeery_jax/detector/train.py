@@ -26,13 +26,13 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.detector import checkpoint
 from rosmeery_jax.detector.dataset import read
-from rosmeery_jax.detector.evaluate import evaluate, model_detections, rows_to_xyxy
+from rosmeery_jax.detector.mean_ap import evaluate, model_detections, rows_to_xyxy
 from rosmeery_jax.detector.loss import YoloLoss
 from rosmeery_jax.detector.yolo import YOLOv5
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class DetectorTrainConfig:
     size: str = "n"
     epochs: int = 40
     batch: int = 32
@@ -159,7 +159,7 @@ def log_file(out: str | Path) -> Path:
     return Path(out).with_name(Path(out).stem + ".log.csv")
 
 
-def train(data: str | Path, out: str | Path, cfg: TrainConfig = TrainConfig(), progress: bool = True) -> dict:
+def train(data: str | Path, out: str | Path, cfg: DetectorTrainConfig = DetectorTrainConfig(), progress: bool = True) -> dict:
     """Train on ``data`` (a dataset folder), write ``out`` (weights) and ``out``'s log.csv
     beside it; returns the best validation result."""
     torch.manual_seed(cfg.seed)

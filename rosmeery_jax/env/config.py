@@ -13,7 +13,7 @@ from rosmeery_jax.sim.knowledge import KnowledgeConfig
 from rosmeery_jax.sim.navigation import NavConfig
 from rosmeery_jax.sim.occupancy import MapConfig
 from rosmeery_jax.sim.robot import RobotConfig
-from rosmeery_jax.sim.sensors import CameraConfig, LaserConfig
+from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig
 from rosmeery_jax.world import WorldConfig
 
 
@@ -61,7 +61,7 @@ class EnvConfig:
     start_yaw: str = "random"  # "random": heading uniform in [-pi, pi) drawn from the reset key,
     # so different keys start differently; "spawn": the world's spawn yaw (teleop, replays)
     labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
-    # (detector off); "detections": only what `Env.attach` folds in (a detector)
+    # (detector off); "detections": only what `RobotEnv.attach` folds in (a detector)
 
     @classmethod
     def from_table(cls, values: dict, source: str = "config", table: str = "env") -> "EnvConfig":

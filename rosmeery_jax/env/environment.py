@@ -28,7 +28,7 @@ from rosmeery_jax.sim.knowledge import Knowledge, ObjectLog, SpatialKnowledge
 from rosmeery_jax.sim.mjx import mjx
 from rosmeery_jax.sim.navigation import IDLE, Navigator, NavState
 from rosmeery_jax.sim.robot import Platform, robot_model
-from rosmeery_jax.sim.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
+from rosmeery_jax.raycast.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
 from rosmeery_jax.world import World, WorldConfig, load_world
 
 
@@ -65,7 +65,7 @@ class Track(NamedTuple):
         return Track(state.pose, state.nav.status.astype(jnp.int8))
 
 
-class Env:
+class RobotEnv:
     """The semantic-mapping robot in one world.
 
     The world enters every pure method as data (:class:`WorldData`, ``env.data``); a session
@@ -91,7 +91,7 @@ class Env:
         self.navigator = Navigator(self.grid, c.nav, r.control_dt, r.max_speed, r.max_turn_rate, r.radius)
         self.sk = SpatialKnowledge(c.knowledge, c.camera, data, self.truth)
 
-    def with_data(self, data: WorldData) -> "Env":
+    def with_data(self, data: WorldData) -> "RobotEnv":
         """This env in the world ``data`` (same config and padded sizes; e.g. traced arrays
         inside a jitted function)."""
         env = copy.copy(self)
@@ -150,7 +150,7 @@ class Env:
         array = None if action is None else jnp.asarray(action, jnp.float32)  # a list (of tracers too), a scalar
         if array is None or array.shape != (size,):
             what = "(x, y, yaw)" if size == 3 else "(v, w)"
-            raise TypeError(f"Env.step: a {self.config.action_mode!r} action is {what}, shape ({size},) per env "
+            raise TypeError(f"RobotEnv.step: a {self.config.action_mode!r} action is {what}, shape ({size},) per env "
                             f"(vmap for a batch), not {'None' if array is None else array.shape}")
         return array
 
@@ -211,7 +211,7 @@ class Env:
 
 
 def make(world: str | World, world_config: WorldConfig | None = None, source: str = "config",
-         sizes: Sizes | None = None, **overrides: Any) -> Env:
+         sizes: Sizes | None = None, **overrides: Any) -> RobotEnv:
     """An env for a built-in world name, an MJCF path or a loaded :class:`World`.
 
     Keyword overrides set :class:`EnvConfig` fields at any depth as ``section__field``
@@ -227,5 +227,5 @@ def make(world: str | World, world_config: WorldConfig | None = None, source: st
         if world.config != body:
             raise InputError(world.name, "world config", "was loaded with other robot or camera dimensions "
                              "than the env's; load it with env.body_dimensions(...) or pass its name")
-        return Env(world, cfg, sizes)
-    return Env(load_world(world, body), cfg, sizes)
+        return RobotEnv(world, cfg, sizes)
+    return RobotEnv(load_world(world, body), cfg, sizes)

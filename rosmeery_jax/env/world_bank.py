@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
-from rosmeery_jax.env.environment import Env
+from rosmeery_jax.env.environment import RobotEnv
 from rosmeery_jax.world import World, WorldConfig, load_world
 from rosmeery_jax.world.procedural import expand_names
 
@@ -27,20 +27,20 @@ class WorldBank(NamedTuple):
 
     names: tuple[str, ...]
     worlds: tuple[World, ...]
-    env: Env
+    env: RobotEnv
     data: wd.WorldData
 
     def __len__(self) -> int:
         return len(self.names)
 
-    def env_at(self, index) -> Env:
+    def env_at(self, index) -> RobotEnv:
         """The env in world ``index`` (an int or a traced int32 scalar)."""
         return self.env.with_data(wd.pick(self.data, index))
 
-    def envs(self) -> list[Env]:
+    def envs(self) -> list[RobotEnv]:
         """One host-side env per world at the bank's padded sizes (its world, truth and
         model), for code that needs more than the world's data."""
-        return [self.env] + [Env(w, self.env.config, self.env.sizes) for w in self.worlds[1:]]
+        return [self.env] + [RobotEnv(w, self.env.config, self.env.sizes) for w in self.worlds[1:]]
 
 
 def world_bank(names, config: EnvConfig | None = None) -> WorldBank:
@@ -56,7 +56,7 @@ def world_bank(names, config: EnvConfig | None = None) -> WorldBank:
         raise ValueError("a world bank needs at least one world")
     worlds = tuple(load_world(n, body_dimensions(config, WorldConfig())) for n in names)
     sizes = wd.Sizes.union([wd.Sizes.of(w, config) for w in worlds])
-    env = Env(worlds[0], config, sizes)
+    env = RobotEnv(worlds[0], config, sizes)
     data = [env.data] + [wd.world_data(w, config, sizes) for w in worlds[1:]]
     return WorldBank(names, worlds, env, wd.stack(data))
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.env import Env
+from rosmeery_jax.env import RobotEnv
 from rosmeery_jax.policies import learned
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
@@ -26,8 +26,8 @@ from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
 from rosmeery_jax.policies.learned import LearnedPolicy
 from rosmeery_jax.policies.plugin import plugin_class
 from rosmeery_jax.policies.random_walk import RandomPolicy
-from rosmeery_jax.policies.replay import PREFIX as REPLAY_PREFIX
-from rosmeery_jax.policies.replay import ReplayPolicy
+from rosmeery_jax.policies.teleop_replay import PREFIX as REPLAY_PREFIX
+from rosmeery_jax.policies.teleop_replay import ReplayPolicy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
 
 POLICIES = {
@@ -66,8 +66,8 @@ def policy_label(spec: str) -> str:
 
 def make_policy(spec: str, env, decide_every: int = 10, total_steps: int = 0, **options) -> Policy:
     """A policy entry for ``env``; ``decide_every`` and ``total_steps`` serve ``replay:``."""
-    if not isinstance(env, Env):  # a world's name was taken, and failed at the first decision
-        raise TypeError(f"make_policy: env must be an Env (rosmeery_jax.make(world)), not {type(env).__name__}")
+    if not isinstance(env, RobotEnv):  # a world's name was taken, and failed at the first decision
+        raise TypeError(f"make_policy: env must be a RobotEnv (rosmeery_jax.make(world)), not {type(env).__name__}")
     cls = policy_class(spec)
     if cls is ReplayPolicy:
         return ReplayPolicy(env, spec, decide_every, total_steps)

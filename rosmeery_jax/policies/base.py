@@ -37,7 +37,7 @@ class Policy(ABC):
 
     @classmethod
     def env_overrides(cls, spec: str, world: str) -> dict:
-        """Env settings the policy entry ``spec`` needs in the world named ``world``."""
+        """RobotEnv settings the policy entry ``spec`` needs in the world named ``world``."""
         return {}
 
     def seeds(self, session: range) -> range:

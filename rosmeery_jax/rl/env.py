@@ -40,7 +40,7 @@ import jax.numpy as jnp
 from flax import struct
 from gymnax.environments import environment, spaces
 
-from rosmeery_jax.env import Env, State
+from rosmeery_jax.env import RobotEnv, State
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import WorldBank
 from rosmeery_jax.rl.candidates import Offer, driving, gave_up, offer
@@ -101,10 +101,10 @@ class ExplorationEnv(environment.Environment):
     def observation_space(self, params: Params | None = None) -> spaces.Box:
         return spaces.Box(-1.0, jnp.inf, (self.config.obs_size,), jnp.float32)
 
-    def env_in(self, params: Params, world) -> Env:
+    def env_in(self, params: Params, world) -> RobotEnv:
         return self.bank.env.with_data(wd.pick(params.worlds, world))
 
-    def offer(self, env: Env, s: State, key: jax.Array) -> Offer:
+    def offer(self, env: RobotEnv, s: State, key: jax.Array) -> Offer:
         return offer(env, s, s.nav.target, key, self.config.candidates, self.config.radius)
 
     def reset_env(self, key: jax.Array, params: Params) -> tuple[jax.Array, RLState]:

@@ -2,7 +2,7 @@
 actor-critic, the rollout, GAE and the clipped update in one file, each update one jitted
 call (rollout, advantages and every epoch and minibatch inside it).
 
-    cfg = load_config("experiments/learned/ppo.toml")
+    cfg = load_train_config("experiments/learned/ppo.toml")
     train(cfg, out="results/train")          # checkpoints, curve.csv, curve.png, policy.msgpack
 
 The network and the policy file are in :mod:`.network`.
@@ -44,7 +44,7 @@ from rosmeery_jax.env import EnvConfig, world_bank
 from rosmeery_jax.rl.env import ExplorationEnv
 from rosmeery_jax.rl.task import RLConfig, check_rl
 from rosmeery_jax.rl.network import ActorCritic, save_policy
-from rosmeery_jax.scoring.plots import learning_curve
+from rosmeery_jax.results.plots import learning_curve
 from rosmeery_jax.world.procedural import expand_names
 
 
@@ -84,7 +84,7 @@ class TrainConfig:
     env: dict = field(default_factory=dict)
 
 
-def load_config(path: str | Path | None, **cli) -> TrainConfig:
+def load_train_config(path: str | Path | None, **cli) -> TrainConfig:
     """The training configuration of a TOML file (``worlds``, tables ``[ppo]``, ``[rl]``,
     ``[env]``), with ``cli`` values (``ppo__updates=5``) on top; one InputError naming the
     file and field for anything wrong."""
@@ -309,7 +309,7 @@ def load_checkpoint(path: Path, template: Runner) -> tuple[Runner, int, list[dic
 
 def train(cfg: TrainConfig, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
     """Train to ``cfg.ppo.updates`` updates, writing into ``out`` (module docstring); ``cfg``
-    is checked first (:func:`load_config` checks a file's, a TrainConfig built in Python is
+    is checked first (:func:`load_train_config` checks a file's, a TrainConfig built in Python is
     checked here)."""
     _check(cfg, "config")
     out = Path(out)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.env import Env, State
+from rosmeery_jax.env import RobotEnv, State
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.rl.candidates import FEATURES, GLOBALS, Offer
 from rosmeery_jax.sim import coverage
@@ -93,7 +93,7 @@ def split_obs(obs: jax.Array) -> Obs:
     return Obs(obs[..., :-g].reshape(*lead, -1, f), obs[..., -g:])
 
 
-def score(env: Env, state: State, kind: str) -> jax.Array:
+def score(env: RobotEnv, state: State, kind: str) -> jax.Array:
     """The reward quantity (scalar float32) for one env: ORI or cORI over the world's real
     objects (padding objects left out, as the metrics do), or the observed share of all
     object samples."""

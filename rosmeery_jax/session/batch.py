@@ -25,7 +25,7 @@ import jax
 import numpy as np
 
 from rosmeery_jax.core.overrides import flatten
-from rosmeery_jax.env import Env, EnvConfig, world_bank
+from rosmeery_jax.env import RobotEnv, EnvConfig, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
 from rosmeery_jax.world import load_world
@@ -55,8 +55,8 @@ class Group:
     world of each block (every run is padded to whole blocks)."""
 
     config: EnvConfig
-    env: Env
-    envs: list[Env]
+    env: RobotEnv
+    envs: list[RobotEnv]
     data: wd.WorldData
     policies: list
     world: np.ndarray

@@ -24,12 +24,12 @@ from rosmeery_jax.gym import AGENT, agent_class
 from rosmeery_jax.policies import POLICIES, REPLAY_PREFIX, LearnedPolicy, policy_class, policy_label
 from rosmeery_jax.policies.learned import policy_file
 from rosmeery_jax.policies.plugin import check_plugin
-from rosmeery_jax.policies.replay import recordings_by_world
+from rosmeery_jax.policies.teleop_replay import recordings_by_world
 from rosmeery_jax.rl.network import load_policy
 from rosmeery_jax.rl.task import STEP_LIMIT
-from rosmeery_jax.scoring import metrics
-from rosmeery_jax.scoring.mapper import BUILT_IN, check_mapper, mapper_label
-from rosmeery_jax.scoring.results import MAX_SEED
+from rosmeery_jax import metrics
+from rosmeery_jax.mapping.protocol import BUILT_IN, check_mapper, mapper_label
+from rosmeery_jax.results.tables import MAX_SEED
 from rosmeery_jax.session.batch import BLOCK
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.procedural import PREFIX as PROCEDURAL, expand_names
@@ -70,7 +70,7 @@ class SessionConfig:
     mappers: tuple[str, ...] = ("oracle",)  # who builds the scored map: "oracle" (the built-in
     # knowledge: detections tied to objects by the ground-truth segmentation) and/or
     # "perceived" (detector frames' depth cut to the detected objects, no ground truth:
-    # rosmeery_jax.scoring.perceived)
+    # rosmeery_jax.mapping.perceived)
     out: str = "results/session"
     digest: bool = False  # write a digest of each robot's state per chunk (runs/*.digest.csv), to
     # find where two runs part (rosmeery diff); it waits for every chunk, so it is slower

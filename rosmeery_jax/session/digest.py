@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.scoring import results
+from rosmeery_jax.results import tables
 
 PARTS = ("physics", "map", "knowledge", "detections")
 
@@ -81,9 +81,9 @@ def _finished(folder: Path) -> set[str]:
 def _digests(path: Path) -> pd.DataFrame:
     """A digest file as text (an empty part, as ``detections`` without a detector, stays "":
     read as NaN it differed from itself), its seeds and chunks whole numbers."""
-    df = results.read_table(path, ("seed", "chunk", "time_s", *PARTS), dtype=str, keep_default_na=False)
+    df = tables.read_table(path, ("seed", "chunk", "time_s", *PARTS), dtype=str, keep_default_na=False)
     for c in ("seed", "chunk"):
-        results.numbers(df, path, c, seeds=True)  # checked; kept as text, as the digests are compared
+        tables.numbers(df, path, c, seeds=True)  # checked; kept as text, as the digests are compared
     return df
 
 
@@ -108,9 +108,9 @@ def _by_digest(run: str, a: Path, b: Path) -> list[str]:
 
 def _path(path: Path) -> pd.DataFrame:
     """A run's trajectory file, its seed, time and pose columns numbers."""
-    df = results.read_table(path, ("seed", "time_s", "x", "y", "yaw"))
+    df = tables.read_table(path, ("seed", "time_s", "x", "y", "yaw"))
     for c in ("seed", "time_s", "x", "y", "yaw"):
-        values = results.numbers(df, path, c, seeds=c == "seed")
+        values = tables.numbers(df, path, c, seeds=c == "seed")
         df[c] = values.astype(np.int64) if c == "seed" else values
     return df
 

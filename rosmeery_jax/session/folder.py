@@ -19,7 +19,7 @@ from rosmeery_jax.detector.detections import weights_file
 from rosmeery_jax.gym import AGENT
 from rosmeery_jax.policies import REPLAY_PREFIX, LearnedPolicy, policy_class
 from rosmeery_jax.policies.learned import policy_file
-from rosmeery_jax.policies.replay import replay_files
+from rosmeery_jax.policies.teleop_replay import replay_files
 from rosmeery_jax.session.config import RESULT_FIELDS, SessionConfig
 from rosmeery_jax.world import load_world
 

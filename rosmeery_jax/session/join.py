@@ -33,7 +33,7 @@ SPLIT = ("seeds", "first_seed", "out")  # the settings the parts may differ in (
 RATES = ("env_steps_per_s", "sim_env_steps_per_s")  # in timing files: from the sums, not summed
 
 
-class Part(NamedTuple):
+class SweepPart(NamedTuple):
     """One part: its folder, its ``config.json`` record and its seeds."""
 
     folder: Path
@@ -59,7 +59,7 @@ def join(folders: list[str | Path], out: str | Path) -> Path:
     return out
 
 
-def _read(folder: Path) -> Part:
+def _read(folder: Path) -> SweepPart:
     """A part's record and seeds; refused unless it is a session whose every run finished."""
     saved = folder / RECORD
     try:
@@ -88,10 +88,10 @@ def _read(folder: Path) -> Part:
     if finished < runs:  # a run's metrics file is written last: it marks the run done
         raise InputError(str(folder / "runs"), "runs", f"{finished} of the session's {runs} runs finished: resume "
                          "it first")
-    return Part(folder, record, range(first, first + count))
+    return SweepPart(folder, record, range(first, first + count))
 
 
-def _check(parts: list[Part]) -> None:
+def _check(parts: list[SweepPart]) -> None:
     """The parts share every setting but their seeds, and their seeds follow each other."""
     if len(parts) < 2:
         raise InputError("join", "folders", "give two results folders or more")
@@ -121,7 +121,7 @@ def _span(seeds: range) -> str:
     return f"{seeds.start}-{seeds.stop - 1}" if len(seeds) > 1 else str(seeds.start)
 
 
-def _write(parts: list[Part], scratch: Path, out: Path) -> None:
+def _write(parts: list[SweepPart], scratch: Path, out: Path) -> None:
     """Every file of the joined folder into ``scratch`` (which becomes ``out``)."""
     for name in sorted({p.name for part in parts for p in (part.folder / "runs").glob("*.csv")}):
         _concat([part.folder / "runs" / name for part in parts], scratch / "runs" / name)
@@ -141,7 +141,7 @@ def _write(parts: list[Part], scratch: Path, out: Path) -> None:
     write_atomic(scratch / RECORD, json.dumps(record, indent=2))
 
 
-def _provenance(part: Part) -> list[dict]:
+def _provenance(part: SweepPart) -> list[dict]:
     """What ``joined`` lists of a part: its folder, seeds and versions; a part that was joined
     itself, its own parts."""
     if isinstance(part.record.get("joined"), list):

@@ -3,7 +3,7 @@
     OUT/runs/<world>__<policy>.metrics.csv    the run's curves (long format)
     OUT/runs/<world>__<policy>.objects.csv    final per-object state per seed
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end (mapper "oracle";
-        ``__seed<k>__<mapper>`` for another mapper's, e.g. ``perceived``: rosmeery_jax.scoring.mapper)
+        ``__seed<k>__<mapper>`` for another mapper's, e.g. ``perceived``: rosmeery_jax.mapping.protocol)
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
     OUT/runs/<world>__<policy>.navigation.csv where each seed's time went (scoring.navigation;
         runs in target mode: the navigator drives)
@@ -29,9 +29,12 @@ import pandas as pd
 
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.env import Track
-from rosmeery_jax.scoring import metrics, navigation, plots, results
-from rosmeery_jax.scoring.mapper import mapper_label
-from rosmeery_jax.scoring.semantic_map import build_map, write_map, write_semantic_map
+from rosmeery_jax import metrics
+from rosmeery_jax.results import time_use
+from rosmeery_jax.results import plots
+from rosmeery_jax.results import tables
+from rosmeery_jax.mapping.protocol import mapper_label
+from rosmeery_jax.metrics.map_file import build_map, write_map, write_semantic_map
 from rosmeery_jax.session.config import SessionConfig, frames_before, run_label, sampled_rows
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
@@ -79,9 +82,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             k = k._replace(seen=k.seen[:s], label=k.label[:n], confidence=k.confidence[:n])
             write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
             c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
-            curves.append(results.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
+            curves.append(tables.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
                                                mapper="oracle", **tags))
-            objects.append(results.object_frame(world, jax.tree.map(lambda a: a[-1], log), seed=seed,
+            objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], log), seed=seed,
                                                 mapper="oracle", policy=policy, detector=cfg.detector))
         for spec in cfg.mappers:
             if spec == "oracle":
@@ -90,25 +93,25 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             done = run.mapped[spec][i]
             mlog = ObjectLog(*(np.stack(a) for a in zip(*(done.logs[c] for c in counted))))  # (K, N)
             c = metrics.compute(mlog, env.truth, cfg.metrics)
-            curves.append(results.metric_frame(c, times[keep], seed=seed, mapper=label, **tags))
-            objects.append(results.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=label,
+            curves.append(tables.metric_frame(c, times[keep], seed=seed, mapper=label, **tags))
+            objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=label,
                                                 policy=policy, detector=cfg.detector))
             _write_mapper_map(env, done.final, out / "maps" / f"{name}__seed{seed}__{label}", times[-1])
         paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
-                                   "time_s": results.seconds(times[keep]), "x": poses[i, step[keep], 0],
+                                   "time_s": tables.seconds(times[keep]), "x": poses[i, step[keep], 0],
                                    "y": poses[i, step[keep], 1], "yaw": poses[i, step[keep], 2]}))
     runs = out / "runs"
-    results.write_csv(pd.concat(objects, ignore_index=True), runs / f"{name}.objects.csv")
+    tables.write_csv(pd.concat(objects, ignore_index=True), runs / f"{name}.objects.csv")
     write_atomic(runs / f"{name}.timing.json", json.dumps(
         {**timing, "note": "simulated in one batch with the other runs of its group: the times are the group's"},
         indent=2))
-    results.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
+    tables.write_csv(pd.concat(paths, ignore_index=True), runs / f"{name}.trajectory.csv")
     if env.config.action_mode == "target":
-        results.write_csv(navigation.frame(run.track.status, poses, env.dt, run.seeds, world=world.name, policy=policy),
+        tables.write_csv(time_use.frame(run.track.status, poses, env.dt, run.seeds, world=world.name, policy=policy),
                           runs / f"{name}.navigation.csv")
     if run.digests is not None:
-        results.write_csv(run.digests, runs / f"{name}.digest.csv")
-    results.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
+        tables.write_csv(run.digests, runs / f"{name}.digest.csv")
+    tables.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
 
 
 def _write_mapper_map(env, m, stem: Path, time_s: float) -> None:
@@ -124,13 +127,13 @@ def merge(out: Path) -> None:
     if not runs:
         return
     df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
-    results.write_csv(df, out / "metrics.csv")
+    tables.write_csv(df, out / "metrics.csv")
     for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv"),
                            (".navigation.csv", "navigation.csv")):
         parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
         parts = [pd.read_csv(p) for p in parts if p.exists()]
         if parts:
-            results.write_csv(pd.concat(parts, ignore_index=True), out / merged)
+            tables.write_csv(pd.concat(parts, ignore_index=True), out / merged)
     plots.plot_results(df, out / "plots")
 
 

@@ -27,10 +27,10 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rosmeery_jax.core import xla
-from rosmeery_jax.env import Env, Track
+from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env import world_data as wd
-from rosmeery_jax.scoring.mapper import mapper_class
-from rosmeery_jax.scoring.perceived import PerceivedMapper
+from rosmeery_jax.mapping.protocol import mapper_class
+from rosmeery_jax.mapping.perceived import PerceivedMapper
 from rosmeery_jax.session.batch import BLOCK, Group
 from rosmeery_jax.sim.knowledge import ObjectLog
 
@@ -100,7 +100,7 @@ class _Lowered(NamedTuple):
             return Replicas(r.jitted, r.devices, list(pool.map(lambda a: r.jitted.lower(*a).compile(), self.args)))
 
 
-def in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[Env, list]:
+def in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[RobotEnv, list]:
     """The template env and policies, bound to the world of ``block`` (policy, world) (inside
     a trace; the block's envs share it, so it is not batched under their vmap)."""
     env = group.env.with_data(wd.pick(stacked, block[1]))
@@ -211,7 +211,7 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
     return blocked(one, group.devices)
 
 
-def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool):
+def _decision(env: RobotEnv, policies: list, q: jax.Array, plan: Plan, capture: bool):
     """The scan body of one decision: block policy ``q`` decides (``lax.switch``, so only
     its own decision runs), then ``decide_every`` env steps, logged every ``log_every``;
     with ``capture``, a frame after every ``frame_steps`` of them. Returns logs
@@ -272,7 +272,7 @@ def _decision(env: Env, policies: list, q: jax.Array, plan: Plan, capture: bool)
     return decide
 
 
-def attach_frames(env: Env, knowledge, obj, label, conf):
+def attach_frames(env: RobotEnv, knowledge, obj, label, conf):
     """Fold detections (F, D) into ``knowledge`` frame by frame, in frame order."""
 
     def body(k, d):

@@ -31,7 +31,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
 from rosmeery_jax.gym import AGENT
-from rosmeery_jax.scoring import results
+from rosmeery_jax.results import tables
 from rosmeery_jax.session import batch, cluster, engine, program
 from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import (SessionConfig, decisions, frame_steps, frames_before, log_every, per_call,
@@ -138,7 +138,7 @@ def _result(group, run, sim) -> RunResult:
     if sim.digests is not None:
         span = sim.log_every * (sim.logs.ps.shape[1] - 1) / len(sim.digests)  # steps per chunk
         env = group.envs[run.world]
-        digests = pd.DataFrame([{"seed": seed, "chunk": c, "time_s": float(results.seconds((c + 1) * span * env.dt)),
+        digests = pd.DataFrame([{"seed": seed, "chunk": c, "time_s": float(tables.seconds((c + 1) * span * env.dt)),
                                  **{k: v[r] for k, v in part.items()}}
                                 for seed, r in zip(run.seeds, rows) for c, part in enumerate(sim.digests)])
     return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), pick(sim.track),

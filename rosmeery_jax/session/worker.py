@@ -26,9 +26,9 @@ import numpy as np
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.detector.detections import pad
-from rosmeery_jax.env import Env, Track
-from rosmeery_jax.scoring.evaluate import TOLERANCE
-from rosmeery_jax.scoring.mapper import (Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map,
+from rosmeery_jax.env import RobotEnv, Track
+from rosmeery_jax.metrics.map_score import TOLERANCE
+from rosmeery_jax.mapping.protocol import (Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map,
                                          raised_by)
 from rosmeery_jax.session.batch import Group
 from rosmeery_jax.session.program import Frames, Plan, mapper_cls
@@ -79,7 +79,7 @@ class Worker:
         self.pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
         self.started = time.perf_counter()
 
-    def _mappers(self, env: Env) -> dict:
+    def _mappers(self, env: RobotEnv) -> dict:
         """One env's mappers by entry, the empty map scored (frame count 0)."""
         out = {}
         for spec in self.plan.mappers:

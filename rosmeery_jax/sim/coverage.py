@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.sim.sensors import CameraConfig, camera_pose
+from rosmeery_jax.raycast.sensors import CameraConfig, camera_pose
 
 FAR = 1e4  # where padding samples stand: beyond every camera's range
 

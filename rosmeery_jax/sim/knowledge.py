@@ -27,7 +27,7 @@ import numpy as np
 
 from rosmeery_jax.sim import coverage
 from rosmeery_jax.sim.coverage import CoverageConfig
-from rosmeery_jax.sim.sensors import CameraConfig
+from rosmeery_jax.raycast.sensors import CameraConfig
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.sim import grid
+from rosmeery_jax.core import grid
 from rosmeery_jax.sim.occupancy import GridGeometry, in_extent
 
 IDLE, MOVING, REACHED, STUCK, UNREACHABLE, TIMEOUT, RECOVERING = range(7)

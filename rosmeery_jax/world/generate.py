@@ -1,7 +1,7 @@
 """Procedural indoor worlds: a seeded generator of apartments, offices, kitchens and labs.
 
 ``generate(GenOptions(kind, seed, ...))`` returns a :class:`Layout`; ``layout.xml()`` is a
-world file in the format of ``rosmeery_jax/world/builtin/`` (it loads with ``load_world``). The
+world file in the format of ``worlds/`` (it loads with ``load_world``). The
 names ``procedural:KIND:SEED[:option=value]...`` and their cached files:
 :mod:`rosmeery_jax.world.procedural`.
 

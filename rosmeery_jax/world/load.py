@@ -20,6 +20,7 @@ import contextlib
 import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import mujoco
@@ -32,7 +33,7 @@ from rosmeery_jax.world.scene import WALL, Scene
 from rosmeery_jax.world.surface import SurfaceSamples, observable_samples
 from rosmeery_jax.world.taxonomy import Predicate, Taxonomy, load_taxonomy
 
-WORLDS_DIR = Path(__file__).resolve().parent / "builtin"  # packaged: works from a wheel
+WORLDS_DIR = Path(str(resources.files("rosmeery_jax.builtin_worlds")))  # the repository's worlds/, in the package
 PAPER_WORLDS = ("kitchen", "laboratory", "small_office", "large_office")
 CATEGORY_PREFIX = "rosmeery:category:"
 SPAWN_NAME = "rosmeery:spawn"

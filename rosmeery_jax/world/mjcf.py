@@ -1,4 +1,4 @@
-"""Write a world in the format of ``rosmeery_jax/world/builtin/`` (docs in :mod:`.load`).
+"""Write a world in the format of ``worlds/`` (docs in :mod:`.load`).
 
 One writer serves the paper worlds (``scripts/author_paper_worlds.py``) and the procedural
 generator (:mod:`.generate`), so every world file has the same header, materials, defaults

@@ -1,7 +1,7 @@
 """``rosmeery teleop``: drive the robot yourself from a local web page, recorded as you go.
 
 One simulation thread steps a single env in velocity mode at 10 Hz of wall-clock time
-(the same jitted ``Env.step`` as the batched sessions, 0.1 s simulated per step), applies
+(the same jitted ``RobotEnv.step`` as the batched sessions, 0.1 s simulated per step), applies
 the command the page sent last (zero once it is older than ``COMMAND_TIMEOUT_S``: a closed
 tab stops the robot), appends every step to the recording, and every ``detect_every``
 steps runs the detector on the camera frame, as a session does after each decision.
@@ -39,8 +39,8 @@ from rosmeery_jax.apps.teleop import views
 from rosmeery_jax.core import xla
 from rosmeery_jax.detector.detections import make_detector, pad
 from rosmeery_jax.env import make
-from rosmeery_jax.policies.recording import Recorder
-from rosmeery_jax.scoring import metrics
+from rosmeery_jax.policies.teleop_file import Recorder
+from rosmeery_jax import metrics
 
 STATIC = Path(__file__).parent / "static"
 COMMAND_TIMEOUT_S = 0.5
@@ -49,7 +49,7 @@ CURVE_POINTS = 600  # metric history sent to the page (60 s at 10 Hz)
 
 
 @dataclass
-class Frame:
+class PageSnapshot:
     """What the page sees; replaced whole by the simulation thread (read without locks)."""
 
     step: int
@@ -149,7 +149,7 @@ class Teleop:
                 self.recorder.close()
 
     # --- what the page shows ---
-    def _snapshot(self, cmd, img: np.ndarray | None = None) -> "Frame":
+    def _snapshot(self, cmd, img: np.ndarray | None = None) -> "PageSnapshot":
         s, env = self.state, self.env
         log = self._log(s)
         values = {k: float(np.asarray(v)[0]) for k, v in
@@ -167,7 +167,7 @@ class Teleop:
         labels.sort(key=lambda d: -d["confidence"])
         if img is None:
             img = np.asarray(self._rgb(s)[0])
-        return Frame(int(s.t), t, [float(v) for v in np.asarray(s.pose)], [float(c) for c in cmd],
+        return PageSnapshot(int(s.t), t, [float(v) for v in np.asarray(s.pose)], [float(c) for c in cmd],
                      views.map_png(env, np.asarray(self._occ(s)), np.asarray(s.pose), self.trail),
                      views.rgb_png(np.asarray(img)), views.depth_png(np.asarray(s.depth), env.config.camera.max_range),
                      labels, values)

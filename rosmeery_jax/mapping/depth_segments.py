@@ -1,5 +1,5 @@
 """A depth frame cut into the segments objects are made of, for the perceived mapper
-(:mod:`rosmeery_jax.scoring.perceived`): the camera's rays scaled by depth, which box each
+(:mod:`rosmeery_jax.mapping.perceived`): the camera's rays scaled by depth, which box each
 pixel lies most inside, depth segments, and the instance each segment grows. Shapes: F
 frames, H x W pixels, k valid pixels, Q (segment, cell) pairs."""
 
@@ -9,7 +9,7 @@ import numpy as np
 
 from scipy import ndimage
 
-from rosmeery_jax.sim.sensors import camera_rays
+from rosmeery_jax.raycast.sensors import camera_rays
 
 
 def depth_rays(camera, w: int, h: int) -> tuple:

@@ -1,5 +1,5 @@
 """Points keyed by the cube they fall in, for the perceived mapper
-(:mod:`rosmeery_jax.scoring.perceived`): cube keys, a buffer that grows at its end, a table
+(:mod:`rosmeery_jax.mapping.perceived`): cube keys, a buffer that grows at its end, a table
 of keys to instances looked up many at once, and the first claim on each key.
 
 A frame looks up thousands of keys at once, so the table answers them in one vectorised

@@ -1,6 +1,6 @@
 """The default weights fine-tuned: at twice the resolution, the second stage of the shipped
 ``procedural_2x`` weights (reproduce_2x.sh), and variations of the recipe tried and not
-kept (experiments/detector/README.md): the shipped augmentation alone, or with occluders
+kept (detector/README.md): the shipped augmentation alone, or with occluders
 whose boxes are cut to what stays in sight. Each is scored on the paper worlds' held-out
 frames.
 
@@ -11,7 +11,7 @@ in front of an object); every box the band spans across is cut back to the part 
 sight, one it hides whole is dropped, and one it only overlaps at a corner or inside
 keeps its extent (the extent of the pixels in sight barely changes).
 
-    .venv/bin/python experiments/detector/fine_tune.py --data data/detector_procedural \
+    .venv/bin/python detector/fine_tune.py --data data/detector_procedural \
         --mode toilets --epochs 4 --out out/detector/occluders_toilets.pt
 
 ``--mode plain``: the shipped augmentation alone (the control); ``objects``: an occluder
@@ -37,7 +37,7 @@ import torch
 
 from rosmeery_jax.detector import checkpoint, dataset
 from rosmeery_jax.detector.detections import weights_file
-from rosmeery_jax.detector.evaluate import evaluate, model_detections
+from rosmeery_jax.detector.mean_ap import evaluate, model_detections
 from rosmeery_jax.detector.loss import YoloLoss
 from rosmeery_jax.detector.runtime import upscale
 from rosmeery_jax.detector.train import EMA, augment, cosine, fit_batch, optimizer

@@ -6,8 +6,8 @@ names. The session hands it every detector frame (:class:`Frame`) in time order,
 it overrides :meth:`Mapper.add_depth`, the depth camera of every control step between them
 (:class:`DepthFrame`); at each sampled time it asks for its semantic map
 (:class:`MapState`), which is scored by the evaluator of ``rosmeery evaluate``
-(:mod:`rosmeery_jax.scoring.evaluate`). The built-in ``perceived`` mapper
-(:mod:`rosmeery_jax.scoring.perceived`) is one implementation.
+(:mod:`rosmeery_jax.metrics.map_score`). The built-in ``perceived`` mapper
+(:mod:`rosmeery_jax.mapping.perceived`) is one implementation.
 
 Conventions: the world frame is the benchmark's (x, y on the floor, z up, metres); the
 camera's pose and intrinsics follow OpenCV (x right, y down, z forward; pixel (u, v) is
@@ -29,9 +29,9 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.scoring.evaluate import Score, score_instances, tie
-from rosmeery_jax.scoring.results import plain_name
-from rosmeery_jax.sim.sensors import CameraConfig
+from rosmeery_jax.metrics.map_score import Score, score_instances, tie
+from rosmeery_jax.results.tables import plain_name
+from rosmeery_jax.raycast.sensors import CameraConfig
 
 BUILT_IN = ("oracle", "perceived")  # "oracle": the built-in knowledge (no mapper object)
 

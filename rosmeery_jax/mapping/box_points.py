@@ -1,4 +1,4 @@
-"""A box's points, for the perceived mapper (:mod:`rosmeery_jax.scoring.perceived`): of a
+"""A box's points, for the perceived mapper (:mod:`rosmeery_jax.mapping.perceived`): of a
 frame's depth segments, the box's object and its parts (rule 2), binned into voxels and
 coarse cells (rules 3-4). Shapes: k the cloud's points, S segments, V voxels, C cells."""
 
@@ -8,8 +8,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rosmeery_jax.scoring.perceived_config import PerceivedConfig
-from rosmeery_jax.scoring.voxel_table import cube_keys
+from rosmeery_jax.mapping.config import PerceivedConfig
+from rosmeery_jax.mapping.voxel_table import cube_keys
 
 
 class Cloud(NamedTuple):

@@ -27,7 +27,7 @@ import numpy as np
 
 from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.scoring.results import plain_name
+from rosmeery_jax.results.tables import plain_name
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]

@@ -14,7 +14,7 @@ for kind in apartment office kitchen lab; do
     W="$W,procedural:$kind:1000-1039:$SEAT,procedural:$kind:1100-1119:clutter=0.4:$SEAT"
 done
 $R detector dataset --worlds "${W#,}" --per-world 50 --seed 0 --balance --near 0.5 --out data/detector_procedural_spare
-.venv/bin/python experiments/detector/fine_tune.py --data data/detector_procedural_spare --mode plain --scale 2 \
+.venv/bin/python detector/fine_tune.py --data data/detector_procedural_spare --mode plain --scale 2 \
     --epochs 12 --int8-percentile 99.95 --out out/detector/yolov5n_procedural_2x.pt
 $R detector eval --weights out/detector/yolov5n_procedural_2x.pt --runtime torch --json > out/detector/eval_procedural_2x.json
 cat out/detector/eval_procedural_2x.json

@@ -5,14 +5,14 @@
   map frame (float x, y, z) with ``object_id`` (int, index into the JSON's objects), ``label``
   (int, category index in the taxonomy, -1 when the robot holds no label) and ``confidence``
   (float, of the held label).
-- R and P: ``<stem>.json`` (schema: ``rosmeery_jax/scoring/semantic_map.schema.json``):
+- R and P: ``<stem>.json`` (schema: ``rosmeery_jax/metrics/semantic_map.schema.json``):
   ``frame`` (id, world, units, axes, time_s), ``objects`` (per object with at least one
   observed point: id, name, label, confidence, observed_points and the axis-aligned bounding
   box of its observed points in the map frame: what the robot perceived, not the ground
   truth box) and ``predicates`` (the triples the robot declares from its labels).
 
 The map frame is the world frame (z up, metres): the robot is told its pose. The perceived
-mapper's maps (:mod:`rosmeery_jax.scoring.perceived`) use the same format through :func:`build_map`:
+mapper's maps (:mod:`rosmeery_jax.mapping.perceived`) use the same format through :func:`build_map`:
 one vertex per claimed voxel, ``object_id`` an instance id named ``instance_<id>``.
 """
 
@@ -27,7 +27,7 @@ import trimesh
 
 from rosmeery_jax.core.files import write_atomic
 
-SCHEMA_PATH = resources.files("rosmeery_jax.scoring") / "semantic_map.schema.json"
+SCHEMA_PATH = resources.files("rosmeery_jax.metrics") / "semantic_map.schema.json"
 
 
 def semantic_map(world, knowledge, time_s: float) -> tuple[trimesh.Trimesh, dict]:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.scoring.results import seconds
+from rosmeery_jax.results.tables import seconds
 from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STUCK, TIMEOUT, UNREACHABLE
 
 CAUSES = {"moving": (MOVING,), "recovering": (RECOVERING,), "idle": (IDLE, REACHED), "stuck": (STUCK,),

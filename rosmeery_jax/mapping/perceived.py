@@ -4,7 +4,7 @@ The built-in knowledge (:mod:`rosmeery_jax.sim.knowledge`) ties every detection 
 through the ground-truth segmentation, so a real mapper's errors never show. This mapper
 uses none of that: per detector frame, the depth pixels inside each detection box are
 back-projected with the robot's pose, and the points join an instance by overlap. The map
-is scored by the same evaluator as a user's map (:mod:`rosmeery_jax.scoring.evaluate`), so boxes
+is scored by the same evaluator as a user's map (:mod:`rosmeery_jax.metrics.map_score`), so boxes
 that spill onto the wall or a neighbour, objects merged or split, and labels on the wrong
 instance all lower the scores.
 
@@ -106,11 +106,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rosmeery_jax.scoring.box_points import Boxed, Cloud, box_points
-from rosmeery_jax.scoring.depth_segments import box_owner, depth_rays, segment_owners, segments
-from rosmeery_jax.scoring.mapper import Camera, DepthFrame, Frame, Mapper, MapState
-from rosmeery_jax.scoring.perceived_config import PerceivedConfig
-from rosmeery_jax.scoring.voxel_table import NEIGHBOURS, KeyTable, Rows, cube_keys, first_claims
+from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
+from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segment_owners, segments
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
+from rosmeery_jax.mapping.config import PerceivedConfig
+from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, KeyTable, Rows, cube_keys, first_claims
 
 
 class _Seen(NamedTuple):
@@ -126,7 +126,7 @@ class _Seen(NamedTuple):
 
 class PerceivedMapper(Mapper):
     """One env's perceived map, fed frame by frame (host side, numpy), through the mapper
-    protocol (:mod:`rosmeery_jax.scoring.mapper`)."""
+    protocol (:mod:`rosmeery_jax.mapping.protocol`)."""
 
     name = "perceived"
 

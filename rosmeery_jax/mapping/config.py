@@ -1,4 +1,4 @@
-"""The perceived mapper's settings, each rule's (:mod:`rosmeery_jax.scoring.perceived`;
+"""The perceived mapper's settings, each rule's (:mod:`rosmeery_jax.mapping.perceived`;
 what each buys, measured: docs/evaluate.md)."""
 
 from __future__ import annotations

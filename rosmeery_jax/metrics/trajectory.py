@@ -21,8 +21,9 @@ import pandas as pd
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError, shown
-from rosmeery_jax.scoring import metrics, results
-from rosmeery_jax.sim.sensors import depth_seg
+from rosmeery_jax import metrics
+from rosmeery_jax.results import tables
+from rosmeery_jax.raycast.sensors import depth_seg
 
 POSE_COLUMNS = ("t", "x", "y", "yaw")
 SESSION_COLUMNS = ("world", "policy", "seed", "time_s")  # a session's trajectories.csv holds these too
@@ -35,7 +36,7 @@ def read_poses(path: str | Path, world=None, run: tuple[str, int] | None = None)
     trajectories, the rows of ``world`` and ``run`` = (policy, seed) (``run`` may be left
     out when the file holds one run of the world)."""
     path = Path(path)
-    df = results.read_table(path)
+    df = tables.read_table(path)
     session = set(SESSION_COLUMNS) <= set(df.columns)
     if session:
         df = session_run(df, path, world, run)
@@ -84,10 +85,10 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
     ``world`` picks the world (required when the file holds several); ``run`` = (policy,
     seed), required when the world has several runs."""
     seed = pd.to_numeric(df["seed"], errors="coerce").to_numpy(float)
-    bad = np.flatnonzero(results.not_seeds(seed))
+    bad = np.flatnonzero(tables.not_seeds(seed))
     if len(bad):
         raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{shown(df['seed'].iloc[bad[0]])} is not a seed "
-                         f"(a whole number from 0 to {results.MAX_SEED})")
+                         f"(a whole number from 0 to {tables.MAX_SEED})")
     df = df.assign(seed=seed.astype(np.int64), policy=df["policy"].fillna("").astype(str),
                    world=df["world"].fillna("").astype(str))
     if world is not None:

@@ -37,7 +37,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.scoring import metrics, results
+from rosmeery_jax import metrics
+from rosmeery_jax.results import tables
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 from rosmeery_jax.world import load_world
 
@@ -336,8 +337,8 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
     log = ObjectLog(*(np.stack(f) for f in zip(*(sc.log for sc in scores))))
     curves = metrics.compute(log, table)
     tags = dict(policy=name, detector="own", mapper="own", seed=0)
-    metric_df = results.metric_frame(curves, np.asarray(times)[order], world=world.name, **tags)
-    objects = results.object_frame(world, scores[-1].log, **tags)
+    metric_df = tables.metric_frame(curves, np.asarray(times)[order], world=world.name, **tags)
+    objects = tables.object_frame(world, scores[-1].log, **tags)
     objects["instance"] = scores[-1].matched
     classes = objects.groupby("category").agg(objects=("object", "size"), ps_G=("ps_G", "sum"), ps=("ps", "sum"),
                                               coverage=("coverage", "mean")).reset_index()

@@ -21,7 +21,7 @@ import numpy as np
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
-from rosmeery_jax.policies.recording import check_world, read
+from rosmeery_jax.policies.teleop_file import check_world, read
 
 PREFIX = "replay:"
 

@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.sim import grid
-from rosmeery_jax.sim.raycast import RayScene, cast, cast_columns, index_bits, materialized, padded_boxes
+from rosmeery_jax.core import grid
+from rosmeery_jax.raycast.kernel import RayScene, cast, cast_columns, index_bits, materialized, padded_boxes
 from rosmeery_jax.world.scene import NOTHING
 
 
