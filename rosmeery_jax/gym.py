@@ -51,16 +51,17 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from rosmeery_jax.core import overrides, plugins, xla
+from rosmeery_jax.core import overrides, plugins, specs, xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.env import EnvConfig, Track
+from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.env.decision import Decision, decide
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
 from rosmeery_jax.rl.task import REWARDS, score
 from rosmeery_jax import metrics
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, check_map
-from rosmeery_jax.results.tables import MAX_SEED, plain_name
+from rosmeery_jax.core.specs import MAX_SEED, plain_name
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 
@@ -112,6 +113,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         self.single_action_space = self._action_space()
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
+        self._decision = Decision(config.decide_every, log_every, bool(log_every))
         self._reset = xla.jit(jax.vmap(self._reset_one))
         self._step = xla.jit(jax.vmap(self._step_one))
         self._log = xla.jit(jax.vmap(lambda w, s: self.bank.env_at(w).log(s)))
@@ -158,21 +160,9 @@ class VectorEnv(gymnasium.vector.VectorEnv):
 
     def _step_one(self, world, s, action, t):
         env = self.bank.env_at(world)
-        if not self.log_every:
-            s = jax.lax.fori_loop(0, self.config.decide_every, lambda _, s: env.step(s, action), s)
-            return s, self._observe(env, s, t), score(env, s, self.config.reward), None
-
-        def one(s, _):
-            s = env.step(s, action)
-            return s, Track.of(s)
-
-        def span(s, _):  # log_every steps, then the object log (as a session's chunk function)
-            s, track = jax.lax.scan(one, s, None, length=self.log_every)
-            return s, (env.log(s), track)
-
-        s, (logs, track) = jax.lax.scan(span, s, None, length=self.config.decide_every // self.log_every)
-        track = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), track)
-        return s, self._observe(env, s, t), score(env, s, self.config.reward), (logs, track)
+        s, out = decide(env, s, action, self._decision)
+        kept = (out.logs, out.track) if self.log_every else None
+        return s, self._observe(env, s, t), score(env, s, self.config.reward), kept
 
     def _observe(self, env, s, t) -> dict:
         obs = {}
@@ -288,9 +278,6 @@ class Env(gymnasium.Env):
         return self.vec.submit_map(0, m)
 
 
-AGENT = "agent:"  # a session's policy entry naming an Agent plugin
-
-
 class Agent(ABC):
     """A host-side agent (numpy, PyTorch, anything): give ``name`` (a plain name, its
     results' label) and implement :meth:`act`. Built once per run with the
@@ -310,7 +297,7 @@ class Agent(ABC):
 
 def agent_class(spec: str, source: str = "config") -> type[Agent]:
     """The class an ``agent:FILE.py:Name`` entry names, checked as a class."""
-    cls = plugins.load(spec[len(AGENT):], source, "policies")
+    cls = plugins.load(specs.parse(spec).body, source, "policies")
     if not (isinstance(cls, type) and issubclass(cls, Agent)):
         raise InputError(source, "policies", f"{spec!r} is not an Agent class (subclass rosmeery_jax.gym.Agent "
                          "and implement act)")
@@ -320,6 +307,14 @@ def agent_class(spec: str, source: str = "config") -> type[Agent]:
         raise InputError(source, "policies", f"{spec!r} needs a class attribute name: a plain name that labels "
                          "its results")
     return cls
+
+
+def check_agent(spec: str, detector: str) -> None:
+    """A session's ``agent:`` entry: an Agent class, in a session with the detector off."""
+    agent_class(spec)
+    if detector != "off":
+        raise InputError("config", "policies", f"{spec!r}: a Python agent runs with --detector off (its "
+                         "robots label what they observe)")
 
 
 def _host(obs: dict) -> dict:

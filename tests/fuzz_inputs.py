@@ -161,14 +161,15 @@ def load_procedural_name(path: Path):
     """A procedural world's name (the file's text), expanded, parsed and generated."""
     from rosmeery_jax.core.errors import InputError
     from rosmeery_jax.world.generate import generate
-    from rosmeery_jax.world.procedural import expand_names, parse_name
+    from rosmeery_jax.core.specs import expand_ranges
+    from rosmeery_jax.world.procedural import parse_name
 
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise InputError(path, "file", "not UTF-8") from None
     try:
-        names = expand_names([text])
+        names = list(expand_ranges([text]))
         for name in names[:2]:
             generate(parse_name(name))
     except InputError as err:

@@ -178,10 +178,12 @@ def test_devices_split_the_batch_over_host_devices_and_change_nothing(world, loc
 
 
 def test_padding_blocks_give_each_device_a_whole_share(world):
+    from rosmeery_jax.session import SessionConfig
     from rosmeery_jax.session.batch import build_groups
 
     for policies, devices, blocks in ((["frontier"], 2, 2), (["frontier", "random"], 3, 3), (["frontier"], 1, 1)):
-        group = build_groups([(world[0], p) for p in policies], {}, False, range(3), 10, 100, devices)[0]
+        cfg = SessionConfig(seeds=3, duration=10.0, detector="off", devices=devices)
+        group = build_groups([(world[0], p) for p in policies], cfg)[0]
         assert len(group.blocks) == blocks and group.size == blocks * BLOCK
         assert group.real.sum() == 3 * len(policies)  # padding envs are never real
         assert [tuple(b) for b in group.blocks[:len(policies)]] == [(q, 0) for q in range(len(policies))]
@@ -190,6 +192,7 @@ def test_padding_blocks_give_each_device_a_whole_share(world):
 def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(world, monkeypatch):
     import jax
 
+    from rosmeery_jax.session import SessionConfig
     from rosmeery_jax.session.batch import build_groups
 
     one = jax.devices()[:1]
@@ -197,7 +200,7 @@ def test_by_default_a_group_uses_every_device_but_never_more_than_its_blocks(wor
     # (policies, seeds) -> (devices used, blocks): seeds <= 5 fill one block per run
     for policies, seeds, used, blocks in ((["frontier"], 3, 1, 1), (["frontier", "random"], 3, 2, 2),
                                           (["frontier", "random"], 7, 3, 6)):
-        group = build_groups([(world[0], p) for p in policies], {}, False, range(seeds), 10, 100)[0]
+        group = build_groups([(world[0], p) for p in policies], SessionConfig(seeds=seeds, duration=10.0, detector="off"))[0]
         assert (group.devices, len(group.blocks)) == (used, blocks)
         assert group.real.sum() == seeds * len(policies)
 

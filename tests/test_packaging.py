@@ -19,8 +19,10 @@ def test_a_built_wheel_installed_outside_the_repo_finds_its_worlds(tmp_path):
     wheel = next(wheels.glob("rosmeery_jax-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
     for world in ("kitchen", "laboratory", "small_office", "large_office"):
-        assert f"worlds/{world}.xml" in names
-    assert {"rosmeery_jax/world/taxonomy.toml", "rosmeery_jax/apps/teleop/static/app.js",
+        assert f"rosmeery_jax/builtin_worlds/{world}.xml" in names  # from the top-level worlds/
+    packages = {p.parent.relative_to(ROOT).as_posix() for p in (ROOT / "rosmeery_jax").rglob("__init__.py")}
+    assert {p for p in packages if f"{p}/__init__.py" not in names} == set()  # pyproject lists every package
+    assert {"rosmeery_jax/world/taxonomy.toml", "rosmeery_jax/metrics/semantic_map.schema.json", "rosmeery_jax/apps/teleop/static/app.js",
             "rosmeery_jax/detector/weights/yolov5n_procedural.pt",
             "rosmeery_jax/detector/weights/yolov5n_paper_worlds.pt"} <= names
     site = tmp_path / "site"  # a fresh install target: the package from the wheel, nothing from the repo

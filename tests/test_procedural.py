@@ -20,7 +20,8 @@ from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world import load_world
 from rosmeery_jax.world.generate import KINDS, GenerationError, GenOptions, check_options, generate
-from rosmeery_jax.world.procedural import expand_names, parse_name, write_world
+from rosmeery_jax.core.specs import expand_ranges
+from rosmeery_jax.world.procedural import parse_name, write_world
 from rosmeery_jax.world.recipes import ROOMS, room_types
 
 # sha256 of `procedural:office:0`'s file. It changes only with the generator's VERSION: a
@@ -110,8 +111,8 @@ def test_procedural_names_load_everywhere_and_ranges_expand():
     assert world.path.read_text() == generate(GenOptions("lab", 4)).xml()
     small = load_world("procedural:office:2:rooms=2:objects=9")
     assert small.name == "procedural_office_2_r2_k9" and small.truth.num_objects == 9
-    assert expand_names(["kitchen", "procedural:lab:3-5:objects=8"]) == [
-        "kitchen", "procedural:lab:3:objects=8", "procedural:lab:4:objects=8", "procedural:lab:5:objects=8"]
+    assert expand_ranges(["kitchen", "procedural:lab:3-5:objects=8"]) == (
+        "kitchen", "procedural:lab:3:objects=8", "procedural:lab:4:objects=8", "procedural:lab:5:objects=8")
 
 
 @pytest.mark.parametrize("name, where", [

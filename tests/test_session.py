@@ -17,7 +17,8 @@ from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.session.config import SessionConfig, frames_before, log_every
+from rosmeery_jax.session.config import SessionConfig
+from rosmeery_jax.session.schedule import frames_before, log_every
 from rosmeery_jax.session.folder import check_out
 
 # Detector off: the YOLO session has its own test (test_detector); this setting is also

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.detector.detections import WEIGHTS
-from rosmeery_jax.results import tables
 
 WEIGHTS_HELP = f"a file, or the name of shipped weights: {', '.join(WEIGHTS)} (default: {next(iter(WEIGHTS))})"
 
@@ -18,8 +18,8 @@ def positive(args, *names: str) -> None:
         value, least = getattr(args, name), 0 if name == "seed" else 1
         if value is not None and value < least:
             raise InputError("command line", "--" + name.replace("_", "-"), f"{value} must be a whole number >= {least}")
-        if name == "seed" and value is not None and value > tables.MAX_SEED:  # an OverflowError in teleop
-            raise InputError("command line", "--seed", f"{value} must be at most {tables.MAX_SEED}")
+        if name == "seed" and value is not None and value > specs.MAX_SEED:  # an OverflowError in teleop
+            raise InputError("command line", "--seed", f"{value} must be at most {specs.MAX_SEED}")
 
 
 def int_list(text: str) -> tuple[int, ...]:

@@ -22,6 +22,7 @@ from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.apps.sensor_streams import RecordConfig, record
 from rosmeery_jax.apps.teleop.server import Teleop, serve
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.detector import runtime as runtimes
@@ -170,7 +171,7 @@ def _cmd_teleop(args) -> int:
 
 def _cmd_evaluate(args) -> int:
     map_score.check_tolerance(args.tolerance, "command line", "--tolerance")
-    if not tables.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
+    if not specs.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
         raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
     world = load_world(args.world)

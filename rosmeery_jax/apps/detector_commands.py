@@ -19,7 +19,7 @@ from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import weights_file
 from rosmeery_jax.env.config import MAX_PIXELS
 from rosmeery_jax.world import load_world
-from rosmeery_jax.world.procedural import expand_names
+from rosmeery_jax.core.specs import expand_ranges
 
 
 def add_detector(sub) -> None:
@@ -77,7 +77,7 @@ def add_detector(sub) -> None:
 def _cmd_detector_dataset(args) -> int:
     positive(args, "per_world", "seed")
     out = require_new(args.out)  # an existing dataset is never mixed with a new one
-    worlds = tuple(expand_names(w.strip() for w in args.worlds.split(",") if w.strip()))
+    worlds = tuple(expand_ranges(w.strip() for w in args.worlds.split(",") if w.strip()))
     for w in worlds:
         load_world(w)  # a bad name fails here, in one line
     for name in ("near", "far"):

@@ -14,7 +14,8 @@ from rosmeery_jax.core.files import output_folder, require_new
 from rosmeery_jax.world import load_world, world_names
 from rosmeery_jax.world.draw import picture_format, save_world_picture
 from rosmeery_jax.world.generate import GenOptions, check_options, generate
-from rosmeery_jax.world.procedural import MAX_WORLDS, check_unchanged, write_world
+from rosmeery_jax.core.specs import MAX_WORLDS
+from rosmeery_jax.world.procedural import check_unchanged, write_world
 from rosmeery_jax.world.census import stats_table, summary, world_names_in
 
 

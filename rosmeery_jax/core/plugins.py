@@ -11,25 +11,17 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
-import re
 import sys
 import traceback
 from contextlib import contextmanager
 from pathlib import Path
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
-
-_SPEC = re.compile(r"(?P<module>[^:]+\.py|[A-Za-z_][\w.]*):(?P<name>[A-Za-z_]\w*)")
-
-
-def is_plugin(spec: str) -> bool:
-    """Whether ``spec`` names a plugin (``FILE.py:Name`` or ``package.module:Name``)."""
-    return _SPEC.fullmatch(spec) is not None
-
 
 def load(spec: str, source: str, field: str):
     """The object ``spec`` names; one InputError naming ``source``, ``field`` and the plugin."""
-    m = _SPEC.fullmatch(spec)
+    m = specs.PLUGIN.fullmatch(spec)
     if m is None:
         raise InputError(source, field, f"{spec!r} is not a plugin name (FILE.py:Name or package.module:Name)")
     module = _module(m.group("module"), spec, source, field)

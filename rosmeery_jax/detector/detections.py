@@ -30,11 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.boxes import nms
 from rosmeery_jax.detector.dataset import visible_boxes
 
 MIN_SHARE = 0.1  # share of a detection's box an object must cover to take the detection
+DETECTORS = ("yolo", "oracle", "off")  # a session's choices: YOLO-v5n, simulated from ground truth, none
 _FOLDER = Path(__file__).parent / "weights"
 WEIGHTS = {"procedural": _FOLDER / "yolov5n_procedural.pt",  # the default: trained on generated worlds only
            "procedural_2x": _FOLDER / "yolov5n_procedural_2x.pt",  # the same fine-tuned on frames scaled up twice
@@ -236,3 +238,14 @@ def make_detector(name: str, world, conf: float, weights: str | None = None, run
     if name == "oracle":
         return OracleDetector(world.truth.category_index, world.taxonomy, conf)
     raise ValueError(f"unknown detector {name!r}")
+
+
+def check_choice(detector: str, weights: str, runtime: str, source: str) -> None:
+    """A session's weights and runtime for its ``detector`` (one of :data:`DETECTORS`; the
+    runtime's packages found, not imported)."""
+    if weights and detector != "yolo":
+        raise InputError(source, "weights", f"{weights!r} is for --detector yolo, not {detector!r}")
+    if weights and not weights_file(weights).is_file():
+        raise InputError(source, "weights", f"{weights!r}: no such file (or a name: {', '.join(WEIGHTS)})")
+    if detector == "yolo":
+        runtimes.check(runtime, source, "detector", "'yolo'", " (or use --detector oracle / off)")

@@ -18,7 +18,7 @@ from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.environment import RobotEnv
 from rosmeery_jax.world import World, WorldConfig, load_world
-from rosmeery_jax.world.procedural import expand_names
+from rosmeery_jax.core.specs import expand_ranges
 
 
 class WorldBank(NamedTuple):
@@ -51,7 +51,7 @@ def world_bank(names, config: EnvConfig | None = None) -> WorldBank:
     if config is not None and not isinstance(config, EnvConfig):
         raise TypeError(f"world_bank: config must be an EnvConfig, not {type(config).__name__}")
     config = config or EnvConfig()
-    names = tuple(expand_names(list(names)))
+    names = expand_ranges(list(names))
     if not names:
         raise ValueError("a world bank needs at least one world")
     worlds = tuple(load_world(n, body_dimensions(config, WorldConfig())) for n in names)

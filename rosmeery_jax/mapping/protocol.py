@@ -27,10 +27,10 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rosmeery_jax.core import plugins
+from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.specs import plain_name
 from rosmeery_jax.metrics.map_score import Score, score_instances, tie
-from rosmeery_jax.results.tables import plain_name
 from rosmeery_jax.raycast.sensors import CameraConfig
 
 BUILT_IN = ("oracle", "perceived")  # "oracle": the built-in knowledge (no mapper object)
@@ -291,3 +291,19 @@ class OnlineScorer:
         self.pairs.update(fresh)
         fresh = np.asarray(fresh, np.int64)
         np.add.at(self.shared, (fresh // n, self.objects[fresh % n]), 1)
+
+
+def check_entries(entries: tuple[str, ...], camera: CameraConfig, categories: tuple[str, ...]) -> None:
+    """A session's mapper entries: each a built-in or a plugin that runs on a test frame,
+    their labels distinct (one InputError naming the entry)."""
+    for m in entries:
+        if m not in BUILT_IN and not specs.is_plugin(m):
+            raise InputError("config", "mappers", f"{m!r} is not a mapper ({', '.join(BUILT_IN)}, or a plugin: "
+                             "FILE.py:Name or package.module:Name)")
+    for m in entries:
+        if m not in BUILT_IN:
+            check_mapper(m, camera, categories)
+    labels = [mapper_label(m) for m in entries]
+    twice = next((m for m, name in zip(entries, labels) if labels.count(name) > 1), None)
+    if twice is not None:
+        raise InputError("config", "mappers", f"{twice!r}: two mappers are named {mapper_label(twice)!r}")

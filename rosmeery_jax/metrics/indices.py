@@ -27,7 +27,7 @@ import numpy as np
 
 from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.results.tables import plain_name
+from rosmeery_jax.core.specs import plain_name
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
@@ -100,7 +100,7 @@ def resolve(names) -> tuple[str, ...]:
     ``fn``, the name its curves carry in the results."""
     out = []
     for n in names:
-        if n not in REGISTRY and plugins.is_plugin(n):
+        if n not in REGISTRY and specs.is_plugin(n):
             n = _register_plugin(n)
         if n not in REGISTRY:
             raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))}; "

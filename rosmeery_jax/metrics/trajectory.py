@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from rosmeery_jax.core import xla
+from rosmeery_jax.core import specs, xla
 from rosmeery_jax.core.errors import InputError, shown
 from rosmeery_jax import metrics
 from rosmeery_jax.results import tables
@@ -88,7 +88,7 @@ def session_run(df: pd.DataFrame, path: Path, world, run: tuple[str, int] | None
     bad = np.flatnonzero(tables.not_seeds(seed))
     if len(bad):
         raise InputError(str(path), f"row {_line(df, bad[0])}, column seed", f"{shown(df['seed'].iloc[bad[0]])} is not a seed "
-                         f"(a whole number from 0 to {tables.MAX_SEED})")
+                         f"(a whole number from 0 to {specs.MAX_SEED})")
     df = df.assign(seed=seed.astype(np.int64), policy=df["policy"].fillna("").astype(str),
                    world=df["world"].fillna("").astype(str))
     if world is not None:

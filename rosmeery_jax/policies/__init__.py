@@ -16,18 +16,18 @@ trained explorer shipped in the package; ``learned:PATH`` for a policy file of
 
 from __future__ import annotations
 
-from rosmeery_jax.core import plugins
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.env import RobotEnv
-from rosmeery_jax.policies import learned
+from rosmeery_jax.env import EnvConfig, RobotEnv
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.frontier import FrontierPolicy
 from rosmeery_jax.policies.gradient_nbv import GradientNBVPolicy
-from rosmeery_jax.policies.learned import LearnedPolicy
-from rosmeery_jax.policies.plugin import plugin_class
+from rosmeery_jax.policies.learned import LearnedPolicy, policy_file
+from rosmeery_jax.policies.learned import label as learned_label
+from rosmeery_jax.policies.plugin import check_plugin, plugin_class
 from rosmeery_jax.policies.random_walk import RandomPolicy
-from rosmeery_jax.policies.teleop_replay import PREFIX as REPLAY_PREFIX
-from rosmeery_jax.policies.teleop_replay import ReplayPolicy
+from rosmeery_jax.policies.teleop_replay import ReplayPolicy, recordings_by_world
+from rosmeery_jax.rl.network import load_policy
 from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
 
 POLICIES = {
@@ -42,26 +42,28 @@ POLICIES = {
 
 def policy_class(spec: str) -> type[Policy]:
     """The class a policy entry builds (for its ``env_overrides`` before an env exists)."""
-    if spec.startswith(REPLAY_PREFIX):
+    kind = specs.kind(spec)
+    if kind == "replay":
         return ReplayPolicy
-    if spec.startswith(learned.PREFIX):
+    if kind == "learned":
         return LearnedPolicy
-    if plugins.is_plugin(spec):
+    if kind == "plugin":
         return plugin_class(spec)
     if spec not in POLICIES:
         raise InputError("config", "policies", f"unknown policy {spec!r} (built in: {', '.join(POLICIES)}, "
-                         f"{learned.PREFIX}FILE, {REPLAY_PREFIX}FILE[+FILE...], or a plugin FILE.py:Name)")
+                         f"{specs.LEARNED}FILE, {specs.REPLAY}FILE[+FILE...], or a plugin FILE.py:Name)")
     return Policy
 
 
 def policy_label(spec: str) -> str:
     """The name a policy entry has in results: ``replay:FILES`` -> ``replay``,
     ``learned:PATH`` -> ``learned_<name>``, a plugin -> its class's ``name``."""
-    if spec.startswith(learned.PREFIX):
-        return learned.label(spec)
-    if plugins.is_plugin(spec) and not spec.startswith(REPLAY_PREFIX):
+    kind = specs.kind(spec)
+    if kind == "learned":
+        return learned_label(spec)
+    if kind == "plugin":
         return plugin_class(spec).name
-    return "replay" if spec.startswith(REPLAY_PREFIX) else spec
+    return "replay" if kind == "replay" else spec
 
 
 def make_policy(spec: str, env, decide_every: int = 10, total_steps: int = 0, **options) -> Policy:
@@ -80,4 +82,28 @@ def make_policy(spec: str, env, decide_every: int = 10, total_steps: int = 0, **
     return POLICIES[spec](env, **options)
 
 
-__all__ = ["POLICIES", "LearnedPolicy", "Policy", "make_policy", "policy_class", "policy_label"]
+def check_entry(spec: str, worlds: set[str], stage) -> None:
+    """A policy entry before a session runs (one InputError naming it): a plugin makes a
+    first decision on ``stage()`` (env, state); a learned policy's file loads; a replay's
+    recordings are of one of the session's ``worlds`` (names) and share env settings per
+    world."""
+    kind = specs.kind(spec)
+    if kind == "plugin":
+        check_plugin(spec, *stage())
+    if policy_class(spec) is LearnedPolicy:
+        load_policy(policy_file(spec))  # one line naming the file if it is not a policy file
+    if kind != "replay":
+        return
+    recorded = recordings_by_world(spec)
+    if not set(recorded) & worlds:
+        raise InputError("config", "policies", f"no recording in {spec!r} is of a session world "
+                         f"(recorded in: {', '.join(sorted(recorded))})")
+    for recs in recorded.values():  # one batch per world: one set of env settings
+        for rec in recs:
+            EnvConfig.from_table(rec.header.get("env", {}), f"{rec.path}: line 1")
+            if rec.header.get("env", {}) != recs[0].header.get("env", {}):
+                raise InputError(str(rec.path), "line 1: env", f"differs from {recs[0].path}'s: recordings "
+                                 "replayed together need the same env settings")
+
+
+__all__ = ["POLICIES", "check_entry", "LearnedPolicy", "Policy", "make_policy", "policy_class", "policy_label"]

@@ -26,25 +26,26 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.rl.candidates import driving, offer
 from rosmeery_jax.rl.task import flat_obs
 from rosmeery_jax.rl.network import ActorCritic, load_policy
 
-PREFIX = "learned:"
 CANDIDATES = 32  # targets drawn at each session decision (training offers the policy file's rl.candidates)
 SHIPPED = Path(__file__).resolve().parent / "learned_policy.msgpack"
 
 
 def policy_file(spec: str) -> Path:
     """The policy file of a ``learned`` or ``learned:PATH`` entry."""
-    return Path(spec[len(PREFIX):]) if spec.startswith(PREFIX) else SHIPPED
+    parsed = specs.parse(spec)
+    return Path(parsed.body) if parsed.kind == "learned" else SHIPPED
 
 
 def label(spec: str) -> str:
     """The entry's name in results: ``learned``, or ``learned_<name>`` for ``learned:PATH``
     (``<name>`` the file's stem, or its folder's name for ``.../policy.msgpack``)."""
-    if not spec.startswith(PREFIX):
+    if specs.kind(spec) != "learned":
         return "learned"
     path = policy_file(spec)
     name = path.parent.name if path.stem == "policy" and path.parent.name else path.stem

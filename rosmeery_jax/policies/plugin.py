@@ -17,7 +17,7 @@ import numpy as np
 from rosmeery_jax.core import plugins, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
-from rosmeery_jax.results.tables import plain_name
+from rosmeery_jax.core.specs import plain_name
 
 
 def plugin_class(spec: str) -> type[Policy]:

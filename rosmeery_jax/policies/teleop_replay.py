@@ -19,17 +19,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.policies.teleop_file import check_world, read
-
-PREFIX = "replay:"
 
 
 def replay_files(spec: str) -> list[Path]:
     """The recordings of a ``replay:`` entry: files or glob patterns joined by ``+``."""
     files: list[Path] = []
-    for part in spec.removeprefix(PREFIX).split("+"):
+    for part in specs.parse(spec).body.split("+"):
         part = part.strip()
         if not part:
             continue

@@ -15,7 +15,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.results.tables import METRIC_COLUMNS, plain_name  # noqa: E402
+from rosmeery_jax.core.specs import plain_name
+from rosmeery_jax.results.tables import METRIC_COLUMNS  # noqa: E402
 
 LABELS = {"ori": "ORI", "cori": "cORI", "cori_any": "cORI (any label)", "opi": "OPI", "opi_strict": "OPI (strict)"}
 

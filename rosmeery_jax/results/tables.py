@@ -16,6 +16,7 @@ import pandas as pd
 
 from rosmeery_jax.core.errors import InputError, shown
 from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.core.specs import MAX_SEED, plain_name
 
 METRIC_COLUMNS = ["world", "policy", "detector", "mapper", "seed", "time_s", "metric", "value"]
 NAME_COLUMNS = ("world", "policy", "detector", "mapper", "metric")  # their values name plot files
@@ -29,9 +30,6 @@ def seconds(t):
     t = np.asarray(t, float)
     whole = np.abs(t) >= 2.0 ** 52  # no fraction to round, and rounding them would overflow
     return np.where(whole, t, np.round(np.where(whole, 0.0, t), 6))[()]
-
-
-MAX_SEED = 2**31 - 1  # seeds are int32 keys, in sessions, recordings and the Gymnasium envs
 
 
 def not_seeds(values: np.ndarray) -> np.ndarray:
@@ -80,13 +78,6 @@ def object_frame(world, log, *, policy: str, detector: str, seed: int, mapper: s
         "label": [names[k] if k >= 0 else "" for k in label], "confidence": conf_held,
         "P_G": np.asarray(truth.num_predicates), "p": np.asarray(log.declared),
     })[OBJECT_COLUMNS]
-
-
-def plain_name(name: str) -> bool:
-    """Whether ``name`` can be one file name's part in this folder: no separator, no leading
-    dot (``..``), no control character; not an empty cell (NaN)."""
-    return isinstance(name, str) and bool(name) and not name.startswith(".") and not any(c in name for c in "/\\") and \
-        all(c.isprintable() for c in name)
 
 
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:

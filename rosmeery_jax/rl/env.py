@@ -41,6 +41,7 @@ from flax import struct
 from gymnax.environments import environment, spaces
 
 from rosmeery_jax.env import RobotEnv, State
+from rosmeery_jax.env.decision import Decision, decide
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import WorldBank
 from rosmeery_jax.rl.candidates import Offer, driving, gave_up, offer
@@ -124,11 +125,9 @@ class ExplorationEnv(environment.Environment):
         env = self.env_in(params, state.world)
         target = state.targets[action]
 
-        def more(carry):
-            i, s = carry
-            return (i < cfg.decide_every) & (s.t < end) & ((i == 0) | driving(s))
-
-        steps, s = jax.lax.while_loop(more, lambda c: (c[0] + 1, env.step(c[1], target)), (jnp.int32(0), state.env))
+        s, out = decide(env, state.env, target, Decision(cfg.decide_every),
+                        until=lambda i, s: (s.t < end) & ((i == 0) | driving(s)))
+        steps = out.steps
         new_score = score(env, s, cfg.reward)
         reward = cfg.reward_scale * (new_score - state.score) - cfg.fail_penalty * gave_up(s)
         done = s.t >= end

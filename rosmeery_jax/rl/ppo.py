@@ -45,7 +45,7 @@ from rosmeery_jax.rl.env import ExplorationEnv
 from rosmeery_jax.rl.task import RLConfig, check_rl
 from rosmeery_jax.rl.network import ActorCritic, save_policy
 from rosmeery_jax.results.plots import learning_curve
-from rosmeery_jax.world.procedural import expand_names
+from rosmeery_jax.core.specs import expand_ranges
 
 
 ENV_BYTES = 2.5e6  # one env's state, as a session's (docs/performance.md)
@@ -114,7 +114,7 @@ def _check(cfg: TrainConfig, source: str) -> None:
     overrides.check_fields(cfg.ppo, source, "ppo.")
     overrides.check_fields(cfg.rl, source, "rl.")
     EnvConfig.from_table(cfg.env, source)
-    expand_names(cfg.worlds)  # a range refused by its size, before anything is built
+    expand_ranges(cfg.worlds)  # a range refused by its size, before anything is built
     check_rl(cfg.rl, source)
     p = cfg.ppo
     for name in ("num_envs", "num_steps", "updates", "update_epochs", "minibatches", "checkpoint_every"):

@@ -19,8 +19,9 @@ import numpy as np
 from rosmeery_jax.core import interrupt, plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Track
-from rosmeery_jax.gym import AGENT, GymConfig, VectorEnv, agent_class
-from rosmeery_jax.session.config import SessionConfig, decisions, log_every
+from rosmeery_jax.gym import GymConfig, VectorEnv, agent_class
+from rosmeery_jax.session.config import SessionConfig
+from rosmeery_jax.session.schedule import decisions, log_every
 from rosmeery_jax.session.outputs import RunResult
 
 
@@ -68,4 +69,4 @@ def _checked(spec: str, actions, vec: VectorEnv) -> np.ndarray:
     return a
 
 
-__all__ = ["AGENT", "run_agent"]
+__all__ = ["run_agent"]

@@ -28,6 +28,7 @@ from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.env import RobotEnv, EnvConfig, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
+from rosmeery_jax.session.schedule import decisions
 from rosmeery_jax.world import load_world
 
 BLOCK = 5  # envs per compiled block (module docstring): 5 seeds, the paper's and the default, fill one
@@ -101,16 +102,17 @@ class _Rows:
         self.real += [False] * BLOCK
 
 
-def build_groups(pairs: list[tuple[str, str]], session_env: dict, detecting: bool, seeds: range,
-                 decide_every: int, total_steps: int, devices: int = 0) -> list[Group]:
-    """The groups of (world spec, policy spec) pairs; runs with no entries are left out.
-    ``devices`` 0 uses every device JAX has, or one per block when there are fewer blocks;
-    with more than one, padding blocks (copies of the last, no real env) make the number of
-    blocks a multiple of it."""
+def build_groups(pairs: list[tuple[str, str]], cfg) -> list[Group]:
+    """The groups of (world spec, policy spec) pairs of the session ``cfg`` (a
+    SessionConfig); runs with no entries are left out. ``cfg.devices`` 0 uses every device
+    JAX has, or one per block when there are fewer blocks; with more than one, padding
+    blocks (copies of the last, no real env) make the number of blocks a multiple of it."""
+    seeds, decide_every, devices = cfg.seed_range, cfg.decide_every, cfg.devices
+    total_steps = decisions(cfg) * decide_every
     by_config: dict[EnvConfig, list] = {}
     for world, spec in pairs:
         name = load_world(world).name
-        overrides = {"labels": "detections" if detecting else "observed", **flatten(session_env),
+        overrides = {"labels": "detections" if cfg.detector != "off" else "observed", **flatten(cfg.env),
                      **policy_class(spec).env_overrides(spec, name)}
         config = EnvConfig().with_overrides("config", **overrides)
         by_config.setdefault(config, []).append((world, spec))

@@ -13,11 +13,11 @@ from importlib import metadata
 from pathlib import Path
 from typing import NamedTuple
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, claim_folder, require_same
 from rosmeery_jax.detector.detections import weights_file
-from rosmeery_jax.gym import AGENT
-from rosmeery_jax.policies import REPLAY_PREFIX, LearnedPolicy, policy_class
+from rosmeery_jax.policies import LearnedPolicy, policy_class
 from rosmeery_jax.policies.learned import policy_file
 from rosmeery_jax.policies.teleop_replay import replay_files
 from rosmeery_jax.session.config import RESULT_FIELDS, SessionConfig
@@ -51,10 +51,10 @@ def input_hashes(cfg: SessionConfig) -> dict:
     """sha256 of every input file whose contents change results: worlds, recordings, learned
     policies, weights."""
     out = {"worlds": {w.name: _sha256(w.path) for w in map(load_world, cfg.worlds)},
-           "recordings": {str(f): _sha256(f) for p in cfg.policies if p.startswith(REPLAY_PREFIX)
+           "recordings": {str(f): _sha256(f) for p in cfg.policies if specs.kind(p) == "replay"
                           for f in replay_files(p)},
            "policies": {p: _sha256(policy_file(p)) for p in cfg.policies
-                        if not p.startswith(AGENT) and policy_class(p) is LearnedPolicy}}
+                        if specs.kind(p) != "agent" and policy_class(p) is LearnedPolicy}}
     if cfg.detector == "yolo":
         out["weights"] = _sha256(weights_file(cfg.weights))
     return out

@@ -22,9 +22,9 @@ import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, output_folder, require_new, require_same, write_atomic
-from rosmeery_jax.policies import REPLAY_PREFIX
 from rosmeery_jax.session.config import RESULT_FIELDS
 from rosmeery_jax.session.folder import saved_settings
 from rosmeery_jax.session.outputs import merge, rates
@@ -80,7 +80,7 @@ def _read(folder: Path) -> SweepPart:
         if not isinstance(names[key], list) or not names[key] or not all(isinstance(x, str) for x in names[key]):
             raise InputError(str(saved), key, f"{names[key]!r}: not a list of names")
     for policy in names["policies"]:
-        if policy.startswith(REPLAY_PREFIX):
+        if specs.kind(policy) == "replay":
             raise InputError(str(saved), "policies", f"{policy!r}: a replay's runs are its recordings, not seeds, "
                              "so its parts cannot be joined")
     finished = len(list((folder / "runs").glob("*.metrics.csv"))) if (folder / "runs").is_dir() else 0

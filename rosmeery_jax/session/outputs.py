@@ -35,7 +35,9 @@ from rosmeery_jax.results import plots
 from rosmeery_jax.results import tables
 from rosmeery_jax.mapping.protocol import mapper_label
 from rosmeery_jax.metrics.map_file import build_map, write_map, write_semantic_map
-from rosmeery_jax.session.config import SessionConfig, frames_before, run_label, sampled_rows
+from rosmeery_jax.session.checks import run_label
+from rosmeery_jax.session.config import SessionConfig
+from rosmeery_jax.session.schedule import frames_before, sampled_rows
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
 

@@ -22,16 +22,15 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env import world_data as wd
-from rosmeery_jax.mapping.protocol import mapper_class
-from rosmeery_jax.mapping.perceived import PerceivedMapper
+from rosmeery_jax.env.decision import Decision, Frames, decide
 from rosmeery_jax.session.batch import BLOCK, Group
+from rosmeery_jax.session.schedule import Plan
 from rosmeery_jax.sim.knowledge import ObjectLog
 
 def blocked(fn, devices: int = 1):
@@ -117,65 +116,6 @@ def reset_fn(group: Group):
     return blocked(one, group.devices)
 
 
-class Plan(NamedTuple):
-    """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
-    ``decide_every`` control steps per decision, a detector frame every ``frame_steps``
-    steps (a divisor of ``decide_every``), a log row every ``log_every`` steps (a divisor of
-    ``frame_steps``); ``mappers``: the mapper entries fed every detector frame per env
-    (needs detectors), their maps scored after each frame count in ``score_at``."""
-
-    total: int
-    per_call: int
-    decide_every: int
-    frame_steps: int
-    log_every: int = 1
-    mappers: tuple[str, ...] = ()
-    score_at: frozenset = frozenset()
-    digest: bool = False  # a digest of each env's state after every chunk (session.digest)
-
-    @property
-    def frames_per(self) -> int:
-        """Detector frames per decision."""
-        return self.decide_every // self.frame_steps
-
-    @property
-    def frames_per_call(self) -> int:
-        """Detector frames per jitted call."""
-        return self.per_call * self.frames_per
-
-    @property
-    def perceive(self) -> bool:
-        """Whether frames carry their depth (a mapper reads it)."""
-        return bool(self.mappers)
-
-    @property
-    def sweep(self) -> bool:
-        """Whether frames carry the depth of every step (a mapper overrides ``add_depth``)."""
-        return any(mapper_cls(spec).reads_depth() for spec in self.mappers)
-
-    @property
-    def spans(self) -> int:
-        """Logged spans per detector frame period."""
-        return self.frame_steps // self.log_every
-
-
-def mapper_cls(spec: str) -> type:
-    """A mapper entry's class: the built-in perceived mapper or a plugin."""
-    return PerceivedMapper if spec == "perceived" else mapper_class(spec)
-
-
-class Frames(NamedTuple):
-    """The detector frames, one every ``frame_steps`` control steps, per env: rgb (F, Hr,
-    Wr, 3) uint8, labels (F, Hr, Wr) int16, depth (F, Hr, Wr) float32 (None unless a mapper
-    runs); and sweep (F, frame_steps, h, w) float32, the depth camera after every step of
-    the frame's period (None unless a mapper reads it)."""
-
-    rgb: jax.Array
-    labels: jax.Array
-    depth: jax.Array | None
-    sweep: jax.Array | None = None
-
-
 class Chunk(NamedTuple):
     """One call of the chunk function, per env: the state, policy states and key after it,
     logs (per_call * decide_every / log_every, N), track (per_call * decide_every, ...),
@@ -194,15 +134,13 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
     (F, D) into the knowledge, then ``plan.per_call`` decisions (:func:`_decision`).
     Returns a :class:`Chunk`; frames only with ``capture``, their depth only with
     ``plan.perceive``."""
-    if plan.decide_every % plan.frame_steps or plan.frame_steps % plan.log_every:
-        raise ValueError(f"log_every {plan.log_every} must divide the frame period {plan.frame_steps}, and the "
-                         f"frame period decide_every {plan.decide_every}")
+    spec = plan.decision(capture, group.policies[0].per_step).check()
 
     def one(stacked, block, state, pstates, key, pending):
         env, policies = in_world(group, stacked, block)
         if capture:
             state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
-        decide = _decision(env, policies, block[0], plan, capture)
+        decide = _decision(env, policies, block[0], spec)
         (state, pstates, key), ((logs, track), frames) = jax.lax.scan(decide, (state, pstates, key), None,
                                                                       length=plan.per_call)
         flat = lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])  # noqa: E731 (decision, within it)
@@ -211,65 +149,28 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
     return blocked(one, group.devices)
 
 
-def _decision(env: RobotEnv, policies: list, q: jax.Array, plan: Plan, capture: bool):
+def _decision(env: RobotEnv, policies: list, q: jax.Array, spec: Decision):
     """The scan body of one decision: block policy ``q`` decides (``lax.switch``, so only
-    its own decision runs), then ``decide_every`` env steps, logged every ``log_every``;
-    with ``capture``, a frame after every ``frame_steps`` of them. Returns logs
-    (decide_every / log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
-    per_step = policies[0].per_step
-    sweep = plan.sweep
+    its own decision runs), then :func:`rosmeery_jax.env.decision.decide` steps it. Returns
+    logs (decide_every / log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
 
     def branch(i):
-        def decide(s, pss, k):
+        def choose(s, pss, k):
             action, new = policies[i].decide(s, pss[i], k)
             return action, pss[:i] + (new,) + pss[i + 1:]
-        return decide
+        return choose
 
-    def step(s, a, action):
-        s = env.step(s, a if per_step else action)
-        return s, (Track.of(s), s.depth if sweep else None)
-
-    def span(s, a, action):  # log_every steps, then the log: the per-object log took 7 % of a
-        # paper session's step when taken every step, and metrics are written every sample_s
-        s, track = jax.lax.scan(lambda s, a: step(s, a, action), s, a, length=plan.log_every)
-        return s, (env.log(s), track)
-
-    def period(s, a, action):  # frame_steps steps, then the detector frame
-        s, (logs, (track, depths)) = jax.lax.scan(lambda s, a: span(s, a, action), s, a, length=plan.spans)
-        frame = None
-        if capture:
-            img, dep, lab = env.camera_rgbd(s)
-            frame = Frames(img, lab.astype(jnp.int16), dep if plan.perceive else None,
-                           depths.reshape(plan.frame_steps, *depths.shape[2:]) if sweep else None)
-        return s, ((logs, track), frame)
-
-    def steps(s, action):
-        """The decision's steps, ``frames_per`` periods of them: logs (decide_every /
-        log_every, N), track (decide_every, ...), frames (frames_per, ...)."""
-        shape = (plan.frames_per, plan.spans, plan.log_every)
-        actions = jax.tree.map(lambda a: a.reshape(*shape, *a.shape[1:]), action) if per_step else None
-        if plan.frames_per == 1:  # the default, one frame per decision: no scan of one around the
-            # period, which XLA is free to compile differently
-            s, out = period(s, jax.tree.map(lambda a: a[0], actions), action)
-            out = jax.tree.map(lambda a: a[None], out)
-        else:
-            s, out = jax.lax.scan(lambda s, a: period(s, a, action), s, actions, length=plan.frames_per)
-        (logs, track), frames = out  # (frames_per, spans, ...), frames (frames_per, ...)
-        logs = jax.tree.map(lambda a: a.reshape(plan.frames_per * plan.spans, *a.shape[2:]), logs)
-        track = jax.tree.map(lambda a: a.reshape(plan.decide_every, *a.shape[3:]), track)
-        return s, ((logs, track), frames)
-
-    def decide(carry, _):
+    def one(carry, _):
         s, pss, k = carry
         k, sub = jax.random.split(k)
         # Always a branch, a lone policy's twice: compiled inline it was fused with the steps
         # around it, and a padded bank of worlds rounded its steps otherwise than beside others
         branches = [branch(i) for i in range(len(policies))] * (2 if len(policies) == 1 else 1)
         action, pss = jax.lax.switch(q, branches, s, pss, sub)
-        s, out = steps(s, action)
-        return (s, pss, k), out
+        s, out = decide(env, s, action, spec)
+        return (s, pss, k), ((out.logs, out.track), out.frames)
 
-    return decide
+    return one
 
 
 def attach_frames(env: RobotEnv, knowledge, obj, label, conf):

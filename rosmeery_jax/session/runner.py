@@ -26,18 +26,17 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from rosmeery_jax.core import xla
+from rosmeery_jax.core import specs, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
-from rosmeery_jax.gym import AGENT
 from rosmeery_jax.results import tables
-from rosmeery_jax.session import batch, cluster, engine, program
+from rosmeery_jax.session import batch, cluster, engine
 from rosmeery_jax.session.agents import run_agent
-from rosmeery_jax.session.config import (SessionConfig, decisions, frame_steps, frames_before, log_every, per_call,
-                                         sampled_rows)
+from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.folder import check_out, versions
 from rosmeery_jax.session.outputs import RunResult, merge, run_name, sum_timing, write_run
+from rosmeery_jax.session.schedule import Plan
 
 
 class Session:
@@ -102,10 +101,9 @@ class Session:
     def _simulate_here(self, todo: list[tuple[str, str]], out: Path) -> list[dict]:
         """Simulate the runs in this process; returns each group's timing."""
         cfg = self.cfg
-        total = decisions(cfg)
-        agents = [(w, p) for w, p in todo if p.startswith(AGENT)]
-        groups = batch.build_groups([r for r in todo if r not in agents], cfg.env, cfg.detector != "off",
-                                    cfg.seed_range, cfg.decide_every, total * cfg.decide_every, cfg.devices)
+        agents = [(w, p) for w, p in todo if specs.kind(p) == "agent"]
+        groups = batch.build_groups([r for r in todo if r not in agents], cfg)
+        plan = Plan.of(cfg)
         bar = _bar((len(groups) + len(agents)) * cfg.duration, self.progress)
         timings = []
         for world, spec in agents:  # host-side agents, one run at a time through the vector env
@@ -115,10 +113,6 @@ class Session:
         for group in groups:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
-            steps = sampled_rows(cfg) * log_every(cfg)
-            plan = program.Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
-                                tuple(m for m in cfg.mappers if m != "oracle"),
-                                frozenset(frames_before(cfg, steps).tolist()), cfg.digest)
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
                       "devices": group.devices}

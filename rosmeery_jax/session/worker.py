@@ -27,11 +27,13 @@ import numpy as np
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import RobotEnv, Track
+from rosmeery_jax.env.decision import Frames
+from rosmeery_jax.mapping import mapper_for
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.mapping.protocol import (Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map,
                                          raised_by)
 from rosmeery_jax.session.batch import Group
-from rosmeery_jax.session.program import Frames, Plan, mapper_cls
+from rosmeery_jax.session.schedule import Plan
 from rosmeery_jax.sim.knowledge import ObjectLog
 
 MAX_DET = 32  # detections kept per frame (the most confident)
@@ -83,7 +85,7 @@ class Worker:
         """One env's mappers by entry, the empty map scored (frame count 0)."""
         out = {}
         for spec in self.plan.mappers:
-            cls = mapper_cls(spec)
+            cls = mapper_for(spec)
             out[spec] = Mapped(spec, cls(self.camera, env.world.taxonomy.names),
                                 OnlineScorer(env.world, TOLERANCE))
             self._score(out[spec], 0)

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.world.procedural import expand_names
+from rosmeery_jax.core.specs import expand_ranges
 from rosmeery_jax.world.load import World, load_world
 
 COLUMNS = ["world", "objects", "categories", "boxes", "floor_m2", "reachable_m2", "objects_per_10m2", "samples"]
@@ -25,7 +25,7 @@ def world_names_in(args: list[str]) -> list[str]:
                 raise InputError(arg, "", "folder holds no world files (*.xml)")
             out += [str(f) for f in files]
         else:
-            out += expand_names([a.strip() for a in arg.split(",") if a.strip()])
+            out += expand_ranges([a.strip() for a in arg.split(",") if a.strip()])
     return out
 
 

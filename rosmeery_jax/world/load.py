@@ -26,9 +26,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world.freespace import FreeSpace, build_free_space
-from rosmeery_jax.world.procedural import PREFIX, procedural_path
+from rosmeery_jax.world.procedural import procedural_path
 from rosmeery_jax.world.scene import WALL, Scene
 from rosmeery_jax.world.surface import SurfaceSamples, observable_samples
 from rosmeery_jax.world.taxonomy import Predicate, Taxonomy, load_taxonomy
@@ -145,7 +146,7 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
     """A built-in world name, a procedural name (``procedural:KIND:SEED``), or a path to a
     user's MJCF file."""
     text = str(name_or_path)
-    if text.startswith(PREFIX):  # generated on first use (rosmeery_jax/world/procedural.py)
+    if specs.kind(text) == "procedural":  # generated on first use (rosmeery_jax/world/procedural.py)
         return procedural_path(text)
     if "/" not in text and not text.endswith(".xml"):
         path = WORLDS_DIR / f"{text}.xml"
@@ -380,3 +381,11 @@ def _check_layout(path, objects, model, truth, free: FreeSpace, spawn, config, s
         raise InputError(path, f"numeric '{SPAWN_NAME}'",
                          f"spawn ({sx:.2f}, {sy:.2f}) is inside an obstacle (clearance {clearance:.2f} m, "
                          f"robot radius {config.robot_radius:.2f} m)")
+
+
+def check_entry(name: str) -> None:
+    """A name that is neither a built-in world nor an existing file nor a procedural name is
+    the config's error (one line)."""
+    if name not in world_names() and not Path(name).is_file() and specs.kind(name) != "procedural":
+        raise InputError("config", "worlds", f"{name!r} is neither a built-in world ({', '.join(world_names())}) "
+                         "nor an MJCF file nor procedural:KIND:SEED")

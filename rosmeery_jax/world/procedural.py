@@ -10,13 +10,11 @@ import os
 import re
 from pathlib import Path
 
+from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.world.generate import VERSION, GenOptions, Layout, check_options, generate
 
-PREFIX = "procedural:"
-
-_NAME = re.compile(r"^procedural:([a-z]+):([^:]*)(?::(.*))?$")  # options after the seed, ":"-separated
 # the options a procedural name takes, each with the letter NAME_FORM shows for its value
 _NAME_OPTIONS = {"rooms": "R", "objects": "K", "clutter": "X", "tuck": "X", "turn": "D", "islands": "X", "spare": "X"}
 NAME_FORM = "procedural:KIND:SEED" + "".join(f"[:{k}={v}]" for k, v in _NAME_OPTIONS.items())
@@ -24,7 +22,7 @@ NAME_FORM = "procedural:KIND:SEED" + "".join(f"[:{k}={v}]" for k, v in _NAME_OPT
 
 def parse_name(text: str) -> GenOptions:
     """A name of the form :data:`NAME_FORM` as options (InputError if bad)."""
-    m = _NAME.match(text)
+    m = specs.PROCEDURAL_NAME.match(text)
     if not m:
         raise InputError(text, "", f"a procedural world is named {NAME_FORM}")
     kind, seed, extra = m.groups()
@@ -47,26 +45,6 @@ def parse_name(text: str) -> GenOptions:
     return options
 
 
-MAX_WORLDS = 10_000  # worlds one command may name (a world bank of 10,000 small worlds fits in memory)
-
-
-def expand_names(names) -> list[str]:
-    """World names with seed ranges expanded: ``procedural:office:0-99`` is 100 worlds."""
-    out = []
-    for name in names:
-        m = _NAME.match(name)
-        rng = re.fullmatch(r"(\d+)-(\d+)", m.group(2)) if m else None
-        if rng is None:
-            out.append(name)
-            continue
-        lo, hi = int(rng.group(1)), int(rng.group(2))
-        if hi < lo:
-            raise InputError(name, "seed", f"empty range {lo}-{hi}")
-        if hi - lo + 1 + len(out) > MAX_WORLDS:  # refused by its size, before any is expanded
-            raise InputError(name, "seed", f"{lo}-{hi} is {hi - lo + 1:,} worlds: at most {MAX_WORLDS:,} in all")
-        tail = f":{m.group(3)}" if m.group(3) else ""
-        out += [f"{PREFIX}{m.group(1)}:{s}{tail}" for s in range(lo, hi + 1)]
-    return out
 
 
 def cache_dir() -> Path:
