@@ -321,7 +321,7 @@ def _mjcf(name: str, ref: dict, objs: list[Obj]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reference", type=Path, required=True, help="folder of the measured layout JSON files")
-    ap.add_argument("--out", type=Path, default=REPO / "rosmeery_jax" / "world" / "builtin")
+    ap.add_argument("--out", type=Path, default=REPO / "worlds")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     notes = [

@@ -70,3 +70,29 @@ def test_the_api_page_lists_every_public_name():
     page = (ROOT / "docs" / "api.md").read_text()
     missing = [n for n in rosmeery_jax.__all__ if not re.search(rf"`{n}[`(]", page)]
     assert not missing, f"docs/api.md does not list {missing}"
+
+
+def test_no_two_modules_or_public_classes_share_a_name():
+    """One name, one concept: modules (a layer's config.py aside) and public classes are
+    named once in the package."""
+    import ast
+    from collections import defaultdict
+
+    modules, classes = defaultdict(list), defaultdict(list)
+    for path in (ROOT / "rosmeery_jax").rglob("*.py"):
+        if path.name not in ("__init__.py", "__main__.py", "config.py"):
+            modules[path.stem].append(path)
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                classes[node.name].append(path)
+    assert {k: v for k, v in modules.items() if len(v) > 1} == {}
+    assert {k: v for k, v in classes.items() if len(v) > 1} == {}
+
+
+@pytest.mark.parametrize("face", ["session/program.py", "rl/env.py", "gym.py"])
+def test_the_env_faces_step_robots_only_through_the_decision_core(face):
+    """The session's chunk function, the gymnax env and the Gymnasium envs loop over no
+    control steps of their own: they call env.decision.decide."""
+    source = (ROOT / "rosmeery_jax" / face).read_text()
+    assert "decide(env" in source
+    assert not re.search(r"\benv\.step\(|fori_loop|while_loop", source), face

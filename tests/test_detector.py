@@ -476,7 +476,7 @@ def test_the_default_detector_was_trained_on_generated_worlds_only():
 
     assert DEFAULT_WEIGHTS == WEIGHTS["procedural"] and DEFAULT_WEIGHTS.is_file()
     meta = torch.load(DEFAULT_WEIGHTS, weights_only=True)["meta"]
-    recipe = Path(__file__).resolve().parents[1] / "experiments" / "detector"
+    recipe = Path(__file__).resolve().parents[1] / "detector"
     manifest = json.loads((recipe / "dataset.json").read_text())["dataset"]
     assert meta["dataset"] == manifest and len(manifest["worlds"]) == 240
     kinds = {parse_name(w).kind for w in manifest["worlds"]}  # raises on any other name
@@ -499,7 +499,7 @@ def test_the_twice_the_size_weights_are_the_default_fine_tuned_on_generated_worl
     settings = raw["meta"]["fine_tune"]
     assert settings["base_sha256"] == hashlib.sha256(DEFAULT_WEIGHTS.read_bytes()).hexdigest()
     assert settings["scale"] == 2 and raw["meta"]["int8_percentile"] == 99.95  # its int8 calibration (model card)
-    recipe = Path(__file__).resolve().parents[1] / "experiments" / "detector"
+    recipe = Path(__file__).resolve().parents[1] / "detector"
     manifest = json.loads((recipe / "dataset_2x.json").read_text())["dataset"]
     assert raw["meta"]["dataset"] == manifest and len(manifest["worlds"]) == 240
     assert {parse_name(w).kind for w in manifest["worlds"]} == {"apartment", "office", "kitchen", "lab"}
@@ -665,7 +665,7 @@ def _fine_tune_module():
     """detector/fine_tune.py (a script, not a package module)."""
     import importlib.util
 
-    path = Path(__file__).resolve().parents[1] / "experiments" / "detector" / "fine_tune.py"
+    path = Path(__file__).resolve().parents[1] / "detector" / "fine_tune.py"
     spec = importlib.util.spec_from_file_location("fine_tune", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -1,5 +1,5 @@
 """The perceived mapper's settings, each rule's (:mod:`rosmeery_jax.mapping.perceived`;
-what each buys, measured: docs/evaluate.md)."""
+specified in docs/mapping.md; what each buys, measured: experiments/mapping)."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@
     OUT/maps/<world>__<policy>__seed<k>.ply / .json   semantic maps at the end (mapper "oracle";
         ``__seed<k>__<mapper>`` for another mapper's, e.g. ``perceived``: rosmeery_jax.mapping.protocol)
     OUT/runs/<world>__<policy>.trajectory.csv robot poses (sampled like metrics.csv)
-    OUT/runs/<world>__<policy>.navigation.csv where each seed's time went (scoring.navigation;
+    OUT/runs/<world>__<policy>.navigation.csv where each seed's time went (results.time_use;
         runs in target mode: the navigator drives)
     OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
     OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv, OUT/navigation.csv   all finished
