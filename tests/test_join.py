@@ -18,6 +18,7 @@ import rosmeery_jax as rj
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.session import SessionConfig, join
+from rosmeery_jax.session.outputs import seal_run
 
 RUN = "small_office__random"
 HEADER = "world,policy,detector,seed,time_s,metric,value,mapper"
@@ -46,6 +47,7 @@ def _part(folder: Path, first: int, seeds: int, **change) -> Path:
     (folder / "runs" / f"{RUN}.timing.json").write_text(json.dumps(timing))
     for s in range(first, first + seeds):
         (folder / "maps" / f"{RUN}__seed{s}.ply").write_text(f"map of seed {s}")
+    seal_run(folder, RUN)
     return folder
 
 

@@ -39,6 +39,7 @@ from rosmeery_jax.metrics.map_file import write_semantic_map
 from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
+from rosmeery_jax.session.outputs import check_folder
 from rosmeery_jax.world import load_world
 
 
@@ -241,6 +242,7 @@ def _cmd_join(args) -> int:
 
 def _cmd_plot(args) -> int:
     d = Path(args.dir)
+    check_folder(d)
     df = tables.load(d)
     if df.empty:
         raise InputError(str(d / "metrics.csv"), "rows", "none: nothing to plot")

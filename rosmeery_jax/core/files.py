@@ -131,10 +131,10 @@ def folder_lock(out: str | Path) -> Iterator[None]:
         os.close(fd)
 
 
-def require_same(saved: str | Path, old: dict, new: dict, keys) -> None:
-    """A resume keeps every setting named in ``keys``: one InputError naming the first that
-    changed."""
+def require_same(saved: str | Path, old: dict, new: dict, keys, what: str = "resume") -> None:
+    """A resume (or ``what`` else) keeps every setting named in ``keys``: one InputError
+    naming the first that changed."""
     for key in keys:
         if old.get(key) != new.get(key):
-            raise InputError(str(saved), key, f"was {old.get(key)!r}, now {new.get(key)!r}: resume needs the "
+            raise InputError(str(saved), key, f"was {old.get(key)!r}, now {new.get(key)!r}: {what} needs the "
                              "same setting")

@@ -22,6 +22,7 @@ from typing import Callable
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
+from rosmeery_jax.results.manifest import RUN_SUFFIX
 
 RETRIES = 3  # attempts after the first when a worker process or node dies
 CONNECT_TIMEOUT_S = 10.0  # a head that does not accept a connection by then is not there
@@ -134,8 +135,7 @@ def simulate_on_cluster(cfg, todo: list[tuple[str, str]], out: Path, address: st
                     ray.cancel(other)
                 cause = getattr(err, "cause", err)  # Ray's error wraps the task's own
                 raise (cause if isinstance(cause, InputError) else err) from None
-            last = [k for k in files if k.endswith(".metrics.csv")]
-            for rel in sorted(files, key=lambda k: k in last):  # the metrics file marks the run done
+            for rel in sorted(files, key=lambda k: k.endswith(RUN_SUFFIX)):  # the record marks the run done
                 write_atomic(out / rel, files[rel])
             timings.append(timing)
             bar.update(cfg.duration)

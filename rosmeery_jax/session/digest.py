@@ -24,6 +24,7 @@ import pandas as pd
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.results import tables
+from rosmeery_jax.session.outputs import check_folder
 
 PARTS = ("physics", "map", "knowledge", "detections")
 
@@ -53,6 +54,8 @@ def compare(a: str | Path, b: str | Path) -> list[str]:
     """One line per run and seed of two results folders: identical, or where they part."""
     a, b = Path(a), Path(b)
     in_a, in_b = _finished(a), _finished(b)
+    check_folder(a)  # damaged files are named, not compared
+    check_folder(b)
     lines = []
     for run in sorted(in_a | in_b):
         if run not in in_a or run not in in_b:

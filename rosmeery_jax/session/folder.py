@@ -21,6 +21,7 @@ from rosmeery_jax.policies import LearnedPolicy, policy_class
 from rosmeery_jax.policies.learned import policy_file
 from rosmeery_jax.policies.teleop_replay import replay_files
 from rosmeery_jax.session.config import RESULT_FIELDS, SessionConfig
+from rosmeery_jax.session.outputs import INTEGRITY
 from rosmeery_jax.world import load_world
 
 VERSIONED = ("rosmeery-jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy", "pandas", "torch")
@@ -78,7 +79,7 @@ def check_out(cfg: SessionConfig, resume: bool) -> Claim:
     """Check the results folder before anything is written. A resume keeps every setting
     that changes results and every input file; it may add worlds and policies, never drop
     one (config.json would no longer describe the folder's runs)."""
-    record = {"session": json.loads(json.dumps(asdict(cfg))), "inputs": input_hashes(cfg)}
+    record = {"session": json.loads(json.dumps(asdict(cfg))), "inputs": input_hashes(cfg), "integrity": INTEGRITY}
     old = claim_folder(cfg.out, resume)
     if old is None:
         return Claim(record, True)

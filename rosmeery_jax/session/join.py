@@ -27,7 +27,8 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, output_folder, require_new, require_same, write_atomic
 from rosmeery_jax.session.config import RESULT_FIELDS
 from rosmeery_jax.session.folder import saved_settings
-from rosmeery_jax.session.outputs import merge, rates
+from rosmeery_jax.results import manifest
+from rosmeery_jax.session.outputs import finished, merge, rates, run_manifest, seal_run
 
 SPLIT = ("seeds", "first_seed", "out")  # the settings the parts may differ in (and their versions)
 RATES = ("env_steps_per_s", "sim_env_steps_per_s")  # in timing files: from the sums, not summed
@@ -83,11 +84,15 @@ def _read(folder: Path) -> SweepPart:
         if specs.kind(policy) == "replay":
             raise InputError(str(saved), "policies", f"{policy!r}: a replay's runs are its recordings, not seeds, "
                              "so its parts cannot be joined")
-    finished = len(list((folder / "runs").glob("*.metrics.csv"))) if (folder / "runs").is_dir() else 0
+    done = finished(folder)
     runs = len(names["worlds"]) * len(names["policies"])
-    if finished < runs:  # a run's metrics file is written last: it marks the run done
-        raise InputError(str(folder / "runs"), "runs", f"{finished} of the session's {runs} runs finished: resume "
+    if len(done) < runs:  # a run's record of its files is written last: it marks the run done
+        raise InputError(str(folder / "runs"), "runs", f"{len(done)} of the session's {runs} runs finished: resume "
                          "it first")
+    for name in done:
+        err = manifest.damage(run_manifest(folder, name), folder)
+        if err is not None:
+            raise InputError(err.source, err.where, f"{err.problem}: resume {folder} to simulate the run again")
     return SweepPart(folder, record, range(first, first + count))
 
 
@@ -99,11 +104,12 @@ def _check(parts: list[SweepPart]) -> None:
     keys = [k for k in ("worlds", "policies", *RESULT_FIELDS) if k not in SPLIT]
     for part in parts[1:]:
         saved = part.folder / RECORD
-        require_same(saved, saved_settings(first.record["session"]), saved_settings(part.record["session"]), keys)
+        require_same(saved, saved_settings(first.record["session"]), saved_settings(part.record["session"]), keys,
+                     "a join")
         if part.record["inputs"] != first.record["inputs"]:
             raise InputError(str(saved), "inputs", f"its input files differ from {first.folder / RECORD}'s: "
                              "the parts ran on other worlds, recordings, policies or weights")
-        mine, theirs = (sorted(p.name for p in (x.folder / "runs").glob("*.metrics.csv")) for x in (part, first))
+        mine, theirs = (finished(x.folder) for x in (part, first))
         if mine != theirs:
             odd = sorted(set(mine) ^ set(theirs))[0]
             raise InputError(str(part.folder / "runs"), "runs", f"{odd} is in one part only")
@@ -132,6 +138,8 @@ def _write(parts: list[SweepPart], scratch: Path, out: Path) -> None:
         for path in sorted((part.folder / "maps").glob("*")) if (part.folder / "maps").is_dir() else []:
             if path.is_file():
                 shutil.copy2(path, scratch / "maps" / path.name)
+    for name in finished(parts[0].folder):
+        seal_run(scratch, name)
     merge(scratch)
     _sum_timing([part.folder / "timing.json" for part in parts], scratch / "timing.json")
     seeds = range(parts[0].seeds.start, parts[-1].seeds.stop)

@@ -13,7 +13,10 @@
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
     OUT/timing.json                           compile (``compiles``), simulation, detector and wall times
 
-A run's metrics file is written last: its presence marks the run done (``--resume``).
+A run's files are recorded last in ``OUT/runs/<world>__<policy>.manifest.json`` (rows and
+sha256 of each, :mod:`rosmeery_jax.results.manifest`): a run is done when its record
+holds (``--resume`` re-simulates one whose files were damaged); the merged tables are
+recorded in ``OUT/manifest.json``.
 """
 
 from __future__ import annotations
@@ -30,9 +33,7 @@ import pandas as pd
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.env import Track
 from rosmeery_jax import metrics
-from rosmeery_jax.results import time_use
-from rosmeery_jax.results import plots
-from rosmeery_jax.results import tables
+from rosmeery_jax.results import manifest, plots, tables, time_use
 from rosmeery_jax.mapping.protocol import mapper_label
 from rosmeery_jax.metrics.map_file import build_map, write_map, write_semantic_map
 from rosmeery_jax.session.checks import run_label
@@ -40,6 +41,9 @@ from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.schedule import frames_before, sampled_rows
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
+
+
+INTEGRITY = 1  # config.json's "integrity": the folder records its files (results.manifest)
 
 
 def run_name(world: str, policy: str) -> str:
@@ -114,6 +118,29 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     if run.digests is not None:
         tables.write_csv(run.digests, runs / f"{name}.digest.csv")
     tables.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
+    seal_run(out, name)
+
+
+def run_files(out: Path, name: str) -> list[Path]:
+    """The files of run ``name`` in ``out``: its tables and timing, and its maps."""
+    runs = [p for p in (out / "runs").glob(f"{name}.*") if not p.name.endswith(manifest.RUN_SUFFIX)]
+    return runs + list((out / "maps").glob(f"{name}__seed*"))
+
+
+def run_manifest(out: Path, name: str) -> Path:
+    return out / "runs" / f"{name}{manifest.RUN_SUFFIX}"
+
+
+def seal_run(out: Path, name: str) -> None:
+    """Record run ``name``'s files, last: the record marks the run done."""
+    manifest.write(run_manifest(out, name), out, run_files(out, name))
+
+
+def finished(out: Path) -> list[str]:
+    """The runs of ``out`` with a record of their files (whole or not: see
+    :func:`rosmeery_jax.results.manifest.damage`)."""
+    found = (out / "runs").glob(f"*{manifest.RUN_SUFFIX}") if (out / "runs").is_dir() else []
+    return sorted(p.name[:-len(manifest.RUN_SUFFIX)] for p in found)
 
 
 def _write_mapper_map(env, m, stem: Path, time_s: float) -> None:
@@ -123,19 +150,34 @@ def _write_mapper_map(env, m, stem: Path, time_s: float) -> None:
                                                  float(time_s)))
 
 
+def check_folder(out: Path) -> None:
+    """Refuse a results folder whose files differ from its records (one InputError naming
+    the damaged file and row). A folder of a version that kept no records is let through,
+    its tables checked as they are read."""
+    try:
+        kept = json.loads((out / "config.json").read_text(encoding="utf-8")).get("integrity") == INTEGRITY
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        kept = False
+    if not kept and not (out / manifest.MANIFEST).exists():
+        return
+    for record in [out / manifest.MANIFEST] + [run_manifest(out, name) for name in finished(out)]:
+        manifest.check(record, out)
+
+
 def merge(out: Path) -> None:
     """The merged tables and plots of every finished run in ``out``."""
-    runs = sorted((out / "runs").glob("*.metrics.csv")) if (out / "runs").exists() else []
+    runs = [out / "runs" / f"{name}.metrics.csv" for name in finished(out)]
     if not runs:
         return
     df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
-    tables.write_csv(df, out / "metrics.csv")
+    written = [tables.write_csv(df, out / "metrics.csv")]
     for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv"),
                            (".navigation.csv", "navigation.csv")):
         parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
         parts = [pd.read_csv(p) for p in parts if p.exists()]
         if parts:
-            tables.write_csv(pd.concat(parts, ignore_index=True), out / merged)
+            written.append(tables.write_csv(pd.concat(parts, ignore_index=True), out / merged))
+    manifest.write(out / manifest.MANIFEST, out, written)
     plots.plot_results(df, out / "plots")
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -35,7 +36,9 @@ from rosmeery_jax.session import batch, cluster, engine
 from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.folder import check_out, versions
-from rosmeery_jax.session.outputs import RunResult, merge, run_name, sum_timing, write_run
+from rosmeery_jax.results import manifest
+from rosmeery_jax.session.outputs import (RunResult, finished, merge, run_manifest, run_name, sum_timing,
+                                          write_run)
 from rosmeery_jax.session.schedule import Plan
 
 
@@ -74,7 +77,7 @@ class Session:
             try:
                 self._run(out)
             except BaseException:
-                if claim.fresh and not any((out / "runs").glob("*.metrics.csv")):
+                if claim.fresh and not finished(out):
                     _empty(out)  # nothing finished: a corrected command starts afresh in the same folder
                 raise
         return out
@@ -82,8 +85,7 @@ class Session:
     def _run(self, out: Path) -> None:
         """Simulate every unfinished run (here or on the cluster), then merge."""
         cfg = self.cfg
-        todo = [(w, p) for w in cfg.worlds for p in cfg.policies
-                if not (out / "runs" / f"{run_name(w, p)}.metrics.csv").exists()]
+        todo = [(w, p) for w in cfg.worlds for p in cfg.policies if not _done(out, w, p)]
         t_start = time.perf_counter()
         parts, extra = [], {}
         if todo and self.cluster is not None:
@@ -162,6 +164,21 @@ def run_shard(cfg: SessionConfig, world: str, policy: str, cache: bool) -> tuple
         files = sorted(p for p in (out / "runs").glob(f"{name}.*")) + sorted((out / "maps").glob(f"{name}__seed*"))
         timing = json.loads((out / "timing.json").read_text()) if (out / "timing.json").exists() else {}
         return {str(p.relative_to(out)): p.read_bytes() for p in files}, timing
+
+
+def _done(out: Path, world: str, policy: str) -> bool:
+    """Whether a run's files are all there as recorded. A run whose files were damaged since
+    (or that an interrupt left without its record) is simulated again, and says so."""
+    name = run_name(world, policy)
+    record = run_manifest(out, name)
+    if not record.exists() and not (out / "runs" / f"{name}.metrics.csv").exists():
+        return False  # never finished: nothing to say
+    err = manifest.damage(record, out)
+    if err is None:
+        return True
+    print(f"rosmeery: {err}: simulating {name} again", file=sys.stderr)
+    record.unlink(missing_ok=True)
+    return False
 
 
 def _empty(out: Path) -> None:
