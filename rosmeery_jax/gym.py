@@ -53,7 +53,9 @@ from gymnasium.vector.utils import batch_space
 
 from rosmeery_jax.core import overrides, plugins, specs, xla
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.env.decision import Decision, decide
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
@@ -61,7 +63,7 @@ from rosmeery_jax.rl.task import REWARDS, score
 from rosmeery_jax import metrics
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, check_map
-from rosmeery_jax.core.specs import MAX_SEED, plain_name
+from rosmeery_jax.core.specs import MAX_SEED
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 
@@ -104,6 +106,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         self.horizon = int(round(config.duration / period))  # decisions per episode
         if self.horizon < 1 or abs(self.horizon * period - config.duration) > 1e-6:
             raise ValueError(f"duration {config.duration:g} s is not a whole number of decisions ({period:g} s each)")
+        _check_size(num_envs, env_cfg, config.camera)
         self.bank = world_bank(worlds, env_cfg)
         self.config, self.num_envs, self.log_every = config, num_envs, log_every
         if log_every and config.decide_every % log_every:
@@ -185,6 +188,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """All robots anew; robot i's key is ``seed`` folded with i (the same seed, the same
         episodes)."""
+        _check_options(options)
         super().reset(seed=seed)
         top = MAX_SEED + 1 - self.num_envs  # robot i's seed is base + i, as a session's seeds
         base = int(self.np_random.integers(top + 1)) if seed is None else seed
@@ -246,6 +250,24 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         return np.asarray(self.state.pose)
 
 
+def _check_options(options) -> None:
+    """``reset``'s options: None or a dict (the envs read none of them)."""
+    if options is not None and not isinstance(options, dict):
+        raise TypeError(f"reset: options must be a dict or None, not {type(options).__name__}")
+
+
+def _check_size(num_envs: int, env: EnvConfig, camera: bool) -> None:
+    """Refuse, before anything is allocated, robots that would not fit in this machine's
+    memory (their state, a step's camera work and the observations handed out)."""
+    cam = env.camera
+    frame = (cam.rgb_width * cam.rgb_height * 8 if camera else 0) + cam.width * cam.height * 8  # rgb, depth; seg
+    need = num_envs * (env_bytes(env) + 2 * frame)  # on the device and the host's copy
+    have = MEMORY_SHARE * memory_bytes()
+    if need > have:
+        raise ValueError(f"num_envs {num_envs:,}: that many robots need about {need / 1e9:,.1f} GB, more than "
+                         f"this machine's {have / 1e9:.1f} GB allows")
+
+
 def _checked(actions, shape: tuple, what: str) -> np.ndarray:
     """``actions`` as float32 of ``shape``, every value finite, or a ValueError."""
     actions = np.asarray(actions, np.float32)
@@ -265,11 +287,14 @@ class Env(gymnasium.Env):
         self.action_space = self.vec.single_action_space
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        _check_options(options)
         super().reset(seed=seed)
         obs, info = self.vec.reset(seed=seed if seed is not None else int(self.np_random.integers(MAX_SEED + 1)))
         return _first(obs), info
 
     def step(self, action):
+        if self.vec.state is not None and self.vec._done.any():  # Gymnasium: an episode that ended needs a reset
+            raise RuntimeError("Env.step after the episode was truncated: call reset() first")
         action = _checked(action, self.action_space.shape, "an action")
         obs, reward, terminated, truncated, info = self.vec.step(action[None])
         return _first(obs), float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
@@ -303,9 +328,9 @@ def agent_class(spec: str, source: str = "config") -> type[Agent]:
                          "and implement act)")
     if getattr(cls.act, "__isabstractmethod__", False):
         raise InputError(source, "policies", f"{spec!r} lacks an act(obs) method")
-    if not isinstance(cls.name, str) or cls.name == Agent.name or not plain_name(cls.name):
-        raise InputError(source, "policies", f"{spec!r} needs a class attribute name: a plain name that labels "
-                         "its results")
+    if cls.name == Agent.name or not specs.label_name(cls.name):
+        raise InputError(source, "policies", f"{spec!r} needs a class attribute name that labels its results: a "
+                         f"plain name ({specs.LABEL_RULE})")
     return cls
 
 

@@ -71,10 +71,12 @@ def test_observations_are_what_the_robot_perceives_and_episodes_end_at_the_durat
         rewards.append(reward)
     assert sum(rewards) > 0 and min(rewards) >= 0  # ORI only grows while the robot looks around
     assert (obs["occupancy"] == 0).any() and (obs["occupancy"] == 1).any()  # its own map: free and walls
-    with pytest.raises(ValueError, match="must be finite"):  # the autoreset step checks its action too
-        env.step(np.float32([np.nan, 0, 0]))
-    obs, reward, *_ = env.step(np.float32([0, 0, 0]))  # the reset step itself
-    assert reward == 0.0 and obs["time"][0] == 0.0
+    with pytest.raises(RuntimeError, match=r"truncated: call reset\(\) first"):  # not a new episode, silently
+        env.step(np.float32([0, 0, 0]))
+    obs, _ = env.reset(seed=3)
+    assert obs["time"][0] == 0.0
+    with pytest.raises(TypeError, match="options must be a dict or None, not str"):
+        env.reset(options="nope")
 
 
 @pytest.mark.parametrize("duration", [3.05, 0.4])

@@ -275,7 +275,7 @@ def test_a_full_disk_is_one_line(tmp_path, capsys, monkeypatch):
     def full(df, path):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(results, "write_csv", full)
+    monkeypatch.setattr(tables, "write_csv", full)
     ply = _map(tmp_path / "m")
     assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(tmp_path / "o")]) == 1
     _one_line(capsys, "metrics.csv", "No space left")

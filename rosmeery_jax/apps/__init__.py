@@ -1,6 +1,7 @@
 """Command-line programs: the ``rosmeery`` command (:mod:`.cli`), the bench, recording,
 teleoperation."""
 
+import os
 import sys
 
 from rosmeery_jax.core import interrupt
@@ -22,8 +23,13 @@ def main(argv: list[str] | None = None) -> int:
         with interrupt.deferred():
             from rosmeery_jax.apps.cli import main as cli
 
-            return cli(args)
+            status = cli(args)
     except KeyboardInterrupt:
         print("rosmeery: interrupted" + (" (finished runs are kept: the same command with --resume continues)"
                                          if command == "run" else ""), file=sys.stderr)
-        return 130
+        status = 130
+    if status == 130 and interrupt.busy():  # a compile still running in C++ would abort the interpreter's exit
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    return status

@@ -44,7 +44,7 @@ from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
 from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.session import Session, SessionConfig
-from rosmeery_jax.session.checks import env_bytes
+from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.session.program import Replicas
 from rosmeery_jax.core import grid
 from rosmeery_jax.raycast.sensors import camera_rays, depth_seg, laser, laser_dirs

@@ -12,10 +12,13 @@ from __future__ import annotations
 
 import signal
 import threading
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as Pending
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Any, Callable, Iterator
 
 _pressed = threading.Event()
+BACKGROUND = "rosmeery-background-"  # the names of background() threads
 _active = threading.Event()  # a deferred block is open (nested blocks share it)
 
 
@@ -50,3 +53,32 @@ def deferred() -> Iterator[None]:
         _pressed.clear()
     if pressed:  # pressed after the last check: never lost
         raise KeyboardInterrupt
+
+
+def background(fn: Callable[[], Any], name: str = "job") -> Future:
+    """``fn()`` in a daemon thread (a compile: XLA runs without the GIL). A command that
+    stops on Ctrl-C then ends without waiting for it, as it would for an executor's thread."""
+    job: Future = Future()
+
+    def run():
+        try:
+            job.set_result(fn())
+        except BaseException as err:  # handed to whoever waits for it
+            job.set_exception(err)
+
+    threading.Thread(target=run, name=f"{BACKGROUND}{name}", daemon=True).start()
+    return job
+
+
+def busy() -> bool:
+    """Whether a :func:`background` job is still running."""
+    return any(t.name.startswith(BACKGROUND) and t.is_alive() for t in threading.enumerate())
+
+
+def wait(job: Future) -> Any:
+    """``job``'s result, Ctrl-C honoured while waiting for it (:func:`check`)."""
+    while True:
+        try:
+            return job.result(timeout=0.2)
+        except Pending:
+            check()

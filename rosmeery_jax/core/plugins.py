@@ -52,6 +52,9 @@ def _module(where: str, spec: str, source: str, field: str):
         return importlib.import_module(where)
     except InputError as err:  # ours, raised by the plugin's code (a register_metric name)
         raise InputError(source, field, f"plugin {spec!r} failed to import: {err}") from None
+    except SystemExit as err:  # its exit would end the command with no word (and status 0)
+        raise InputError(source, field, f"plugin {spec!r} failed to import: it exits (sys.exit({err.code!r}))") \
+            from None
     except Exception as err:  # the plugin's own code failed to import: say where
         raise InputError(source, field, f"plugin {spec!r} failed to import: {describe(err)}") from None
 
@@ -65,6 +68,9 @@ def raised_by(spec: str, field: str, doing: str, who: str | None = None):
         yield
     except InputError:
         raise
+    except SystemExit as err:
+        raise InputError("config", field, f"{who or f'plugin {spec!r}'} exits in {doing} (sys.exit({err.code!r}))") \
+            from None
     except Exception as err:
         raise InputError("config", field, f"{who or f'plugin {spec!r}'} failed in {doing}: {describe(err)}") from None
 

@@ -22,6 +22,8 @@ PROCEDURAL_NAME = re.compile(rf"^{PROCEDURAL}([a-z]+):([^:]*)(?::(.*))?$")  # KI
 MAX_WORLDS = 10_000  # worlds one command may name (a world bank of 10,000 small worlds fits in memory)
 PLUGIN = re.compile(r"(?P<module>[^:]+\.py|[A-Za-z_][\w.]*):(?P<name>[A-Za-z_]\w*)")
 NAME = re.compile(r"[A-Za-z_][\w-]*")
+LABEL = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")  # a results label: see label_name
+LABEL_RULE = "letters, digits, _ . and -, at most 64 characters, not starting with a dot"
 MAX_SEED = 2**31 - 1  # seeds are int32 keys, in sessions, recordings and the Gymnasium envs
 KINDS = ("name", "plugin", "procedural", "replay", "learned", "agent", "path")
 
@@ -91,3 +93,9 @@ def expand_ranges(names) -> tuple[str, ...]:
         tail = f":{m.group(3)}" if m.group(3) else ""
         out += [f"{PROCEDURAL}{m.group(1)}:{s}{tail}" for s in range(lo, hi + 1)]
     return tuple(out)
+
+
+def label_name(name) -> bool:
+    """Whether ``name`` can label a plugin's results (a policy's, metric's, mapper's or
+    agent's): :data:`LABEL_RULE`. Labels become parts of file names and plot titles."""
+    return isinstance(name, str) and LABEL.fullmatch(name) is not None

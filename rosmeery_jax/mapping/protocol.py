@@ -29,7 +29,6 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.specs import plain_name
 from rosmeery_jax.metrics.map_score import Score, score_instances, tie
 from rosmeery_jax.raycast.sensors import CameraConfig
 
@@ -158,9 +157,9 @@ def mapper_class(spec: str, source: str = "config") -> type[Mapper]:
     for method in ("add", "semantic_map"):
         if getattr(getattr(cls, method), "__isabstractmethod__", False):
             raise InputError(source, "mappers", f"plugin {spec!r} lacks a {method} method")
-    if not isinstance(cls.name, str) or cls.name in ("mapper", *BUILT_IN) or not plain_name(cls.name):
-        raise InputError(source, "mappers", f"plugin {spec!r} needs a class attribute name: a plain name, not "
-                         "'mapper', 'oracle' or 'perceived', that labels its results")
+    if cls.name in ("mapper", *BUILT_IN) or not specs.label_name(cls.name):
+        raise InputError(source, "mappers", f"plugin {spec!r} needs a class attribute name that labels its "
+                         f"results: a plain name ({specs.LABEL_RULE}), not 'mapper', 'oracle' or 'perceived'")
     return cls
 
 

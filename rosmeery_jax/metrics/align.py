@@ -83,8 +83,11 @@ def read_transform(path: str | Path) -> np.ndarray:
         raise InputError(path, "transform", f"not a 4 x 4 matrix ({err})") from None
     except RecursionError:
         raise InputError(path, "transform", "nested too deeply to be a 4 x 4 matrix") from None
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise InputError(path, "transform", f"must be a 4 x 4 matrix of finite numbers, got shape {T.shape}")
+    if T.shape != (4, 4):
+        raise InputError(path, "transform", f"must be a 4 x 4 matrix, got shape {T.shape}")
+    if not np.isfinite(T).all():
+        row, col = np.argwhere(~np.isfinite(T))[0]
+        raise InputError(path, f"transform[{row}][{col}]", f"{T[row, col]} is not a finite number")
     R = T[:3, :3]
     # A rotation's entries lie in [-1, 1]; larger ones would overflow R @ R.T.
     if (np.abs(R).max() > 1.0 + 1e-4 or not np.allclose(R @ R.T, np.eye(3), atol=1e-4)

@@ -25,9 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.core import plugins
+from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.specs import plain_name
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
@@ -40,8 +39,8 @@ DEFAULT_METRICS = ("ori", "cori", "cori_any", "opi", "opi_strict")
 def register(name: str) -> Callable[[MetricFn], MetricFn]:
     """Decorator: make ``fn(log, truth) -> (..., T)`` available as metric ``name`` (a plain
     name: the results' plots are named after it)."""
-    if not isinstance(name, str) or not plain_name(name):
-        raise InputError("register_metric", "name", f"{name!r} is not a plain name (no folders, no leading dot)")
+    if not specs.label_name(name):
+        raise InputError("register_metric", "name", f"{name!r} is not a plain name ({specs.LABEL_RULE})")
 
     def add(fn: MetricFn) -> MetricFn:
         if name in DEFAULT_METRICS and name in REGISTRY:  # your own may be re-registered (a notebook cell re-run)
@@ -128,18 +127,39 @@ def _register_plugin(spec: str) -> str:
 
 def _check_curve(fn, who: str) -> None:
     """``fn`` traces under JAX on a small log (T = 3 steps, N = 2 objects) and gives a curve
-    (3,) of floats, or one InputError naming it as ``who``."""
+    (3,) of floats, finite on a log of nothing seen, a log of some things seen and labelled
+    and one of everything (:func:`_sample_log`); else one InputError naming it as ``who``."""
     f32, i32 = jax.ShapeDtypeStruct((3, 2), jnp.float32), jax.ShapeDtypeStruct((3, 2), jnp.int32)
     log = ObjectLog(f32, f32, f32, i32, i32, i32)
-    truth = GroundTruthTable(np.ones(2, np.float32), np.ones(2, np.int32), np.zeros(2, np.int32))
+    truth = GroundTruthTable(np.full(2, 4.0, np.float32), np.full(2, 2, np.int32), np.arange(2, dtype=np.int32))
     try:
         curve = jax.eval_shape(lambda lg: fn(lg, truth), log)
     except Exception as err:
         raise InputError("config", "metrics", f"{who} cannot run under JAX on an object log: "
                          f"{type(err).__name__}: {str(err).splitlines()[0][:200] if str(err) else ''}") from None
     if not hasattr(curve, "shape") or curve.shape != (3,) or not jnp.issubdtype(curve.dtype, jnp.floating):
+        gave = f"{curve.dtype} values of shape {curve.shape}" if hasattr(curve, "shape") else type(curve).__name__
         raise InputError("config", "metrics", f"{who} must return one float per step, shape (T,); "
-                         f"for T = 3 it gave {getattr(curve, 'shape', type(curve).__name__)}")
+                         f"for T = 3 it gave {gave}")
+    for seen in ("nothing", "part", "all"):
+        with plugins.raised_by(who, "metrics", f"a log of {seen} seen", who):
+            values = np.asarray(jax.jit(fn)(_sample_log(seen), truth))
+        if not np.isfinite(values).all():
+            raise InputError("config", "metrics", f"{who} gave {values.tolist()} on a log of {seen} seen: a curve "
+                             "must be finite numbers")
+
+
+def _sample_log(seen: str) -> ObjectLog:
+    """A log of T = 3 steps and N = 2 objects of 4 samples and 2 predicates each, categories
+    0 and 1: nothing seen, part of each seen and labelled (one right, one wrong), or all."""
+    ps = {"nothing": [[0, 0]] * 3, "part": [[0, 0], [1, 2], [2, 3]], "all": [[4, 4]] * 3}[seen]
+    ps = np.asarray(ps, np.float32)
+    known = ps > 0
+    conf = np.where(known, 0.8, 0.0).astype(np.float32)
+    label = np.where(known, [[0, 0]], -1).astype(np.int32)
+    declared = np.where(known, 2, 0).astype(np.int32)
+    return ObjectLog(ps, np.where(label == [[0, 1]], conf, 0.0).astype(np.float32), conf, label, declared,
+                     np.where(label == [[0, 1]], declared, 0).astype(np.int32))
 
 
 def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:
@@ -152,6 +172,11 @@ def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> d
         if np.shape(curves[n]) != log.ps.shape[:-1]:
             raise InputError("config", "metrics", f"{_named(n)} gave a curve of shape {np.shape(curves[n])} for a log "
                              f"of {log.ps.shape[:-1]} steps: one value per step is needed")
+        bad = np.flatnonzero(~np.isfinite(np.asarray(curves[n]).reshape(-1)))
+        if len(bad):  # before any file holds it: a results table holds finite numbers only
+            value = np.asarray(curves[n]).reshape(-1)[bad[0]]
+            raise InputError("config", "metrics", f"{_named(n)} gave {value} at step {bad[0] % log.ps.shape[-2]} "
+                             f"of a log of {log.ps.shape[-2]} steps: a curve must be finite numbers")
     return {n: np.asarray(curves[n], np.float64) for n in names}
 
 

@@ -112,6 +112,7 @@ def _vertices(ply: Path) -> np.ndarray:
     except Exception as err:  # trimesh raises many kinds on a malformed file
         raise InputError(ply, "file", f"not a readable PLY point cloud ({type(err).__name__}: {err})") from None
     if isinstance(vertex, dict):  # an ASCII PLY: trimesh gives one (n, 1) column per property
+        _check_ascii_body(ply)
         vertex = _columns(ply, vertex)
     missing = [a for a in "xyz" if a not in (vertex.dtype.names or ())]
     if missing:
@@ -119,6 +120,38 @@ def _vertices(ply: Path) -> np.ndarray:
     if len(vertex) == 0:
         raise InputError(ply, "vertex", "the map has no points")
     return vertex
+
+
+def _check_ascii_body(ply: Path) -> None:
+    """An ASCII PLY's body holds what its header declares: as many lines as its elements
+    count, each vertex line one number per property (a binary body is held to its header
+    by its length; an ASCII one was read as far as the header said, whatever followed)."""
+    lines = ply.read_bytes().decode("ascii", "replace").splitlines()
+    end = next((i for i, ln in enumerate(lines) if ln.strip() == "end_header"), None)
+    if end is None:
+        raise InputError(ply, "header", "has no end_header line")
+    elements: list[list] = []  # [name, count, properties, has a list property]
+    for ln in lines[1:end]:
+        words = ln.split()
+        if words[:1] == ["element"] and len(words) == 3:
+            if not words[2].isdigit():
+                raise InputError(ply, f"element {words[1]}", f"{words[2]!r} is not a count")
+            elements.append([words[1], int(words[2]), 0, False])
+        elif words[:1] == ["property"] and elements:
+            elements[-1][2] += 1
+            elements[-1][3] |= words[1:2] == ["list"]
+    body = [ln.split() for ln in lines[end + 1:] if ln.strip()]
+    declared = sum(e[1] for e in elements)
+    if len(body) != declared:
+        raise InputError(ply, "body", f"{len(body)} lines where the header declares {declared} "
+                         f"({', '.join(f'{e[1]} {e[0]}' for e in elements)})")
+    row = 0
+    for name, count, props, listed in elements:
+        for k in range(count):
+            if not listed and len(body[row + k]) != props:
+                raise InputError(ply, f"{name} {k}", f"{len(body[row + k])} values where the header declares "
+                                 f"{props} properties")
+        row += count
 
 
 def _columns(ply: Path, columns: dict) -> np.ndarray:
@@ -158,17 +191,30 @@ def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[di
         if bad.any():
             row = int(np.argmax(bad))
             raise InputError(ply, "vertex confidence", f"{point_conf[row]} (row {row}) is not a number in [0, 1]")
-    for i in np.unique(instance):
-        mine = instance == i
-        k = -1
-        if point_label is not None:
-            vals, counts = np.unique(point_label[mine], return_counts=True)
-            k = int(vals[np.argmax(counts)])
-            if not -1 <= k < len(taxonomy.names):
-                raise InputError(ply, "vertex label", f"{k} is not a category index of the taxonomy (0..{len(taxonomy.names) - 1}, -1 none)")
-        labels[int(i)] = taxonomy.names[k] if k >= 0 else None
-        conf[int(i)] = float(point_conf[mine].max()) if "confidence" in names else 1.0
+    ids, inst = np.unique(instance, return_inverse=True)
+    k = _most_common(inst, point_label, len(ids)) if point_label is not None else np.full(len(ids), -1)
+    bad = (k < -1) | (k >= len(taxonomy.names))
+    if bad.any():
+        raise InputError(ply, "vertex label", f"{k[np.argmax(bad)]} is not a category index of the taxonomy "
+                         f"(0..{len(taxonomy.names) - 1}, -1 none)")
+    best = np.full(len(ids), -np.inf)
+    if "confidence" in names:
+        np.maximum.at(best, inst, point_conf)
+    for i, ki, ci in zip(ids.tolist(), k.tolist(), best.tolist()):
+        labels[i] = taxonomy.names[ki] if ki >= 0 else None
+        conf[i] = ci if "confidence" in names else 1.0
     return labels, conf
+
+
+def _most_common(group: np.ndarray, value: np.ndarray, groups: int) -> np.ndarray:
+    """(G,) each group's most common value, the smallest of those tied (as np.unique and
+    argmax pick), in one sort: O(P log P) for P points, whatever the number of groups."""
+    pairs, counts = np.unique(np.stack([group, value.astype(np.int64)]), axis=1, return_counts=True)
+    order = np.lexsort((pairs[1], -counts, pairs[0]))  # per group: most points first, then the smallest value
+    first = np.r_[True, pairs[0][order][1:] != pairs[0][order][:-1]]
+    out = np.empty(groups, np.int64)
+    out[pairs[0][order][first]] = pairs[1][order][first]
+    return out
 
 
 def _read_meta(path: Path, taxonomy):

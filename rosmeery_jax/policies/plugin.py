@@ -17,7 +17,7 @@ import numpy as np
 from rosmeery_jax.core import plugins, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
-from rosmeery_jax.core.specs import plain_name
+from rosmeery_jax.core import specs
 
 
 def plugin_class(spec: str) -> type[Policy]:
@@ -29,9 +29,9 @@ def plugin_class(spec: str) -> type[Policy]:
     if getattr(cls.decide, "__isabstractmethod__", False):
         raise InputError("config", "policies", f"plugin {spec!r} lacks a decide(state, pstate, key) method")
     name = getattr(cls, "name", "")
-    if not isinstance(name, str) or name == Policy.name or not plain_name(name):
-        raise InputError("config", "policies", f"plugin {spec!r} needs a class attribute name: a plain name "
-                         "that labels its results")
+    if name == Policy.name or not specs.label_name(name):
+        raise InputError("config", "policies", f"plugin {spec!r} needs a class attribute name that labels its "
+                         f"results: a plain name ({specs.LABEL_RULE})")
     return cls
 
 

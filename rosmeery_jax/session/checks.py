@@ -16,7 +16,8 @@ from rosmeery_jax.core import overrides, specs, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector.detections import check_choice
-from rosmeery_jax.env import EnvConfig, make
+from rosmeery_jax.env import make
+from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.gym import agent_class, check_agent
 from rosmeery_jax.mapping.protocol import check_entries as check_mappers
 from rosmeery_jax.policies import check_entry as check_policy
@@ -27,8 +28,6 @@ from rosmeery_jax.world import load_world
 from rosmeery_jax.world.load import check_entry as check_world
 
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
-DEVICE_BYTES_PER_ENV = 2.5e6  # measured: 1,024 envs peak at 2.0 GB (docs/performance.md)
-CAMERA_BYTES_PER_PIXEL = 64  # depth, labels and the ray kernel's per-pixel work, with headroom
 SWEEP_BYTES_PER_PIXEL = 12  # a step's depth held for a mapper: float32, on device, on the host, as sent
 FRAME_BYTES_PER_PIXEL = 16  # a detector frame held for the worker: RGB, labels, depth, with copies
 
@@ -108,11 +107,6 @@ def _check_devices(cfg, worlds, source: str) -> None:
     if cfg.devices > blocks:
         raise InputError(source, "devices", f"{cfg.devices}: this session has {blocks} blocks of {BLOCK} robots, "
                          "and a device runs whole blocks (at most one device per block)")
-
-
-def env_bytes(env: EnvConfig) -> float:
-    """Device memory one env's state and one step's camera work take (estimate, with headroom)."""
-    return DEVICE_BYTES_PER_ENV + env.camera.width * env.camera.height * CAMERA_BYTES_PER_PIXEL
 
 
 def _check_size(cfg, worlds, source: str) -> None:

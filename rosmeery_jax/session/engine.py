@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import collections
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from typing import Any, NamedTuple
 
 import jax
@@ -177,19 +177,9 @@ def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: Keys, empty)
     state = jax.eval_shape(fns.reset, data, blocks, keys.env)
     strong = lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype)  # noqa: E731  (_init_policies gives numpy-made arrays)
     pstates = tuple(jax.tree.map(strong, jax.eval_shape(p.init_batch, keys.policy)) for p in group.policies)
-    pool = ThreadPoolExecutor(max_workers=1)
-    job = pool.submit(lambda: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile())
-    pool.shutdown(wait=False)
-    return lambda *_: _wait(job)
-
-
-def _wait(job: Future):
-    """The compile's result, Ctrl-C honoured while waiting for it."""
-    while True:
-        try:
-            return job.result(timeout=0.2)
-        except TimeoutError:
-            interrupt.check()
+    job = interrupt.background(lambda: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile(),
+                               "compile")
+    return lambda *_: interrupt.wait(job)
 
 
 def _init_policies(group: Group, keys: jax.Array) -> tuple:

@@ -18,14 +18,13 @@ D detections per frame.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from rosmeery_jax.core import xla
+from rosmeery_jax.core import interrupt, xla
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.decision import Decision, Frames, decide
@@ -94,9 +93,10 @@ class _Lowered(NamedTuple):
     args: list
 
     def compile(self) -> Replicas:
-        r = self.replicas
-        with ThreadPoolExecutor(r.devices) as pool:  # XLA compiles without the GIL
-            return Replicas(r.jitted, r.devices, list(pool.map(lambda a: r.jitted.lower(*a).compile(), self.args)))
+        r = self.replicas  # each device's copy in a thread of its own (XLA compiles without the GIL), Ctrl-C
+        # honoured while waiting
+        jobs = [interrupt.background(lambda a=a: r.jitted.lower(*a).compile(), "compile") for a in self.args]
+        return Replicas(r.jitted, r.devices, [interrupt.wait(job) for job in jobs])
 
 
 def in_world(group: Group, stacked: wd.WorldData, block: jax.Array) -> tuple[RobotEnv, list]:
