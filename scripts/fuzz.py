@@ -3,7 +3,8 @@
     .venv/bin/python scripts/fuzz.py [--n 1000]
 
 For each loader (worlds, session configs, recordings, pose CSVs, maps as PLY and JSON,
-transforms, procedural world names, policy files, weight files): inputs
+transforms, procedural world names, policy files, results folders' run, config and digest
+files as resume, join, plot and diff read them, plugin modules, weight files): inputs
 tried, valid results, clear one-line errors, and tracebacks (must be 0). The strategies are
 the suite's (tests/fuzz_inputs.py); the suite runs a few hundred, this runs thousands.
 """
@@ -79,7 +80,16 @@ def main() -> int:
                ("maps (JSON)", fz.load_map_json, texts(fz.SEED_MAP_JSON), "map.json"),
                ("transforms (JSON)", fz.load_transform, texts(fz.SEED_TRANSFORM), "transform.json"),
                ("procedural names", fz.load_procedural_name, texts(fz.SEED_PROCEDURAL), "name.txt"),
-               ("policy files (msgpack)", fz.load_policy_file, binary(fz.policy_bytes()), "policy.msgpack")]
+               ("policy files (msgpack)", fz.load_policy_file, binary(fz.policy_bytes()), "policy.msgpack"),
+               ("damaged run files", fz.results_loader(f"runs/{fz.RUN}.metrics.csv", False),
+                texts(fz.results_seed(f"runs/{fz.RUN}.metrics.csv")), "run.csv"),
+               ("run files, recorded", fz.results_loader(f"runs/{fz.RUN}.metrics.csv", True),
+                texts(fz.results_seed(f"runs/{fz.RUN}.metrics.csv")), "run.csv"),
+               ("results config files", fz.results_loader("config.json", False),
+                texts(fz.results_seed("config.json")), "config.json"),
+               ("digest files, recorded", fz.results_loader(f"runs/{fz.RUN}.digest.csv", True),
+                texts(fz.results_seed(f"runs/{fz.RUN}.digest.csv")), "digest.csv"),
+               ("plugin modules", fz.load_plugin_module, texts(fz.SEED_PLUGIN), "plugin.py")]
     try:
         import torch  # noqa: F401
 

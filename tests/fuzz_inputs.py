@@ -203,3 +203,154 @@ def check_one(loader, path: Path) -> str:
     except Exception as err:  # noqa: BLE001 - this is what the fuzzing looks for
         raise AssertionError(f"{loader.__name__}: traceback-worthy {type(err).__name__}: {err}") from err
     return "ok"
+
+
+# --- results folders: what resume, join, plot and diff read -----------------------------
+
+RUN = "small_office__random"
+RUN_FILES = {  # a finished run of small_office x random, seeds FIRST..FIRST+1, by hand
+    "metrics.csv": "world,policy,detector,mapper,seed,time_s,metric,value\n"
+                   + "".join(f"small_office,random,off,oracle,{{s{k}}},{t}.0,ori,0.{t}{k}\n" for k in (0, 1)
+                             for t in range(3)),
+    "trajectory.csv": "world,policy,seed,time_s,x,y,yaw\n"
+                      + "".join(f"small_office,random,{{s{k}}},{t}.0,0.{t},0.{k},0.5\n" for k in (0, 1)
+                                for t in range(3)),
+    "digest.csv": "seed,chunk,time_s,physics,map,knowledge,detections\n"
+                  + "".join(f"{{s{k}}},{c},{c + 1}.0,aa{k}{c},bb{c},cc{c},\n" for k in (0, 1) for c in range(2)),
+}
+
+
+def results_part(folder: Path, first: int = 0) -> Path:
+    """A finished session's folder (config.json, run files, their record, the merged table
+    and its record), as `rosmeery run` writes them."""
+    from rosmeery_jax.results import manifest
+    from rosmeery_jax.session.outputs import INTEGRITY, seal_run
+
+    (folder / "runs").mkdir(parents=True)
+    (folder / "maps").mkdir()
+    session = {"worlds": ["small_office"], "policies": ["random"], "seeds": 2, "first_seed": first, "duration": 2.0,
+               "detector": "off", "metrics": ["ori"], "out": str(folder)}
+    (folder / "config.json").write_text(json.dumps({"session": session, "inputs": {"worlds": {"small_office": "abc"}},
+                                                    "integrity": INTEGRITY}))
+    for suffix, text in RUN_FILES.items():
+        (folder / "runs" / f"{RUN}.{suffix}").write_text(text.format(s0=first, s1=first + 1))
+    seal_run(folder, RUN)
+    (folder / "metrics.csv").write_text((folder / "runs" / f"{RUN}.metrics.csv").read_text())
+    manifest.write(folder / manifest.MANIFEST, folder, [folder / "metrics.csv"])
+    return folder
+
+
+def _read_results(part: Path, reseal: bool):
+    """What --resume, join, plot and diff read of ``part`` (beside a good part of seeds 2-3):
+    its records first; with ``reseal`` the damage is recorded as the folder's own, so the
+    tables' own checks are what read it."""
+    import shutil
+
+    from rosmeery_jax.results import manifest, tables
+    from rosmeery_jax.session import digest, join
+    from rosmeery_jax.session.outputs import check_folder, seal_run
+
+    base = part.parent / "base"
+    if not base.exists():
+        results_part(base, first=2)
+    if reseal:
+        seal_run(part, RUN)
+        shutil.copy(part / "runs" / f"{RUN}.metrics.csv", part / "metrics.csv")
+        manifest.write(part / manifest.MANIFEST, part, [part / "metrics.csv"])
+    check_folder(part)  # resume, plot and diff start here
+    tables.load(part)  # what plot reads
+    parts = sorted([join._read(part), join._read(base)], key=lambda p: p.seeds.start)
+    join._check(parts)
+    scratch = part.parent / "joined"
+    shutil.rmtree(scratch, ignore_errors=True)
+    for name in ("metrics.csv", "trajectory.csv", "digest.csv"):
+        join._concat([p.folder / "runs" / f"{RUN}.{name}" for p in parts], scratch / name)
+    return digest.compare(base, part)
+
+
+def results_loader(file: str, reseal: bool):
+    """A loader for one file of a results folder: the mutated file is put into a fresh
+    finished folder and the folder read as resume, join, plot and diff read it."""
+    import shutil
+
+    def load(path: Path):
+        from rosmeery_jax.core.errors import InputError
+
+        part = path.parent / "part"
+        shutil.rmtree(part, ignore_errors=True)
+        results_part(part, first=0)
+        target = part / file
+        target.write_bytes(path.read_bytes())
+        try:
+            return _read_results(part, reseal)
+        except InputError as err:  # the message names the file it found damaged: the mutated one
+            if any(name in str(err) for name in (target.name, "manifest.json", f"{part}/metrics.csv")):  # the
+                # merged table is a copy of the run's
+                raise InputError(path, "", str(err)) from None
+            raise
+
+    load.__name__ = f"load_results_{file.replace('/', '_')}"
+    return load
+
+
+def results_seed(file: str) -> str:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        return (results_part(Path(tmp) / "p") / file).read_text()
+
+
+# --- plugin modules: a user's metric, policy, mapper and agent in one file ---------------
+
+SEED_PLUGIN = '''
+import jax.numpy as jnp
+from rosmeery_jax.gym import Agent
+from rosmeery_jax.mapping.perceived import PerceivedMapper
+from rosmeery_jax.policies.frontier import FrontierPolicy
+
+
+def seen(log, truth):
+    return (log.ps > 0).mean(-1).astype(jnp.float32)
+
+
+class Explorer(FrontierPolicy):
+    name = "explorer"
+
+
+class Mapper(PerceivedMapper):
+    name = "my_mapper"
+
+
+class Driver(Agent):
+    name = "driver"
+
+    def act(self, obs):
+        return obs["pose"]
+'''
+_plugins = {"n": 0}
+
+
+def load_plugin_module(path: Path):
+    """A plugin module's metric, policy, mapper and agent loaded and checked as a session's
+    configuration checks them (a fresh file each time: a module is imported once per path)."""
+    from rosmeery_jax.core.errors import InputError
+    from rosmeery_jax.gym import agent_class
+    from rosmeery_jax.mapping.protocol import mapper_class
+    from rosmeery_jax.metrics import indices
+    from rosmeery_jax.policies import policy_class
+
+    _plugins["n"] += 1
+    fresh = path.with_name(f"{path.stem}_{_plugins['n']}.py")
+    fresh.write_bytes(path.read_bytes())
+    try:
+        policy_class(f"{fresh}:Explorer")
+        mapper_class(f"{fresh}:Mapper")
+        agent_class(f"agent:{fresh}:Driver")
+        indices.resolve([f"{fresh}:seen"])
+        indices.REGISTRY.pop("seen", None)  # the next module's metric registers afresh
+        indices.CHECKED.pop("seen", None)
+        indices.PLUGIN_SPECS.pop("seen", None)
+    except InputError as err:
+        raise InputError(path, "", str(err).replace(fresh.name, path.name)) from None
+    finally:
+        fresh.unlink()

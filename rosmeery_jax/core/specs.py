@@ -23,7 +23,7 @@ MAX_WORLDS = 10_000  # worlds one command may name (a world bank of 10,000 small
 PLUGIN = re.compile(r"(?P<module>[^:]+\.py|[A-Za-z_][\w.]*):(?P<name>[A-Za-z_]\w*)")
 NAME = re.compile(r"[A-Za-z_][\w-]*")
 LABEL = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")  # a results label: see label_name
-LABEL_RULE = "letters, digits, _ . and -, at most 64 characters, not starting with a dot"
+LABEL_RULE = "letters, digits, _ . and -, at most 64 characters, starting with a letter, digit or _"
 MAX_SEED = 2**31 - 1  # seeds are int32 keys, in sessions, recordings and the Gymnasium envs
 KINDS = ("name", "plugin", "procedural", "replay", "learned", "agent", "path")
 

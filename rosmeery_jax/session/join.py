@@ -73,8 +73,10 @@ def _read(folder: Path) -> SweepPart:
     if not isinstance(session, dict) or not isinstance(record.get("inputs"), dict):
         raise InputError(str(saved), "file", "not a session's config")
     first, count = session.get("first_seed", 0), session.get("seeds")
-    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (first, count)) or first < 0 or count < 1:
-        raise InputError(str(saved), "seeds", f"first_seed {first!r}, seeds {count!r}: not a range of seeds")
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (first, count)) or first < 0 or count < 1 \
+            or first + count - 1 > specs.MAX_SEED:
+        raise InputError(str(saved), "seeds", f"first_seed {first!r}, seeds {count!r}: not a range of seeds (0 to "
+                         f"{specs.MAX_SEED})")
     names = {}
     for key in ("worlds", "policies"):
         names[key] = session.get(key)
