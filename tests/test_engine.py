@@ -200,7 +200,8 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     files = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if p.is_file()  # noqa: E731
                              and not p.name.endswith((".png", "timing.json", "config.json")))
     whole_dir, joined = tmp_path / "whole", tmp_path / "joined"
-    assert files(joined) == files(whole_dir) and len(files(whole_dir)) == 14  # 4 tables, 4 run files, 6 map files
+    assert files(joined) == files(whole_dir) and len(files(whole_dir)) == 16  # 4 tables, 4 run files, 6 map files,
+        # the run's record and the tables'
     for name in files(whole_dir):
         assert (joined / name).read_bytes() == (whole_dir / name).read_bytes(), name
     session = lambda d: {k: v for k, v in json.loads((d / "config.json").read_text())["session"].items()  # noqa: E731

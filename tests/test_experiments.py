@@ -14,7 +14,7 @@ import pytest
 
 from rosmeery_jax.policies import plugin
 from rosmeery_jax.rl import ppo
-from rosmeery_jax.session import config
+from rosmeery_jax import policies
 from rosmeery_jax.session.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,7 +39,7 @@ def test_an_experiment_config_validates(path, monkeypatch):
         assert target.shape == (3,), spec
         traced.append(spec)
 
-    monkeypatch.setattr(config, "check_plugin", trace_only)
+    monkeypatch.setattr(policies, "check_plugin", trace_only)
     cfg = load_config(path)
     assert cfg.out.startswith("results/")
     assert all(Path(p.split(":")[0]).is_file() for p in cfg.policies if ".py:" in p)

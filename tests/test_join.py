@@ -100,7 +100,7 @@ def test_parts_that_are_not_one_sweep_are_one_line_and_nothing_is_written(tmp_pa
         record = json.loads((b / "config.json").read_text())
         (b / "config.json").write_text(json.dumps({**record, "inputs": {"worlds": {"small_office": "other"}}}))
     if second.get("unfinished"):
-        (b / "runs" / f"{RUN}.metrics.csv").unlink()
+        (b / "runs" / f"{RUN}.manifest.json").unlink()  # the record marks a run finished
     if second.get("missing"):
         (b / "config.json").unlink()
     assert main(["join", str(a), str(b), "--out", str(tmp_path / "out")]) == 2

@@ -43,6 +43,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import require_same, write_atomic
 from rosmeery_jax.env import make
 from rosmeery_jax.session import Session, SessionConfig
+from rosmeery_jax.session.schedule import control_dt
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
@@ -88,7 +89,7 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     wanted = range(seeds) if isinstance(seeds, int) else sorted(set(seeds))  # a range: not listed before the
     if not wanted or wanted[0] < 0:  # session's memory check
         raise InputError("command line", "--seeds", f"{seeds!r}: name at least one seed, none negative")
-    dt = SessionConfig().dt
+    dt = control_dt(SessionConfig())
     check(cfg, out, resume, dt)
     settings = {"world": world, "policy": policy, "duration": duration, **asdict(cfg)}
     _check_settings(out, settings)

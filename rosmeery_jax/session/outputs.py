@@ -122,8 +122,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
 
 
 def run_files(out: Path, name: str) -> list[Path]:
-    """The files of run ``name`` in ``out``: its tables and timing, and its maps."""
-    runs = [p for p in (out / "runs").glob(f"{name}.*") if not p.name.endswith(manifest.RUN_SUFFIX)]
+    """The result files of run ``name`` in ``out``: its tables and maps (not its timing, which
+    a resumed run measures anew)."""
+    runs = [p for p in (out / "runs").glob(f"{name}.*") if p.suffix == ".csv"]
     return runs + list((out / "maps").glob(f"{name}__seed*"))
 
 
