@@ -781,3 +781,49 @@ def test_camera_poses_of_many_robot_poses_equal_one_at_a_time(scenes):
     many = cam.pose(poses)
     assert many.shape == (2, 5, 4, 4)
     assert np.array_equal(many, np.stack([[cam.pose(p) for p in row] for row in poses]))
+
+
+def test_the_compiled_kernels_give_what_their_numpy_formulations_give():
+    """The union-find segments number as scipy.ndimage.label numbers the image of pixels and
+    links (thresholds in float32, as numpy takes them beside float32 depth); the hash table
+    answers as a dict; the back-projection matches the numpy expressions bit for bit."""
+    from scipy import ndimage
+
+    from rosmeery_jax.mapping.kernels import HashTable, back_project, label_segments
+
+    rng = np.random.default_rng(0)
+    within = np.zeros((3, 3, 3), bool)
+    within[1] = ndimage.generate_binary_structure(2, 1)
+    for _ in range(200):
+        f, h, w = rng.integers(1, 4), rng.integers(1, 16), rng.integers(1, 16)
+        d = (rng.choice([0.5, 1.0, 1.02, 2.0], (f, h, w)) + rng.normal(0, 0.01, (f, h, w))).astype(np.float32)
+        valid = rng.random((f, h, w)) < 0.8
+        grid = np.zeros((f, 2 * h - 1, 2 * w - 1), bool)
+        grid[:, ::2, ::2] = valid
+        for a, b, link in ((np.s_[..., :-1], np.s_[..., 1:], np.s_[:, ::2, 1::2]),
+                           (np.s_[:, :-1, :], np.s_[:, 1:, :], np.s_[:, 1::2, ::2])):
+            grid[link] = valid[a] & valid[b] & (np.abs(d[a] - d[b]) <= 0.03 + 0.03 * np.minimum(d[a], d[b]))
+        label, count = ndimage.label(grid, within)
+        got = label_segments(d, valid, np.float32(0.03), np.float32(0.03))
+        assert got[0] == count and np.array_equal(got[1], label[:, ::2, ::2][valid] - 1)
+    table, held = HashTable(16), {}
+    for _ in range(100):
+        keys = np.unique(rng.integers(0, 1 << 62, rng.integers(0, 200)))
+        np.testing.assert_array_equal(table.get(keys), [held.get(k, -1) for k in keys.tolist()])
+        new = keys[table.get(keys) < 0]
+        values = rng.integers(0, 50, len(new))
+        table.add(new, values)
+        held.update(zip(new.tolist(), values.tolist()))
+    depth = rng.choice([0.0, 0.7, 2.5], (3, 6, 8)).astype(np.float32)
+    rays = tuple(rng.normal(0, 1, (6, 8)) for _ in range(3))
+    pose = rng.normal(0, 2, (3, 3)).astype(np.float32)
+    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    valid, dd, x, y, z = back_project(depth, *rays, c, s, pose[:, 0].copy(), pose[:, 1].copy(), 0.4, np.float32(0.1), 0.03)
+    zz = 0.4 + rays[2] * depth
+    want = (depth > 0) & (zz >= 0.03)
+    at = np.broadcast_to(np.arange(3)[:, None, None], depth.shape)[want]
+    rx, ry = rays[0][None].repeat(3, 0)[want] * depth[want], rays[1][None].repeat(3, 0)[want] * depth[want]
+    np.testing.assert_array_equal(valid, want)
+    np.testing.assert_array_equal(x, pose[at, 0] + 0.1 * c[at] + c[at] * rx - s[at] * ry)
+    np.testing.assert_array_equal(y, pose[at, 1] + 0.1 * s[at] + s[at] * rx + c[at] * ry)
+    np.testing.assert_array_equal(z, zz[want])

@@ -21,7 +21,8 @@ from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
 from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segment_owners, segments
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
 from rosmeery_jax.mapping.config import PerceivedConfig
-from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, KeyTable, Rows, cube_keys, first_claims
+from rosmeery_jax.mapping.kernels import HashTable, back_project
+from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, Rows, cube_keys, first_claims
 
 
 class _Seen(NamedTuple):
@@ -50,9 +51,9 @@ class PerceivedMapper(Mapper):
         self.sweep_rays = depth_rays(camera, camera.width, camera.height)  # the depth camera's of every step
         self.sweep_cfg = replace(cfg, edge_rel=cfg.edge_rel * camera.focal(w) / camera.focal(camera.width))
         # (its neighbouring pixels lie further apart in angle: the same surface tilt gives a larger depth step)
-        self.owner = KeyTable()  # voxel key -> instance that claimed it
-        self.cells = KeyTable()  # coarse cell key -> the first instance seen in it or beside it
-        self.claimed = KeyTable()  # coarse cell key -> the first instance seen in it
+        self.owner = HashTable()  # voxel key -> instance that claimed it
+        self.cells = HashTable()  # coarse cell key -> the first instance seen in it or beside it
+        self.claimed = HashTable()  # coarse cell key -> the first instance seen in it
         self.pending: list[list[np.ndarray]] = []  # per instance: point batches not in the map yet
         self.views: list[int] = []  # per instance: detections that support it
         self.parent: list[int] = []  # per instance: the instance it was merged into (itself if none)
@@ -60,12 +61,12 @@ class PerceivedMapper(Mapper):
         self.conf: list[float] = []
         self.points = Rows((3,), np.float64)  # the map's points, in the order they entered it
         self.point_instance = Rows((), np.int64)
-        self.held = KeyTable()  # plan-view cell key -> 0 where the map holds a point (rule 10)
+        self.held = HashTable()  # plan-view cell key -> 0 where the map holds a point (rule 10)
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
         self.extent: list[np.ndarray] = []  # per instance: its detections' points' 3D box (2, 3) (rule 7)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
-        self.walls = KeyTable()  # plan-view cell key -> 0 where a wall stands (rule 10)
+        self.walls = HashTable()  # plan-view cell key -> 0 where a wall stands (rule 10)
         names = np.array(categories, dtype=object)
         self._bare, self._placed = np.flatnonzero(np.isin(names, cfg.bare)), np.flatnonzero(np.isin(names, cfg.placed))
         self._last: _Seen | None = None  # the latest frame
@@ -225,15 +226,11 @@ class PerceivedMapper(Mapper):
     def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> Cloud:
         """F frames' depth pixels above the floor, in the world frame, cut into segments
         (each frame's own): pose (F, 3), depth (F, H, W); ``rays`` the frames' (:func:`depth_rays`)."""
-        z = self.config.mount_height + rays[2] * depth
-        valid = (depth > 0) & (z >= cfg.floor_z)  # the floor is dropped here
-        d = depth[valid]
-        at = np.broadcast_to(np.arange(len(pose))[:, None, None], depth.shape)[valid]  # each point's frame
-        rx, ry = np.broadcast_to(rays[0], depth.shape)[valid] * d, np.broadcast_to(rays[1], depth.shape)[valid] * d
-        c, s = np.cos(pose[:, 2])[at], np.sin(pose[:, 2])[at]  # rx, ry in the camera frame (x forward), turned by yaw
-        x = pose[at, 0] + self.config.mount_x * c + c * rx - s * ry
-        y = pose[at, 1] + self.config.mount_x * s + s * rx + c * ry
-        z = z[valid]
+        pose, depth = np.asarray(pose), np.ascontiguousarray(depth)
+        valid, d, x, y, z = back_project(  # the floor is dropped here; rays in the camera frame, turned by yaw
+            depth, *rays, np.cos(pose[:, 2]), np.sin(pose[:, 2]), np.ascontiguousarray(pose[:, 0]),
+            np.ascontiguousarray(pose[:, 1]), float(self.config.mount_height), pose.dtype.type(self.config.mount_x),
+            float(cfg.floor_z))
         keep = self._off_walls(x, y, z)
         if not keep.all():
             valid[valid] = keep
