@@ -64,7 +64,7 @@ class PerceivedMapper(Mapper):
         self.held = HashTable()  # plan-view cell key -> 0 where the map holds a point (rule 10)
         self.box: list[np.ndarray] = []  # per instance: its points' plan-view box (2, 2) (x, y corners),
         self.count: list[int] = []  # and how many, merged instances' included (rule 9)
-        self.extent: list[np.ndarray] = []  # per instance: its detections' points' 3D box (2, 3) (rule 7)
+        self.extent = Rows((2, 3), np.float64)  # per instance: its detections' points' 3D box (2, 3) (rule 7)
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self.walls = HashTable()  # plan-view cell key -> 0 where a wall stands (rule 10)
         names = np.array(categories, dtype=object)
@@ -133,7 +133,7 @@ class PerceivedMapper(Mapper):
             inst = self._associate(boxed.core, int(k), taken)
             taken.add(inst)
             self._claim(np.array([inst]), boxed.keys, pts, boxed.cells)
-            self.extent[inst] = _union(self.extent[inst], np.stack([pts.min(0), pts.max(0)]))
+            self.extent.rows[inst] = _union(self.extent.rows[inst], np.stack([pts.min(0), pts.max(0)]))
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
             self.views[inst] += 1
@@ -198,7 +198,7 @@ class PerceivedMapper(Mapper):
         the 3D box of the points that the detections of instance ``inst`` (k,) took."""
         if not np.isfinite(self.cfg.grow_margin):
             return np.ones(len(at), bool)
-        box = _widened(np.array(self.extent)[inst], self.cfg.grow_margin)  # (k, 2, 3)
+        box = _widened(self.extent.rows[inst], self.cfg.grow_margin)  # (k, 2, 3)
         xyz = np.stack([cloud.x[at], cloud.y[at], cloud.z[at]], -1)
         return ((xyz >= box[:, 0]) & (xyz <= box[:, 1])).all(-1)
 
@@ -282,7 +282,7 @@ class PerceivedMapper(Mapper):
         self.conf.append(np.float32(0.0))
         self.box.append(np.array([[np.inf, np.inf], [-np.inf, -np.inf]]))
         self.count.append(0)
-        self.extent.append(np.array([[np.inf] * 3, [-np.inf] * 3]))
+        self.extent.append(np.array([[[np.inf] * 3, [-np.inf] * 3]]))
         return len(self.parent) - 1
 
     def _merge(self, j: int, into: int, relabel: bool = True) -> None:
@@ -295,7 +295,7 @@ class PerceivedMapper(Mapper):
         self.label[j], self.conf[j] = -1, np.float32(0.0)
         self.pending[into] += self.pending[j]
         self.pending[j] = []
-        self.extent[into] = _union(self.extent[into], self.extent[j])
+        self.extent.rows[into] = _union(self.extent.rows[into], self.extent.rows[j])
         self._extend(into, self.box[j], self.count[j])
         self._publish(into)
 

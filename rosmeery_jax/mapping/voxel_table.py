@@ -10,12 +10,23 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 
 def cube_keys(xyz: tuple, size: float) -> np.ndarray:
-    """Cube keys of points: 21 bits per axis (a 100 km cube at 5 cm)."""
-    cell = [np.floor(a / size).astype(np.int64) + (1 << 20) for a in xyz]
-    return (cell[0] << 42) | (cell[1] << 21) | cell[2]
+    """Cube keys of points (x, y, z arrays): 21 bits per axis (a 100 km cube at 5 cm)."""
+    kind = np.result_type(*xyz, np.float32)  # the division in the points' own precision, as numpy divides
+    x, y, z = (np.ascontiguousarray(a, kind) for a in np.broadcast_arrays(*xyz))
+    return _cube_keys(x.ravel(), y.ravel(), z.ravel(), kind.type(size)).reshape(x.shape)
+
+
+@njit(cache=True)
+def _cube_keys(x, y, z, size):
+    out = np.empty(len(x), np.int64)
+    for i in range(len(x)):
+        out[i] = ((np.int64(np.floor(x[i] / size)) + (1 << 20)) << 42) | \
+                 ((np.int64(np.floor(y[i] / size)) + (1 << 20)) << 21) | (np.int64(np.floor(z[i] / size)) + (1 << 20))
+    return out
 
 
 # key offsets of a cube and its 26 neighbours (the bit layout of cube_keys)
@@ -111,9 +122,31 @@ class _Sorted(NamedTuple):
 
 def first_claims(keys: np.ndarray, rank: np.ndarray) -> np.ndarray:
     """Of entries with keys (K,) and ranks (K,), the first of the lowest rank for each key:
-    their indices, ordered by rank, then key."""
-    if not len(keys) or (rank == rank[0]).all():  # one rank: one sort
-        return np.unique(keys, return_index=True)[1]
-    o = np.lexsort((rank, keys))  # by key, then rank, then index (stable)
-    first = o[np.r_[True, keys[o][1:] != keys[o][:-1]]]
+    their indices, ordered by rank, then key. One pass over a hash table of the keys, then a
+    sort of the claims alone (most entries repeat a key)."""
+    if not len(keys):
+        return np.zeros(0, np.int64)
+    keys, rank = np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(rank, np.int64)
+    first = _first_claims(keys, rank)
     return first[np.lexsort((keys[first], rank[first]))]
+
+
+@njit(cache=True)
+def _first_claims(keys, rank):
+    size = 1
+    while size < 2 * len(keys):
+        size *= 2
+    mask = size - 1
+    slot_key = np.empty(size, np.int64)
+    slot_at = np.full(size, -1, np.int64)
+    for i in range(len(keys)):
+        h = np.uint64(keys[i]) * np.uint64(0x9E3779B97F4A7C15)
+        h ^= h >> np.uint64(29)
+        s = np.int64(h & np.uint64(mask))
+        while slot_at[s] >= 0 and slot_key[s] != keys[i]:
+            s = (s + 1) & mask
+        if slot_at[s] < 0:
+            slot_key[s], slot_at[s] = keys[i], i
+        elif rank[i] < rank[slot_at[s]]:  # a lower rank claims it; of equal ranks the first stays
+            slot_at[s] = i
+    return slot_at[slot_at >= 0]
