@@ -789,7 +789,7 @@ def test_the_compiled_kernels_give_what_their_numpy_formulations_give():
     answers as a dict; the back-projection matches the numpy expressions bit for bit."""
     from scipy import ndimage
 
-    from rosmeery_jax.mapping.kernels import HashTable, back_project, label_segments
+    from rosmeery_jax.mapping.kernels import HashTable, back_project, label_segments, within_boxes
 
     rng = np.random.default_rng(0)
     within = np.zeros((3, 3, 3), bool)
@@ -827,3 +827,9 @@ def test_the_compiled_kernels_give_what_their_numpy_formulations_give():
     np.testing.assert_array_equal(x, pose[at, 0] + 0.1 * c[at] + c[at] * rx - s[at] * ry)
     np.testing.assert_array_equal(y, pose[at, 1] + 0.1 * s[at] + s[at] * rx + c[at] * ry)
     np.testing.assert_array_equal(z, zz[want])
+    boxes = np.sort(rng.normal(0, 1, (4, 2, 3)), axis=1)
+    inst, at = rng.integers(0, 4, 50), rng.integers(0, len(x), 50)
+    grown = boxes[inst] + np.array([[-0.3], [0.3]])
+    xyz = np.stack([x[at], y[at], z[at]], -1)
+    np.testing.assert_array_equal(within_boxes(boxes, inst, at, x, y, z, 0.3),
+                                  ((xyz >= grown[:, 0]) & (xyz <= grown[:, 1])).all(-1))

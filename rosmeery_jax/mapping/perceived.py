@@ -21,7 +21,7 @@ from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
 from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segment_owners, segments
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
 from rosmeery_jax.mapping.config import PerceivedConfig
-from rosmeery_jax.mapping.kernels import HashTable, back_project
+from rosmeery_jax.mapping.kernels import HashTable, back_project, within_boxes
 from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, Rows, cube_keys, first_claims
 
 
@@ -198,9 +198,8 @@ class PerceivedMapper(Mapper):
         the 3D box of the points that the detections of instance ``inst`` (k,) took."""
         if not np.isfinite(self.cfg.grow_margin):
             return np.ones(len(at), bool)
-        box = _widened(self.extent.rows[inst], self.cfg.grow_margin)  # (k, 2, 3)
-        xyz = np.stack([cloud.x[at], cloud.y[at], cloud.z[at]], -1)
-        return ((xyz >= box[:, 0]) & (xyz <= box[:, 1])).all(-1)
+        return within_boxes(self.extent.rows, np.ascontiguousarray(inst, np.int64), np.ascontiguousarray(at, np.int64),
+                            cloud.x, cloud.y, cloud.z, float(self.cfg.grow_margin))
 
     def _roots(self) -> np.ndarray:
         """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to -1."""
