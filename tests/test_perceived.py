@@ -833,3 +833,48 @@ def test_the_compiled_kernels_give_what_their_numpy_formulations_give():
     xyz = np.stack([x[at], y[at], z[at]], -1)
     np.testing.assert_array_equal(within_boxes(boxes, inst, at, x, y, z, 0.3),
                                   ((xyz >= grown[:, 0]) & (xyz <= grown[:, 1])).all(-1))
+
+
+def test_rule_7s_compiled_choice_is_the_sorted_one():
+    """grow_ranks gives, point by point, what the numpy formulation (distinct (segment, cell)
+    pairs by np.unique, the owner by a lexsort: most cells, then the smaller instance; the
+    instances ranked by their first segment) gives."""
+    from rosmeery_jax.mapping.kernels import grow_ranks
+
+    def by_sorting(part, cell, held, beside, segments, share):
+        cells = len(held)
+        pairs, pair_ix = np.unique(part * cells + cell, return_inverse=True)
+        seg, cell_of = pairs // cells, pairs % cells
+        h = held[cell_of]
+        count = np.bincount(seg, minlength=segments)
+        on = h >= 0
+        if not on.any():
+            return np.full(len(part), -1), np.zeros(0, np.int64)
+        width = int(h.max()) + 1
+        pair, n = np.unique(seg[on] * width + h[on], return_counts=True)
+        s, inst = pair // width, pair % width
+        o = np.lexsort((-n, s))
+        s, inst, n = s[o], inst[o], n[o]
+        keep = np.r_[True, s[1:] != s[:-1]] & (n >= share * count[s])
+        segs, insts = s[keep], inst[keep]
+        if not len(segs):
+            return np.full(len(part), -1), np.zeros(0, np.int64)
+        ids, first, which = np.unique(insts, return_index=True, return_inverse=True)
+        order = np.argsort(first)
+        seg_rank = np.full(segments, -1)
+        seg_rank[segs] = np.argsort(order)[which]
+        rank = seg_rank[seg]
+        rank = np.where((rank >= 0) & (beside[cell_of] == ids[order][np.maximum(rank, 0)]), rank, -1)[pair_ix]
+        return rank, ids[order]
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        k, segments, cells = rng.integers(1, 80), rng.integers(1, 8), rng.integers(1, 12)
+        part, cell = rng.integers(0, segments, k), rng.integers(0, cells, k)
+        held = rng.integers(-1, 4, cells)
+        beside = np.where(rng.random(cells) < 0.8, held, rng.integers(-1, 4, cells))
+        share = float(rng.choice([0.0, 0.3, 0.5, 1.0]))
+        want = by_sorting(part, cell, held, beside, segments, share)
+        got = grow_ranks(part, cell, held, beside, segments, cells, share)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])

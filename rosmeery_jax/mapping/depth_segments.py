@@ -1,7 +1,7 @@
 """A depth frame cut into the segments objects are made of, for the perceived mapper
 (:mod:`rosmeery_jax.mapping.perceived`): the camera's rays scaled by depth, which box each
-pixel lies most inside, depth segments, and the instance each segment grows. Shapes: F
-frames, H x W pixels, k valid pixels, Q (segment, cell) pairs."""
+pixel lies most inside, and depth segments. Shapes: F
+frames, H x W pixels, k valid pixels."""
 
 from __future__ import annotations
 
@@ -49,21 +49,3 @@ def segments(d: np.ndarray, valid: np.ndarray, edge_abs: float, edge_rel: float)
     which it replaced)."""
     d = np.ascontiguousarray(d)  # thresholds in the depth's precision, as numpy takes a Python number beside it
     return label_segments(d, np.ascontiguousarray(valid), d.dtype.type(edge_abs), d.dtype.type(edge_rel))
-
-
-def segment_owners(seg: np.ndarray, held: np.ndarray, count: int, share: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rule 7's segments, ascending, and the instance each grows: from each of a frame's
-    distinct (segment, cell) pairs, seg (Q,) its segment and held (Q,) the instance holding
-    the cell (-1 none), the segments of which one instance holds at least ``share`` of the cells."""
-    cells = np.bincount(seg, minlength=count)
-    on = held >= 0
-    if not on.any():
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    width = int(held.max()) + 1
-    pair, n = np.unique(seg[on] * width + held[on], return_counts=True)
-    s, inst = pair // width, pair % width
-    order = np.lexsort((-n, s))  # per segment, the instance holding most first
-    s, inst, n = s[order], inst[order], n[order]
-    first = np.r_[True, s[1:] != s[:-1]]
-    keep = first & (n >= share * cells[s])
-    return s[keep], inst[keep]

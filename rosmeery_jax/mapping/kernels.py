@@ -9,6 +9,8 @@ tests compare them), so the maps are bitwise those of before.
   arithmetic of the numpy expressions, in their order; the yaw's cosine and sine come from
   numpy, whose cos and sin may round otherwise than the C library's);
 - :func:`within_boxes`: which points lie in their instances' grown boxes (rule 7);
+- :func:`grow_ranks`: rule 7's choice of the instance each segment grows, from the
+  distinct (segment, cell) pairs of a cloud, without sorting its points;
 - :class:`HashTable`: int64 keys to int64 values, open addressing with linear probing,
   for the mapper's voxel and cell tables (a sorted array grew by a copy per insert).
 """
@@ -126,6 +128,87 @@ def within_boxes(boxes, inst, at, x, y, z, margin):
         out[j] = (x[p] >= b[0, 0] + -margin and y[p] >= b[0, 1] + -margin and z[p] >= b[0, 2] + -margin
                   and x[p] <= b[1, 0] + margin and y[p] <= b[1, 1] + margin and z[p] <= b[1, 2] + margin)
     return out
+
+
+@njit(cache=True)
+def group_ids(keys):
+    """(ids (K,), G): each of int64 ``keys`` (K,) numbered by the first appearance of its
+    value, and the number of distinct values; one pass over a hash table."""
+    size = 1
+    while size < 2 * len(keys):
+        size *= 2
+    mask = size - 1
+    slot_key = np.empty(size, np.int64)
+    slot_id = np.full(size, -1, np.int64)
+    ids = np.empty(len(keys), np.int64)
+    count = 0
+    for i in range(len(keys)):
+        h = np.uint64(keys[i]) * _MIX
+        h ^= h >> np.uint64(29)
+        s = np.int64(h & np.uint64(mask))
+        while slot_id[s] >= 0 and slot_key[s] != keys[i]:
+            s = (s + 1) & mask
+        if slot_id[s] < 0:
+            slot_key[s], slot_id[s] = keys[i], count
+            count += 1
+        ids[i] = slot_id[s]
+    return ids, count
+
+
+@njit(cache=True)
+def grow_ranks(part, cell, held, beside, segments, cells, share):
+    """Rule 7 on one cloud: points' segments ``part`` (k,) and cells ``cell`` (k,) (indices
+    into the cells' ``held`` (C,): the instance holding each, -1 none, and ``beside`` (C,):
+    the instance seen in it or next to it). A segment grows the instance holding the most of
+    its distinct cells (the smaller of those tied) if that is at least ``share`` of them.
+    Returns each point's rank (k,) (-1: it joins nothing), and the instances grown (R,) in
+    rank order: the order of the first segment each grows. A point joins its segment's
+    instance only where its cell is beside it."""
+    pair, n_pairs = group_ids(part * cells + cell)  # the distinct (segment, cell) pairs
+    seen = np.zeros(n_pairs, np.bool_)
+    cells_of = np.zeros(segments, np.int64)  # distinct cells per segment
+    width = 1
+    for c in range(cells):
+        width = max(width, held[c] + 1)
+    inst_keys = np.empty(len(part), np.int64)
+    m = 0
+    for j in range(len(part)):
+        if not seen[pair[j]]:
+            seen[pair[j]] = True
+            cells_of[part[j]] += 1
+            if held[cell[j]] >= 0:
+                inst_keys[m] = part[j] * width + held[cell[j]]
+                m += 1
+    owner = np.full(segments, -1, np.int64)
+    if m:
+        group, n_groups = group_ids(inst_keys[:m])
+        counts = np.zeros(n_groups, np.int64)
+        key_of = np.empty(n_groups, np.int64)
+        for i in range(m):
+            counts[group[i]] += 1
+            key_of[group[i]] = inst_keys[i]
+        most = np.zeros(segments, np.int64)
+        for g in range(n_groups):
+            s, inst = key_of[g] // width, key_of[g] % width
+            if counts[g] > most[s] or (counts[g] == most[s] and inst < owner[s]):
+                most[s], owner[s] = counts[g], inst
+        for s in range(segments):
+            if owner[s] >= 0 and not most[s] >= share * cells_of[s]:
+                owner[s] = -1
+    order = np.full(width, -1, np.int64)  # each instance's rank
+    grown = np.empty(segments, np.int64)
+    r = 0
+    for s in range(segments):
+        if owner[s] >= 0 and order[owner[s]] < 0:
+            order[owner[s]] = r
+            grown[r] = owner[s]
+            r += 1
+    rank = np.full(len(part), -1, np.int64)
+    for j in range(len(part)):
+        o = owner[part[j]]
+        if o >= 0 and beside[cell[j]] == o:
+            rank[j] = order[o]
+    return rank, grown[:r]
 
 
 @njit(cache=True)

@@ -18,10 +18,10 @@ from typing import NamedTuple
 import numpy as np
 
 from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
-from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segment_owners, segments
+from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segments
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
 from rosmeery_jax.mapping.config import PerceivedConfig
-from rosmeery_jax.mapping.kernels import HashTable, back_project, within_boxes
+from rosmeery_jax.mapping.kernels import HashTable, back_project, group_ids, grow_ranks, within_boxes
 from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, Rows, cube_keys, first_claims
 
 
@@ -172,26 +172,20 @@ class PerceivedMapper(Mapper):
         if not len(cloud.part) or not len(self.claimed):
             return
         cell = cube_keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
-        cells, cell_ix = np.unique(cell, return_inverse=True)
-        pairs, pair_ix = np.unique(cloud.part * len(cells) + cell_ix, return_inverse=True)  # distinct (segment, cell)
-        seg, cell_of = pairs // len(cells), pairs % len(cells)  # each pair's segment and index into cells
+        cell_ix, n_cells = group_ids(cell)
+        cells = np.empty(n_cells, np.int64)
+        cells[cell_ix] = cell
         root = self._roots()
-        held = root[self.claimed.get(cells)][cell_of]  # looked up once per cell, not per pair
-        beside = root[self.cells.get(cells)][cell_of]  # the instance seen in the cell or next to it
-        segs, insts = segment_owners(seg, held, len(cloud.size), self.cfg.grow)
-        if not len(segs):
+        held = root[self.claimed.get(cells)]  # looked up once per cell
+        beside = root[self.cells.get(cells)]  # the instance seen in the cell or next to it
+        rank, grown = grow_ranks(cloud.part, cell_ix, held, beside, len(cloud.size), n_cells, float(self.cfg.grow))
+        if not len(grown):
             return
-        ids, first, which = np.unique(insts, return_index=True, return_inverse=True)
-        order = np.argsort(first)  # the instances in the order of their first segment, one claim each
-        seg_rank = np.full(len(cloud.size), -1)
-        seg_rank[segs] = np.argsort(order)[which]
-        rank = seg_rank[seg]  # per pair: the rank of the instance its segment grows, if it is beside it
-        rank = np.where((rank >= 0) & (beside == ids[order][np.maximum(rank, 0)]), rank, -1)[pair_ix]
         take = np.flatnonzero(rank >= 0)
-        take = take[self._within_reach(ids[order][rank[take]], cloud, take)]
+        take = take[self._within_reach(grown[rank[take]], cloud, take)]
         x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
-        self._claim(ids[order], cube_keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take],
-                    rank[take], rank[take])
+        self._claim(grown, cube_keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take], rank[take],
+                    rank[take])
 
     def _within_reach(self, inst: np.ndarray, cloud: Cloud, at: np.ndarray) -> np.ndarray:
         """Rule 7: (k,) which of the cloud's points ``at`` (k,) lie within ``grow_margin`` of
