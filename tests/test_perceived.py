@@ -878,3 +878,17 @@ def test_rule_7s_compiled_choice_is_the_sorted_one():
         got = grow_ranks(part, cell, held, beside, segments, cells, share)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_first_claims_are_the_lowest_rank_then_the_first_ordered_by_rank_then_key():
+    """The hash-table claims agree with sorting every entry by key, rank and index."""
+    from rosmeery_jax.mapping.voxel_table import first_claims
+
+    rng = np.random.default_rng(4)
+    for _ in range(500):
+        keys = rng.integers(0, rng.integers(1, 30), rng.integers(0, 50)).astype(np.int64) << 40
+        rank = rng.integers(0, rng.integers(1, 4), len(keys))
+        o = np.lexsort((rank, keys))
+        first = o[np.r_[True, keys[o][1:] != keys[o][:-1]]] if len(keys) else o
+        np.testing.assert_array_equal(first_claims(keys, rank), first[np.lexsort((keys[first], rank[first]))])
+

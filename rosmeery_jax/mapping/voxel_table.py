@@ -12,6 +12,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from rosmeery_jax.mapping.kernels import group_ids
+
 
 def cube_keys(xyz: tuple, size: float) -> np.ndarray:
     """Cube keys of points (x, y, z arrays): 21 bits per axis (a 100 km cube at 5 cm)."""
@@ -133,20 +135,10 @@ def first_claims(keys: np.ndarray, rank: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _first_claims(keys, rank):
-    size = 1
-    while size < 2 * len(keys):
-        size *= 2
-    mask = size - 1
-    slot_key = np.empty(size, np.int64)
-    slot_at = np.full(size, -1, np.int64)
+    group, count = group_ids(keys)
+    best = np.full(count, -1, np.int64)
     for i in range(len(keys)):
-        h = np.uint64(keys[i]) * np.uint64(0x9E3779B97F4A7C15)
-        h ^= h >> np.uint64(29)
-        s = np.int64(h & np.uint64(mask))
-        while slot_at[s] >= 0 and slot_key[s] != keys[i]:
-            s = (s + 1) & mask
-        if slot_at[s] < 0:
-            slot_key[s], slot_at[s] = keys[i], i
-        elif rank[i] < rank[slot_at[s]]:  # a lower rank claims it; of equal ranks the first stays
-            slot_at[s] = i
-    return slot_at[slot_at >= 0]
+        g = group[i]
+        if best[g] < 0 or rank[i] < rank[best[g]]:  # a lower rank claims it; of equal ranks the first stays
+            best[g] = i
+    return best
