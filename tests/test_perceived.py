@@ -20,7 +20,8 @@ from rosmeery_jax.mapping.protocol import Camera, DepthFrame, OnlineScorer
 from rosmeery_jax import metrics
 from rosmeery_jax.mapping import perceived
 from rosmeery_jax.mapping.perceived import PerceivedConfig, PerceivedMapper
-from rosmeery_jax.mapping.voxel_table import KeyTable, Rows, cube_keys, first_claims
+from rosmeery_jax.mapping.kernels import HashTable
+from rosmeery_jax.mapping.voxel_table import Rows, cube_keys, first_claims
 from rosmeery_jax.raycast.sensors import rgbd
 from rosmeery_jax.world.taxonomy import load_taxonomy
 from rosmeery_jax.metrics.map_file import build_map, write_map
@@ -736,9 +737,9 @@ def test_a_part_merges_when_enough_of_its_points_lie_inside(scenes, x1, merged):
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.integers(0, 1500), min_size=1, max_size=6), st.integers(0, 2 ** 32))
 def test_a_cube_table_answers_as_a_dictionary(sizes, seed):
-    """Batches of keys added (past 1,024 the latest move into the sorted array), each looked
-    up with as many keys never added."""
-    table, plain = KeyTable(), {}
+    """Batches of keys added (the table doubles as it fills), each looked up with as many
+    keys never added."""
+    table, plain = HashTable(16), {}
     rng = np.random.default_rng(seed)
     for k, size in enumerate(sizes):
         keys = np.unique(np.r_[rng.integers(-2 ** 40, 2 ** 40, size), list(plain)[:size // 2]]).astype(np.int64)

@@ -1,13 +1,9 @@
 """Points keyed by the cube they fall in, for the perceived mapper
-(:mod:`rosmeery_jax.mapping.perceived`): cube keys, a buffer that grows at its end, a table
-of keys to instances looked up many at once, and the first claim on each key.
-
-A frame looks up thousands of keys at once, so the table answers them in one vectorised
-search over sorted arrays rather than key by key. Shapes: K keys, n rows."""
+(:mod:`rosmeery_jax.mapping.perceived`): cube keys, a buffer that grows at its end, and the
+first claim on each key (the table of keys to instances is
+:class:`rosmeery_jax.mapping.kernels.HashTable`). Shapes: K keys, n rows."""
 
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -63,63 +59,6 @@ class Rows:
     @property
     def rows(self) -> np.ndarray:
         return self._buf[:self._n]
-
-
-class KeyTable:
-    """Cube keys to instances, looked up many keys at once. Keys are held in two sorted
-    arrays, each searched in one vectorised call: most in the main one, the latest in a
-    small one, merged into the main one once they are many (so an add costs a copy of the
-    small one, not of the whole table). Most keys a frame looks up are in no table (walls
-    and furniture no detection named): a bitmap of the keys' hashes (256 KiB) answers those
-    at once."""
-
-    _BITS = 18
-
-    def __init__(self):
-        self._main, self._latest = _Sorted.empty(), _Sorted.empty()
-        self._seen = np.zeros(1 << self._BITS, bool)
-
-    def __len__(self) -> int:
-        return len(self._main.keys) + len(self._latest.keys)
-
-    def _hash(self, keys: np.ndarray) -> np.ndarray:
-        return (keys.view(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - self._BITS)  # Fibonacci hashing
-
-    def get(self, keys: np.ndarray) -> np.ndarray:
-        """(K,) the instances the table holds for int64 ``keys`` (K,), -1 where it holds none."""
-        out = np.full(len(keys), -1, np.int64)
-        maybe = np.flatnonzero(self._seen[self._hash(keys)])
-        for held, insts in (self._main, self._latest):  # each _Sorted: keys, their instances
-            if len(held) and len(maybe):
-                at = np.minimum(np.searchsorted(held, keys[maybe]), len(held) - 1)
-                found = held[at] == keys[maybe]
-                out[maybe[found]] = insts[at[found]]
-                maybe = maybe[~found]
-        return out
-
-    def add(self, keys: np.ndarray, insts: np.ndarray) -> None:
-        """Record instances ``insts`` (K,) for distinct int64 ``keys`` (K,), none of them in the table yet."""
-        self._seen[self._hash(keys)] = True
-        self._latest = self._latest.insert(keys, insts)
-        if len(self._latest.keys) > max(1024, len(self._main.keys) // 16):
-            self._main, self._latest = self._main.insert(*self._latest), _Sorted.empty()
-
-
-class _Sorted(NamedTuple):
-    """Keys (K,) ascending and their instances (K,)."""
-
-    keys: np.ndarray
-    insts: np.ndarray
-
-    @classmethod
-    def empty(cls) -> "_Sorted":
-        return cls(np.zeros(0, np.int64), np.zeros(0, np.int64))
-
-    def insert(self, keys: np.ndarray, insts: np.ndarray) -> "_Sorted":
-        """These with ``keys`` (K,), none of them held yet, and their ``insts`` (K,) added."""
-        order = np.argsort(keys)
-        at = np.searchsorted(self.keys, keys[order])
-        return _Sorted(np.insert(self.keys, at, keys[order]), np.insert(self.insts, at, insts[order]))
 
 
 def first_claims(keys: np.ndarray, rank: np.ndarray) -> np.ndarray:
