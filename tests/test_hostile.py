@@ -144,3 +144,27 @@ def test_messages_name_the_join_and_the_transforms_cell(tmp_path):
     path.write_text(json.dumps({"transform": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, float("nan")], [0, 0, 0, 1]]}))
     with pytest.raises(InputError, match=r"t.json: transform\[2\]\[3\]: nan is not a finite number"):
         read_transform(path)
+
+
+def test_ctrl_c_while_a_compile_runs_stops_at_once(monkeypatch):
+    """A compile runs in a daemon thread and is waited for at safe points: a press stops the
+    wait at once (it waited for the compile's end, 40 s cold), and the command knows a job
+    still runs, so it exits without joining it."""
+    import threading
+    import time
+
+    from rosmeery_jax.core import interrupt
+
+    release = threading.Event()
+    job = interrupt.background(lambda: release.wait(60), "compile")
+    assert interrupt.busy()
+    assert next(t for t in threading.enumerate() if t.name == "rosmeery-background-compile").daemon
+    monkeypatch.setattr(interrupt._pressed, "is_set", lambda: True)  # Ctrl-C pressed under deferred()
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        interrupt.wait(job)
+    assert time.monotonic() - t0 < 1.0
+    release.set()
+    job.result(timeout=5)
+    time.sleep(0.1)
+    assert not interrupt.busy()
