@@ -38,38 +38,38 @@ class Boxed(NamedTuple):
 
 
 def box_points(cloud: Cloud, mine: np.ndarray, cfg: PerceivedConfig) -> Boxed:
-    """Rule 2 for one box, its points ``mine`` (k,): of the segments with at least ``inside``
-    of their pixels in the box, the nearest holding ``min_share`` of the box's points,
-    unless one holding ``front_share`` stands ``behind`` nearer; with its parts, those
-    holding ``part_share`` at most ``part_behind`` behind it."""
-    n = int(mine.sum())
+    """Rule 2 for one box, its points ``mine`` (n,) (indices into the cloud, ascending): of
+    the segments with at least ``inside`` of their pixels in the box, the nearest holding
+    ``min_share`` of the box's points, unless one holding ``front_share`` stands ``behind``
+    nearer; with its parts, those holding ``part_share`` at most ``part_behind`` behind it."""
+    n = len(mine)
     part = cloud.part[mine]
     size = np.bincount(part, minlength=len(cloud.size))  # each segment's pixels in the box
     inside = (size > 0) & (size >= cfg.inside * cloud.size)
     fit = inside & (size >= cfg.min_share * n)
     if not fit.any():
-        return _boxed(cloud, mine & False, cfg)
+        return _boxed(cloud, mine[:0], cfg)
     near = np.full(len(cloud.size), np.inf, cloud.depth.dtype)  # each segment's nearest point in the box
     np.minimum.at(near, part, cloud.depth[mine])  # (an accumulator of another dtype is 18x slower)
     front = inside & (size >= min(cfg.front_share, cfg.min_share) * n)  # the fit, and thin things
     obj = int(np.flatnonzero(fit)[np.argmin(near[fit])])
     if near[obj] > near[front].min() + cfg.behind:  # a thin thing in front: the fit is what shows through it
-        return _boxed(cloud, mine & False, cfg)
+        return _boxed(cloud, mine[:0], cfg)
     parts = inside & (size >= cfg.part_share * n) & (near >= near[obj]) & (near <= near[obj] + cfg.part_behind)
     parts[obj] = True
-    core = mine & (cloud.part == obj) if parts.sum() > 1 else None  # None: the object's segment alone
-    return _boxed(cloud, mine & parts[cloud.part], cfg, core)
+    core = mine[part == obj] if parts.sum() > 1 else None  # None: the object's segment alone
+    return _boxed(cloud, mine[parts[part]], cfg, core)
 
 
 def _boxed(cloud: Cloud, take: np.ndarray, cfg: PerceivedConfig, core: np.ndarray | None = None) -> Boxed:
-    """A box's points: the cloud's points ``take`` (k,), of which ``core`` (k,) (all if
+    """A box's points: the cloud's points ``take`` (indices), of which ``core`` (all if
     None) are the object's own segment."""
     keys, cells, points = _voxels(cloud, take, cfg)
     return Boxed(keys, cells, points, cells if core is None else _cells(cloud, core, cfg.cell))
 
 
 def _voxels(cloud: Cloud, take: np.ndarray, cfg: PerceivedConfig) -> tuple:
-    """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (k,), their coarse
+    """The distinct voxel keys (V,) ascending of the cloud's points ``take`` (indices), their coarse
     cell keys, and the first of the points in each voxel, (V, 3) (rule 3)."""
     x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
     keys, first = np.unique(cube_keys((x, y, z), cfg.voxel), return_index=True)
@@ -78,6 +78,6 @@ def _voxels(cloud: Cloud, take: np.ndarray, cfg: PerceivedConfig) -> tuple:
 
 
 def _cells(cloud: Cloud, take: np.ndarray, size: float) -> np.ndarray:
-    """The distinct coarse cell keys (C,) ascending of the cloud's points ``take`` (k,) (rule 4),
+    """The distinct coarse cell keys (C,) ascending of the cloud's points ``take`` (indices) (rule 4),
     cells ``size`` on a side."""
     return np.unique(cube_keys((cloud.x[take], cloud.y[take], cloud.z[take]), size))

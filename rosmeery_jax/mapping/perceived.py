@@ -79,9 +79,9 @@ class PerceivedMapper(Mapper):
         """Instances in the map (confirmed, and not merged into another)."""
         return int((self._confirmed() & (self._roots()[:-1] == np.arange(len(self.parent)))).sum())
 
-    def _confirmed(self) -> np.ndarray:
-        """(I,) which instances are confirmed (rule 6)."""
-        views, conf = np.array(self.views, np.int64), np.array(self.conf, np.float32)
+    def _confirmed(self, inst: int | slice = slice(None)) -> np.ndarray:
+        """Which instances (all, or ``inst``) are confirmed (rule 6)."""
+        views, conf = np.array(self.views[inst], np.int64), np.array(self.conf[inst], np.float32)
         cfg = self.cfg  # an instance's confidence is that of a detection it took, so alone_conf implies a view
         return (views >= cfg.min_views) & (conf >= cfg.min_conf) | (conf >= cfg.alone_conf)
 
@@ -213,7 +213,7 @@ class PerceivedMapper(Mapper):
             cloud = self._cloud(np.asarray(pose)[None], np.asarray(depth)[None], self.rays, self.cfg)
             owner = box_owner(boxes, depth.shape)[cloud.valid[0]]  # (k,) the box each point lies most inside
             self._last = last = _Seen(np.array(pose), np.array(depth), np.array(boxes), cloud,
-                                      [box_points(cloud, owner == i, self.cfg) for i in range(len(boxes))])
+                                      [box_points(cloud, mine, self.cfg) for mine in _by_box(owner, len(boxes))])
         return last.voxels
 
     def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> Cloud:
@@ -295,7 +295,7 @@ class PerceivedMapper(Mapper):
     def _publish(self, inst: int) -> None:
         """A confirmed instance's pending points join the map's end (rule 6), but for those
         in a wall's cells (rule 10: the wall may have been found since they were seen)."""
-        if self.pending[inst] and self._confirmed()[inst]:
+        if self.pending[inst] and self._confirmed(inst):
             pts = np.concatenate(self.pending[inst])
             self.pending[inst] = []
             cell = self._plan_cells(pts[:, 0], pts[:, 1])
@@ -386,6 +386,13 @@ class PerceivedMapper(Mapper):
         pair = (meet & kin & (count[:, None] < cfg.absorb_size * count[None])
                 & (touched[:, None] | touched[None]))
         return ids, box, count, pair
+
+
+def _by_box(owner: np.ndarray, boxes: int) -> list[np.ndarray]:
+    """Each box's points (indices, ascending) from the box each point lies most inside (k,)."""
+    order = np.argsort(owner, kind="stable")
+    bounds = np.searchsorted(owner[order], np.arange(boxes + 1))
+    return [order[bounds[i]:bounds[i + 1]] for i in range(boxes)]
 
 
 def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
