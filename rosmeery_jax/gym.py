@@ -51,19 +51,19 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from rosmeery_jax import metrics
 from rosmeery_jax.core import overrides, plugins, specs, xla
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.specs import MAX_SEED
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.env import EnvConfig
+from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.env.decision import Decision, decide
-from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.world_bank import world_bank
-from rosmeery_jax.rl.task import REWARDS, score
-from rosmeery_jax import metrics
-from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, check_map
-from rosmeery_jax.core.specs import MAX_SEED
+from rosmeery_jax.metrics.map_score import TOLERANCE
+from rosmeery_jax.rl.task import REWARDS, score
 from rosmeery_jax.sim import coverage, occupancy
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 

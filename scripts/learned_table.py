@@ -22,9 +22,8 @@ from pathlib import Path
 import pandas as pd
 
 from rosmeery_jax.core.errors import one_line
-from rosmeery_jax.results import tables
-from rosmeery_jax.results import statistics
 from rosmeery_jax.metrics.indices import summarize
+from rosmeery_jax.results import statistics, tables
 
 PAPER = ("kitchen", "laboratory", "small_office", "large_office")
 POLICIES = ("learned", "gradient_nbv", "frontier", "random", "semantic_nbv")

@@ -13,9 +13,8 @@ import numpy as np
 import pandas as pd
 
 from rosmeery_jax.core.errors import InputError, one_line
-from rosmeery_jax.results import tables
+from rosmeery_jax.results import statistics, tables
 
-from rosmeery_jax.results import statistics
 TITLES = {"kitchen": "Kitchen", "laboratory": "Laboratory", "small_office": "Small Office",
           "large_office": "Large Office"}
 POLICIES = ("frontier", "random", "semantic_nbv")

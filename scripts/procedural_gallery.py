@@ -18,9 +18,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from rosmeery_jax.world import PAPER_WORLDS, load_world  # noqa: E402
+from rosmeery_jax.world.census import stats_table  # noqa: E402
 from rosmeery_jax.world.draw import draw_world  # noqa: E402
 from rosmeery_jax.world.generate import KINDS  # noqa: E402
-from rosmeery_jax.world.census import stats_table  # noqa: E402
 
 COLUMNS = ["objects", "categories", "floor_m2", "reachable_m2", "objects_per_10m2", "samples"]
 

@@ -11,9 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from hypothesis import strategies as st
-
 from conftest import room_xml
+from hypothesis import strategies as st
 
 CHAIR = '<body name="thing" pos="1 1 0"><geom type="box" pos="0 0 0.2" size="0.2 0.2 0.2"/></body>'
 SEED_WORLD = room_xml(CHAIR, {"thing": "chair"}, spawn=(-1.0, -1.0, 0.0))
@@ -95,8 +94,8 @@ def load_session_config(path: Path):
 
 
 def load_recording(path: Path):
-    from rosmeery_jax.policies.teleop_replay import recordings_by_world
     from rosmeery_jax.policies.teleop_file import check_world
+    from rosmeery_jax.policies.teleop_replay import recordings_by_world
     from rosmeery_jax.world import load_world
 
     for recs in recordings_by_world(f"replay:{path}").values():
@@ -160,8 +159,8 @@ def load_transform(path: Path):
 def load_procedural_name(path: Path):
     """A procedural world's name (the file's text), expanded, parsed and generated."""
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.world.generate import generate
     from rosmeery_jax.core.specs import expand_ranges
+    from rosmeery_jax.world.generate import generate
     from rosmeery_jax.world.procedural import parse_name
 
     try:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
 from conftest import room_xml, suite_xla_flags
+
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.session.batch import BLOCK
 

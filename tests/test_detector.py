@@ -17,13 +17,13 @@ from hypothesis import strategies as st
 torch = pytest.importorskip("torch")
 
 from rosmeery_jax.apps.cli import main  # noqa: E402
+from rosmeery_jax.core.errors import InputError  # noqa: E402
 from rosmeery_jax.detector import checkpoint  # noqa: E402
+from rosmeery_jax.detector.boxes import nms  # noqa: E402
 from rosmeery_jax.detector.dataset import aim_shares, visible_boxes  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, OracleDetector, associate  # noqa: E402
 from rosmeery_jax.detector.mean_ap import average_precision, mean_ap  # noqa: E402
-from rosmeery_jax.detector.boxes import nms  # noqa: E402
 from rosmeery_jax.detector.yolo import YOLOv5  # noqa: E402
-from rosmeery_jax.core.errors import InputError  # noqa: E402
 
 # The official yolov5n.pt is not shipped (no downloads at run time): point this variable at
 # a copy to run the test (docs/architecture.md, "Tests").

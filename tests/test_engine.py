@@ -10,16 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import optimized, room_xml
 
-from rosmeery_jax.session import worker
-
-from rosmeery_jax.results import tables
 from rosmeery_jax.apps.cli import compilation_cache, main
 from rosmeery_jax.env import make
-from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.env.world_data import NEVER, Sizes, stack
-
-from conftest import optimized, room_xml
+from rosmeery_jax.results import tables
+from rosmeery_jax.session import worker
+from rosmeery_jax.sim.knowledge import ObjectLog
 
 BODIES = """
 <body name="table_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.72" size="0.5 0.3 0.03"/>

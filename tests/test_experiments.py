@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 import pytest
 
+from rosmeery_jax import policies
 from rosmeery_jax.policies import plugin
 from rosmeery_jax.rl import ppo
-from rosmeery_jax import policies
 from rosmeery_jax.session.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]

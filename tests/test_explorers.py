@@ -7,10 +7,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from conftest import room_xml
-from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable, observed_soft
+
 from rosmeery_jax.raycast.sensors import CameraConfig
+from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable, observed_soft
 
 BODIES = """
 <body name="chair_1" pos="-1.0 -1.0 0"><geom type="box" pos="0 0 0.25" size="0.22 0.22 0.25"/></body>

@@ -4,11 +4,11 @@ runs the same strategies for thousands of inputs and prints the counts."""
 
 from __future__ import annotations
 
+import fuzz_inputs as fz
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import fuzz_inputs as fz
 
 def fuzz(n: int):
     """Deterministic examples (CI runs the same inputs every time), no per-example deadline."""

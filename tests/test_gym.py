@@ -9,8 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from conftest import room_xml
+
 from rosmeery_jax.gym import Env, GymConfig, VectorEnv
 from rosmeery_jax.mapping.protocol import MapState
 

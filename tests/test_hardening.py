@@ -17,11 +17,11 @@ import jax
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import SMALL_RUN, one_line_error
+
 from rosmeery_jax.apps.cli import main
-from rosmeery_jax.env import EnvConfig, make
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.env import EnvConfig, make
 
 # One session setting for the module's sessions (the kill-9 test's child included: it inherits
 # conftest's one host device), so they share one compiled function through the persistent cache.

@@ -8,11 +8,11 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-
 from conftest import room_xml
+
 from rosmeery_jax.apps.cli import main
-from rosmeery_jax.metrics.map_score import read_map, score
 from rosmeery_jax.metrics.indices import compute
+from rosmeery_jax.metrics.map_score import read_map, score
 from rosmeery_jax.sim.knowledge import GroundTruthTable
 from rosmeery_jax.world import load_world
 

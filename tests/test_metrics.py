@@ -16,16 +16,16 @@ import numpy as np
 import pandas as pd
 import pytest
 import trimesh
+from conftest import room_xml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import room_xml
 from rosmeery_jax import metrics
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 from rosmeery_jax.metrics.map_file import load_schema
-from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 from rosmeery_jax.metrics.trajectory import replay
+from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 from rosmeery_jax.world.taxonomy import load_taxonomy
 
 # A room 8 m across. The camera (robot at the origin facing +x: camera at (0.1, 0, 0.5))
@@ -95,8 +95,8 @@ def test_soft_coverage_is_a_smooth_version_of_the_hard_test(three_box_world):
     front = env.world.truth.names.index("front")
     assert soft.logs.ps[-1, front] == pytest.approx(hard.logs.ps[-1, front], rel=0.1)
     # and it has a gradient with respect to the pose
-    from rosmeery_jax.sim import coverage
     from rosmeery_jax.raycast.sensors import depth_seg
+    from rosmeery_jax.sim import coverage
 
 
     def covered(x):
@@ -308,8 +308,8 @@ def test_an_exported_map_with_outbid_labels_scores_the_sessions_cori(tmp_path):
     """A turn on the spot, then every seen object labelled: the even ones right at 0.7, the
     odd ones right at 0.5 and then outbid by a wrong label at 0.8. The exported map of that
     knowledge, scored as any map is, gives the session's cORI."""
-    from rosmeery_jax.metrics.map_score import evaluate
     from rosmeery_jax.metrics.map_file import write_semantic_map
+    from rosmeery_jax.metrics.map_score import evaluate
 
     env = _small_office()
     sx, sy, syaw = env.world.spawn

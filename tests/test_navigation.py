@@ -7,17 +7,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
+from conftest import SMALL_RUN, room_xml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from conftest import SMALL_RUN, room_xml
 from rosmeery_jax.apps.cli import main
+from rosmeery_jax.core import grid
 from rosmeery_jax.env import make
 from rosmeery_jax.policies.random_walk import RandomPolicy
 from rosmeery_jax.results import time_use
 from rosmeery_jax.sim import occupancy
-from rosmeery_jax.core import grid
 from rosmeery_jax.sim.navigation import IDLE, MOVING, REACHED, RECOVERING, STATUS_NAMES, STUCK, UNREACHABLE
 from rosmeery_jax.world import load_world
 

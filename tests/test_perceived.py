@@ -8,23 +8,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import room_xml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import room_xml
+from rosmeery_jax import metrics
 from rosmeery_jax.detector.dataset import visible_boxes
 from rosmeery_jax.env import make
-from rosmeery_jax.sim.knowledge import GroundTruthTable
-from rosmeery_jax.metrics.map_score import read_map, score, tie
-from rosmeery_jax.mapping.protocol import Camera, DepthFrame, OnlineScorer
-from rosmeery_jax import metrics
 from rosmeery_jax.mapping import perceived
-from rosmeery_jax.mapping.perceived import PerceivedConfig, PerceivedMapper
 from rosmeery_jax.mapping.kernels import HashTable
+from rosmeery_jax.mapping.perceived import PerceivedConfig, PerceivedMapper
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, OnlineScorer
 from rosmeery_jax.mapping.voxel_table import Rows, cube_keys, first_claims
-from rosmeery_jax.raycast.sensors import rgbd
-from rosmeery_jax.world.taxonomy import load_taxonomy
 from rosmeery_jax.metrics.map_file import build_map, write_map
+from rosmeery_jax.metrics.map_score import read_map, score, tie
+from rosmeery_jax.raycast.sensors import rgbd
+from rosmeery_jax.sim.knowledge import GroundTruthTable
+from rosmeery_jax.world.taxonomy import load_taxonomy
 
 # Apart: a chair (0.4 m cube) and a desk (0.6 m cube) 2 m apart; together: the same two
 # touching, side by side at the same distance from the camera.

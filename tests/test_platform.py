@@ -11,16 +11,16 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import OPTIMIZED
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from conftest import OPTIMIZED
-from rosmeery_jax.sim import occupancy
 from rosmeery_jax.env import make
+from rosmeery_jax.raycast.kernel import cast, ray_scene
+from rosmeery_jax.sim import occupancy
 from rosmeery_jax.sim.navigation import STATUS_NAMES
 from rosmeery_jax.sim.robot import penetration
-from rosmeery_jax.raycast.kernel import cast, ray_scene
 from rosmeery_jax.world import PAPER_WORLDS, WALL, load_world
 from rosmeery_jax.world.freespace import rasterize
 
@@ -117,9 +117,7 @@ def test_boxes_per_scan_step_change_no_hit(monkeypatch):
     for both kernels; a value that does not divide a chunk is one line naming the variable."""
     from rosmeery_jax.apps.bench import random_targets
     from rosmeery_jax.core.errors import InputError
-    from rosmeery_jax.raycast import kernel
-
-    from rosmeery_jax.raycast import sensors
+    from rosmeery_jax.raycast import kernel, sensors
     w = load_world("kitchen")
     rs = ray_scene(w.scene)
     cfg = sensors.CameraConfig()

@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import one_line_error
+
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.env import make
 

@@ -18,9 +18,9 @@ from scipy import ndimage
 
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.specs import expand_ranges
 from rosmeery_jax.world import load_world
 from rosmeery_jax.world.generate import KINDS, GenerationError, GenOptions, check_options, generate
-from rosmeery_jax.core.specs import expand_ranges
 from rosmeery_jax.world.procedural import parse_name, write_world
 from rosmeery_jax.world.recipes import ROOMS, room_types
 

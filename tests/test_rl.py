@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import optimized, room_xml
+
 from rosmeery_jax.rl import network, ppo
 from rosmeery_jax.rl.candidates import FEATURES, offer, window_means
 from rosmeery_jax.rl.env import ExplorationEnv

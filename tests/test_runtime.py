@@ -18,9 +18,9 @@ from rosmeery_jax.detector import runtime  # before ONNX Runtime loads: it sets 
 pytest.importorskip("torch")
 pytest.importorskip("onnxruntime")
 
+from rosmeery_jax.core.errors import InputError  # noqa: E402
 from rosmeery_jax.detector.boxes import box_iou  # noqa: E402
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector  # noqa: E402
-from rosmeery_jax.core.errors import InputError  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
 from conftest import SMALL_RUN, one_line_error
+
 from rosmeery_jax.apps import cli
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.files import folder_lock

@@ -11,15 +11,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rosmeery_jax.results import tables
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.apps.columns import columns
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import make
 from rosmeery_jax.policies import make_policy
-from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.results import tables
 from rosmeery_jax.session.config import SessionConfig
-from rosmeery_jax.session.schedule import frames_before, log_every
 from rosmeery_jax.session.folder import check_out
+from rosmeery_jax.session.schedule import frames_before, log_every
 
 # Detector off: the YOLO session has its own test (test_detector); this setting is also
 # test_hardening's, so a program one compiles the other can load from the persistent cache.

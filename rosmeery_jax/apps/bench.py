@@ -37,17 +37,16 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from rosmeery_jax.core import xla
+from rosmeery_jax.core import grid, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.detector.detections import DEFAULT_WEIGHTS, YoloDetector
 from rosmeery_jax.env import EnvConfig, make
+from rosmeery_jax.env.config import env_bytes
+from rosmeery_jax.raycast.sensors import camera_rays, depth_seg, laser, laser_dirs
 from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.session import Session, SessionConfig
-from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.session.program import Replicas
-from rosmeery_jax.core import grid
-from rosmeery_jax.raycast.sensors import camera_rays, depth_seg, laser, laser_dirs
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from pathlib import Path
 import jax
 import pandas as pd
 
+from rosmeery_jax import metrics
 from rosmeery_jax.apps import detector_commands, world_commands
 from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
@@ -25,18 +26,14 @@ from rosmeery_jax.apps.teleop.server import Teleop, serve
 from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new, write_atomic
+from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.env import make
 from rosmeery_jax.metrics import map_score
-from rosmeery_jax import metrics
-from rosmeery_jax.results import time_use
-from rosmeery_jax.results import plots
-from rosmeery_jax.results import tables
-from rosmeery_jax.results import statistics
 from rosmeery_jax.metrics.align import to_world
-from rosmeery_jax.metrics.trajectory import read_poses, replay
 from rosmeery_jax.metrics.map_file import write_semantic_map
-from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
+from rosmeery_jax.metrics.trajectory import read_poses, replay
+from rosmeery_jax.results import plots, statistics, tables, time_use
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
 from rosmeery_jax.session.outputs import check_folder

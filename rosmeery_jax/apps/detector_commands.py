@@ -12,14 +12,13 @@ import numpy as np
 from rosmeery_jax.apps.arguments import WEIGHTS_HELP, positive
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new
+from rosmeery_jax.core.specs import expand_ranges
 from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
-from rosmeery_jax.detector import dataset
-from rosmeery_jax.detector import mean_ap
+from rosmeery_jax.detector import dataset, mean_ap
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.detector.detections import weights_file
 from rosmeery_jax.env.config import MAX_PIXELS
 from rosmeery_jax.world import load_world
-from rosmeery_jax.core.specs import expand_ranges
 
 
 def add_detector(sub) -> None:
@@ -106,7 +105,11 @@ def _more(text: str) -> tuple[tuple[str, float], ...]:
 
 def _cmd_detector_train(args) -> int:
     runtimes.require("command line", "detector train")
-    from rosmeery_jax.detector.train import DetectorTrainConfig, log_file, train  # torch (the detector extra): only here
+    from rosmeery_jax.detector.train import (  # torch (the detector extra): only here
+        DetectorTrainConfig,
+        log_file,
+        train,
+    )
 
     positive(args, "epochs", "batch", "max_images", "seed")
     out = require_new(args.out, kind="file")  # earlier weights are never replaced, nor their log

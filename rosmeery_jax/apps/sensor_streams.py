@@ -42,9 +42,9 @@ from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import require_same, write_atomic
 from rosmeery_jax.env import make
+from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.schedule import control_dt
-from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
 FRAME_BATCH = 8  # frames rendered per jitted call (bounds the memory of a 640 x 480 cast)

@@ -11,12 +11,12 @@ from pathlib import Path
 from rosmeery_jax.apps.columns import columns
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import output_folder, require_new
+from rosmeery_jax.core.specs import MAX_WORLDS
 from rosmeery_jax.world import load_world, world_names
+from rosmeery_jax.world.census import stats_table, summary, world_names_in
 from rosmeery_jax.world.draw import picture_format, save_world_picture
 from rosmeery_jax.world.generate import GenOptions, check_options, generate
-from rosmeery_jax.core.specs import MAX_WORLDS
 from rosmeery_jax.world.procedural import check_unchanged, write_world
-from rosmeery_jax.world.census import stats_table, summary, world_names_in
 
 
 def add_worlds(sub) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 
+
 def load(spec: str, source: str, field: str):
     """The object ``spec`` names; one InputError naming ``source``, ``field`` and the plugin."""
     m = specs.PLUGIN.fullmatch(spec)

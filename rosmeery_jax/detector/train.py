@@ -26,8 +26,8 @@ from tqdm.auto import tqdm
 
 from rosmeery_jax.detector import checkpoint
 from rosmeery_jax.detector.dataset import read
-from rosmeery_jax.detector.mean_ap import evaluate, model_detections, rows_to_xyxy
 from rosmeery_jax.detector.loss import YoloLoss
+from rosmeery_jax.detector.mean_ap import evaluate, model_detections, rows_to_xyxy
 from rosmeery_jax.detector.yolo import YOLOv5
 
 

@@ -9,13 +9,12 @@ from typing import Any
 
 from rosmeery_jax.core import overrides as overrides_
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig
 from rosmeery_jax.sim.knowledge import KnowledgeConfig
 from rosmeery_jax.sim.navigation import NavConfig
 from rosmeery_jax.sim.occupancy import MapConfig
 from rosmeery_jax.sim.robot import RobotConfig
-from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig
 from rosmeery_jax.world import WorldConfig
-
 
 MAX_PIXELS = 4096  # image sides and laser beams: larger is never a robot's sensor, and would not fit
 

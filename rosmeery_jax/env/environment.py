@@ -23,12 +23,12 @@ import jax.numpy as jnp
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.world_data import Sizes, WorldData, near_physics_model, physics_model, truth_table, world_data
+from rosmeery_jax.raycast.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
 from rosmeery_jax.sim import occupancy
 from rosmeery_jax.sim.knowledge import Knowledge, ObjectLog, SpatialKnowledge
 from rosmeery_jax.sim.mjx import mjx
 from rosmeery_jax.sim.navigation import IDLE, Navigator, NavState
 from rosmeery_jax.sim.robot import Platform, robot_model
-from rosmeery_jax.raycast.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
 from rosmeery_jax.world import World, WorldConfig, load_world
 
 

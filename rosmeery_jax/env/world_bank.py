@@ -14,11 +14,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import NamedTuple
 
+from rosmeery_jax.core.specs import expand_ranges
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.environment import RobotEnv
 from rosmeery_jax.world import World, WorldConfig, load_world
-from rosmeery_jax.core.specs import expand_ranges
 
 
 class WorldBank(NamedTuple):

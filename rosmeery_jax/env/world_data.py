@@ -24,11 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.env.config import EnvConfig
+from rosmeery_jax.raycast.kernel import CHUNK, RayScene, crosses_plane, ray_scene
 from rosmeery_jax.sim.coverage import SampleTable
 from rosmeery_jax.sim.knowledge import GroundTruthTable, predicate_tables
 from rosmeery_jax.sim.mjx import mjx
 from rosmeery_jax.sim.occupancy import GridGeometry
-from rosmeery_jax.raycast.kernel import CHUNK, RayScene, crosses_plane, ray_scene
 from rosmeery_jax.sim.robot import PROXY_FIELDS, RobotConfig, near_model, proxy_boxes, robot_model
 from rosmeery_jax.world import World
 

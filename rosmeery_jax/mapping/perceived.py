@@ -18,10 +18,10 @@ from typing import NamedTuple
 import numpy as np
 
 from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
-from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segments
-from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
 from rosmeery_jax.mapping.config import PerceivedConfig
+from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segments
 from rosmeery_jax.mapping.kernels import HashTable, back_project, group_ids, grow_ranks, within_boxes
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
 from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, Rows, cube_keys, first_claims
 
 

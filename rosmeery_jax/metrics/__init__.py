@@ -2,8 +2,19 @@
 (``metrics.compute``, ``metrics.register``), and the scoring of any semantic map against a
 world's ground truth (:mod:`.map_score`)."""
 
-from rosmeery_jax.metrics.indices import (DEFAULT_METRICS, REGISTRY, compute, cori, cori_any, opi, opi_strict, ori,
-                                          register, resolve, summarize)
+from rosmeery_jax.metrics.indices import (
+                                          DEFAULT_METRICS,
+                                          REGISTRY,
+                                          compute,
+                                          cori,
+                                          cori_any,
+                                          opi,
+                                          opi_strict,
+                                          ori,
+                                          register,
+                                          resolve,
+                                          summarize,
+)
 
 __all__ = ["DEFAULT_METRICS", "REGISTRY", "compute", "cori", "cori_any", "opi", "opi_strict", "ori", "register",
            "resolve", "summarize"]

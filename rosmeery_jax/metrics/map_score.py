@@ -36,8 +36,8 @@ import trimesh
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from rosmeery_jax.core.errors import InputError
 from rosmeery_jax import metrics
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.results import tables
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 from rosmeery_jax.world import load_world

@@ -19,11 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
+from rosmeery_jax import metrics
 from rosmeery_jax.core import specs, xla
 from rosmeery_jax.core.errors import InputError, shown
-from rosmeery_jax import metrics
-from rosmeery_jax.results import tables
 from rosmeery_jax.raycast.sensors import depth_seg
+from rosmeery_jax.results import tables
 
 POSE_COLUMNS = ("t", "x", "y", "yaw")
 SESSION_COLUMNS = ("world", "policy", "seed", "time_s")  # a session's trajectories.csv holds these too

@@ -26,9 +26,9 @@ from rosmeery_jax.policies.learned import LearnedPolicy, policy_file
 from rosmeery_jax.policies.learned import label as learned_label
 from rosmeery_jax.policies.plugin import check_plugin, plugin_class
 from rosmeery_jax.policies.random_walk import RandomPolicy
+from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
 from rosmeery_jax.policies.teleop_replay import ReplayPolicy, recordings_by_world
 from rosmeery_jax.rl.network import load_policy
-from rosmeery_jax.policies.semantic_nbv import SemanticNBVPolicy
 
 POLICIES = {
     "random": lambda env, **kw: RandomPolicy(env, **kw),

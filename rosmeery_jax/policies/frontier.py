@@ -27,8 +27,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.core import grid
+from rosmeery_jax.policies.base import Policy, needs_target
 from rosmeery_jax.sim import occupancy as occ_map
 from rosmeery_jax.sim.navigation import REACHED, STUCK, TIMEOUT, UNREACHABLE
 

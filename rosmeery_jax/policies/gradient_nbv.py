@@ -42,12 +42,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from rosmeery_jax.core import grid
 from rosmeery_jax.policies.base import needs_target
 from rosmeery_jax.policies.frontier import FrontierState, ViewPolicy, blocked_within
 from rosmeery_jax.policies.semantic_nbv import facing
 from rosmeery_jax.rl.candidates import surface_maps
 from rosmeery_jax.sim import coverage, occupancy
-from rosmeery_jax.core import grid
 from rosmeery_jax.sim.coverage import CoverageConfig, SampleTable
 
 

@@ -29,8 +29,8 @@ import jax.numpy as jnp
 from rosmeery_jax.core import specs
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.rl.candidates import driving, offer
-from rosmeery_jax.rl.task import flat_obs
 from rosmeery_jax.rl.network import ActorCritic, load_policy
+from rosmeery_jax.rl.task import flat_obs
 
 CANDIDATES = 32  # targets drawn at each session decision (training offers the policy file's rl.candidates)
 SHIPPED = Path(__file__).resolve().parent / "learned_policy.msgpack"

@@ -14,10 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from rosmeery_jax.core import plugins, xla
+from rosmeery_jax.core import plugins, specs, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.policies.base import Policy
-from rosmeery_jax.core import specs
 
 
 def plugin_class(spec: str) -> type[Policy]:

@@ -29,8 +29,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from rosmeery_jax.sim import navigation, occupancy
 from rosmeery_jax.core.grid import wrap_angle
+from rosmeery_jax.sim import navigation, occupancy
 
 FEATURES = ("valid", "keep", "distance", "ahead", "left", "unknown", "occupied", "surface", "labelled", "visited")
 GLOBALS = ("gave_up", "observed")

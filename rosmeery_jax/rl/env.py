@@ -41,8 +41,8 @@ from flax import struct
 from gymnax.environments import environment, spaces
 
 from rosmeery_jax.env import RobotEnv, State
-from rosmeery_jax.env.decision import Decision, decide
 from rosmeery_jax.env import world_data as wd
+from rosmeery_jax.env.decision import Decision, decide
 from rosmeery_jax.env.world_bank import WorldBank
 from rosmeery_jax.rl.candidates import Offer, driving, gave_up, offer
 from rosmeery_jax.rl.task import RLConfig, check_rl, flat_obs, score

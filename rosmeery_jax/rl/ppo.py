@@ -38,15 +38,14 @@ from tqdm import tqdm
 from rosmeery_jax.core import config as config_loader
 from rosmeery_jax.core import interrupt, overrides, xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
 from rosmeery_jax.core.files import claim_folder, folder_lock, output_folder, require_same, write_atomic
-from rosmeery_jax.env import EnvConfig, world_bank
-from rosmeery_jax.rl.env import ExplorationEnv
-from rosmeery_jax.rl.task import RLConfig, check_rl
-from rosmeery_jax.rl.network import ActorCritic, save_policy
-from rosmeery_jax.results.plots import learning_curve
 from rosmeery_jax.core.specs import expand_ranges
-
+from rosmeery_jax.core.xla import MEMORY_SHARE, memory_bytes
+from rosmeery_jax.env import EnvConfig, world_bank
+from rosmeery_jax.results.plots import learning_curve
+from rosmeery_jax.rl.env import ExplorationEnv
+from rosmeery_jax.rl.network import ActorCritic, save_policy
+from rosmeery_jax.rl.task import RLConfig, check_rl
 
 ENV_BYTES = 2.5e6  # one env's state, as a session's (docs/performance.md)
 ROLLOUT_COPIES = 4  # a rollout's observations are held, shuffled and batched within one update

@@ -21,8 +21,8 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import Track
 from rosmeery_jax.gym import GymConfig, VectorEnv, agent_class
 from rosmeery_jax.session.config import SessionConfig
-from rosmeery_jax.session.schedule import decisions, log_every
 from rosmeery_jax.session.outputs import RunResult
+from rosmeery_jax.session.schedule import decisions, log_every
 
 
 def run_agent(cfg: SessionConfig, world: str, spec: str, bar) -> tuple[RunResult, dict]:

@@ -25,7 +25,7 @@ import jax
 import numpy as np
 
 from rosmeery_jax.core.overrides import flatten
-from rosmeery_jax.env import RobotEnv, EnvConfig, world_bank
+from rosmeery_jax.env import EnvConfig, RobotEnv, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
 from rosmeery_jax.session.schedule import decisions

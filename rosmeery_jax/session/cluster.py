@@ -15,8 +15,8 @@ from __future__ import annotations
 import importlib.util
 import os
 import secrets
-import sys
 import socket
+import sys
 from pathlib import Path
 from typing import Callable
 

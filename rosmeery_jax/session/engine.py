@@ -20,8 +20,8 @@ from rosmeery_jax.core import interrupt
 from rosmeery_jax.env import Track
 from rosmeery_jax.session import digest
 from rosmeery_jax.session.batch import Group
-from rosmeery_jax.session.schedule import Plan
 from rosmeery_jax.session.program import Compiled, blocked, chunk_fn, in_world, label_fn, reset_fn, shardings
+from rosmeery_jax.session.schedule import Plan
 from rosmeery_jax.session.worker import Finished, Worker, no_detections, prepare_detectors
 from rosmeery_jax.sim.knowledge import ObjectLog
 

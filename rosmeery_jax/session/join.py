@@ -25,9 +25,9 @@ from typing import NamedTuple
 from rosmeery_jax.core import specs
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import RECORD, output_folder, require_new, require_same, write_atomic
+from rosmeery_jax.results import manifest
 from rosmeery_jax.session.config import RESULT_FIELDS
 from rosmeery_jax.session.folder import saved_settings
-from rosmeery_jax.results import manifest
 from rosmeery_jax.session.outputs import finished, merge, rates, run_manifest, seal_run
 
 SPLIT = ("seeds", "first_seed", "out")  # the settings the parts may differ in (and their versions)

@@ -30,18 +30,17 @@ import jax
 import numpy as np
 import pandas as pd
 
+from rosmeery_jax import metrics
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.env import Track
-from rosmeery_jax import metrics
-from rosmeery_jax.results import manifest, plots, tables, time_use
 from rosmeery_jax.mapping.protocol import mapper_label
 from rosmeery_jax.metrics.map_file import build_map, write_map, write_semantic_map
+from rosmeery_jax.results import manifest, plots, tables, time_use
 from rosmeery_jax.session.checks import run_label
 from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.schedule import frames_before, sampled_rows
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
-
 
 INTEGRITY = 1  # config.json's "integrity": the folder records its files (results.manifest)
 

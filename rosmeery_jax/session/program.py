@@ -32,6 +32,7 @@ from rosmeery_jax.session.batch import BLOCK, Group
 from rosmeery_jax.session.schedule import Plan
 from rosmeery_jax.sim.knowledge import ObjectLog
 
+
 def blocked(fn, devices: int = 1):
     """jit of ``fn(shared, block, *env_args)`` over B = k * BLOCK envs: ``shared`` goes to
     every env, ``block`` (k, ...) one row per block (the same for its envs, so not batched

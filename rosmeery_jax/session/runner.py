@@ -31,14 +31,12 @@ from rosmeery_jax.core import specs, xla
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
-from rosmeery_jax.results import tables
+from rosmeery_jax.results import manifest, tables
 from rosmeery_jax.session import batch, cluster, engine
 from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.folder import check_out, versions
-from rosmeery_jax.results import manifest
-from rosmeery_jax.session.outputs import (RunResult, finished, merge, run_manifest, run_name, sum_timing,
-                                          write_run)
+from rosmeery_jax.session.outputs import RunResult, finished, merge, run_manifest, run_name, sum_timing, write_run
 from rosmeery_jax.session.schedule import Plan
 
 

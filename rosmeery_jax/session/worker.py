@@ -29,9 +29,8 @@ from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env.decision import Frames
 from rosmeery_jax.mapping import mapper_for
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, raised_by
 from rosmeery_jax.metrics.map_score import TOLERANCE
-from rosmeery_jax.mapping.protocol import (Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map,
-                                         raised_by)
 from rosmeery_jax.session.batch import Group
 from rosmeery_jax.session.schedule import Plan
 from rosmeery_jax.sim.knowledge import ObjectLog

@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax.raycast.sensors import CameraConfig
 from rosmeery_jax.sim import coverage
 from rosmeery_jax.sim.coverage import CoverageConfig
-from rosmeery_jax.raycast.sensors import CameraConfig
 
 
 @dataclass(frozen=True)

@@ -35,12 +35,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from rosmeery_jax import metrics
 from rosmeery_jax.apps.teleop import views
 from rosmeery_jax.core import xla
 from rosmeery_jax.detector.detections import make_detector, pad
 from rosmeery_jax.env import make
 from rosmeery_jax.policies.teleop_file import Recorder
-from rosmeery_jax import metrics
 
 STATIC = Path(__file__).parent / "static"
 COMMAND_TIMEOUT_S = 0.5
