@@ -21,7 +21,7 @@ from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
 from rosmeery_jax.mapping.config import PerceivedConfig
 from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segments
 from rosmeery_jax.mapping.kernels import HashTable, back_project, group_ids, grow_ranks, within_boxes
-from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState, mapper_class
 from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, Rows, cube_keys, first_claims
 
 
@@ -386,6 +386,11 @@ class PerceivedMapper(Mapper):
         pair = (meet & kin & (count[:, None] < cfg.absorb_size * count[None])
                 & (touched[:, None] | touched[None]))
         return ids, box, count, pair
+
+
+def mapper_for(spec: str) -> type:
+    """A session's mapper entry's class: the built-in perceived mapper or a plugin."""
+    return PerceivedMapper if spec == "perceived" else mapper_class(spec)
 
 
 def _by_box(owner: np.ndarray, boxes: int) -> list[np.ndarray]:

@@ -135,7 +135,7 @@ def chunk_fn(group: Group, plan: Plan, capture: bool):
     (F, D) into the knowledge, then ``plan.per_call`` decisions (:func:`_decision`).
     Returns a :class:`Chunk`; frames only with ``capture``, their depth only with
     ``plan.perceive``."""
-    spec = plan.decision(capture, group.policies[0].per_step).check()
+    spec = plan.decision(capture, group.policies[0].per_step)  # decide checks it
 
     def one(stacked, block, state, pstates, key, pending):
         env, policies = in_world(group, stacked, block)

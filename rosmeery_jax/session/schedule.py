@@ -12,7 +12,7 @@ import numpy as np
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.env.decision import Decision
-from rosmeery_jax.mapping import mapper_for
+from rosmeery_jax.mapping.perceived import mapper_for
 from rosmeery_jax.rl.task import STEP_LIMIT
 
 

@@ -28,7 +28,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env.decision import Frames
-from rosmeery_jax.mapping import mapper_for
+from rosmeery_jax.mapping.perceived import mapper_for
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, raised_by
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.session.batch import Group
