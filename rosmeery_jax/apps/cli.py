@@ -169,6 +169,11 @@ def _cmd_teleop(args) -> int:
 
 def _cmd_evaluate(args) -> int:
     map_score.check_tolerance(args.tolerance, "command line", "--tolerance")
+    names = tuple(n.strip() for n in args.metrics.split(",") if n.strip())
+    try:
+        names = metrics.resolve(names)
+    except InputError as err:  # raised as the config's field: here it came from the command line
+        raise InputError("command line", "--metrics", err.problem) from None
     if not specs.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
         raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
@@ -178,7 +183,7 @@ def _cmd_evaluate(args) -> int:
     if frame and frame["source"] == "icp":
         print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
               f"{100 * frame['inliers']:.0f}% of points, {frame['iterations']} iterations")
-    metric_df, objects, classes, summary = map_score.evaluate(world, maps, args.tolerance, args.name)
+    metric_df, objects, classes, summary = map_score.evaluate(world, maps, args.tolerance, args.name, names)
     if frame:
         summary["alignment"] = frame
     with output_folder(out):
@@ -186,7 +191,7 @@ def _cmd_evaluate(args) -> int:
         tables.write_csv(objects, out / "objects.csv")
         tables.write_csv(classes, out / "classes.csv")
         write_atomic(out / "summary.json", json.dumps(summary, indent=2))
-    print(", ".join(f"{k} {summary[k]:.3f}" for k in ("ori", "cori", "opi", "opi_strict")) +
+    print(", ".join(f"{k} {summary[k]:.3f}" for k in names) +
           f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
           f"{summary['unmatched_instances']} instances matched to no object")
     print(f"results in {out}/ (metrics.csv, objects.csv, classes.csv, summary.json)")
@@ -395,6 +400,9 @@ def _evaluate_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--tolerance", type=float, default=map_score.TOLERANCE, metavar="M",
                    help=f"a point within M metres of a surface sample lies on it (default {map_score.TOLERANCE:g})")
     p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
+    p.add_argument("--metrics", metavar="M,N", default=",".join(d.metrics),
+                   help=f"metrics to score (default: {','.join(d.metrics)}; field: every field map metric, "
+                        "docs/metrics.md)")
     frame = p.add_mutually_exclusive_group()
     frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")
     frame.add_argument("--transform", metavar="FILE", help="a 4 x 4 map-to-world transform (JSON or text) to apply first")

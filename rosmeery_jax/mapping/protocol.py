@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.metrics import field
 from rosmeery_jax.metrics.map_score import Score, score_instances, tie
 from rosmeery_jax.raycast.sensors import CameraConfig
 
@@ -235,10 +236,12 @@ class OnlineScorer:
     pair is added once to the instances' shared samples, and a map unchanged since the last
     call is not scored again. Old points given other instance ids (instances merged) are
     counted again from their ties; any other change scores the map from scratch. The
-    result is the same either way."""
+    result is the same either way. With ``field_names``, the Score carries those field map
+    metrics too (:class:`rosmeery_jax.metrics.field.FieldScorer`, incremental alike)."""
 
-    def __init__(self, world, tolerance: float):
-        self.world, self.tolerance = world, tolerance
+    def __init__(self, world, tolerance: float, field_names: tuple[str, ...] = ()):
+        self.world, self.tolerance, self.field_names = world, tolerance, tuple(field_names)
+        self.field = field.FieldScorer(field.FieldTruth.of(world)) if self.field_names else None
         self.tree = cKDTree(np.asarray(world.truth.samples.points, np.float64))  # built once, not per map
         self.objects = np.asarray(world.truth.samples.object)
         self._clear()
@@ -271,6 +274,9 @@ class OnlineScorer:
         ids = np.flatnonzero(self.present)
         sc = score_instances(self.world, ids, self.shared[ids], lambda i: (m.label[i], m.confidence[i]),
                              int((self.sample >= 0).sum()), len(self.points))
+        if self.field is not None:
+            tally = self.field.tally(m.points, m.instance, m.label, m.confidence, self.sample, self.shared)
+            sc = sc._replace(field=field.values(tally, self.field.truth, self.field_names), tally=tally)
         self.last = (m.label.copy(), m.confidence.copy(), sc)
         return sc
 

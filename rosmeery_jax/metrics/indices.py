@@ -27,6 +27,7 @@ import numpy as np
 
 from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.metrics.field import FIELD_METRICS, FIELD_SET, expand
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
@@ -43,7 +44,8 @@ def register(name: str) -> Callable[[MetricFn], MetricFn]:
         raise InputError("register_metric", "name", f"{name!r} is not a plain name ({specs.LABEL_RULE})")
 
     def add(fn: MetricFn) -> MetricFn:
-        if name in DEFAULT_METRICS and name in REGISTRY:  # your own may be re-registered (a notebook cell re-run)
+        if name in FIELD_METRICS or name == FIELD_SET or (name in DEFAULT_METRICS and name in REGISTRY):
+            # your own may be re-registered (a notebook cell re-run)
             raise InputError("register_metric", "name", f"{name!r} is a built-in metric: name yours otherwise")
         if not callable(fn):
             raise TypeError(f"register_metric({name!r}) decorates a function fn(log, truth) -> curve, not "
@@ -96,14 +98,19 @@ def opi_strict(log: ObjectLog, truth: GroundTruthTable):
 def resolve(names) -> tuple[str, ...]:
     """Check metric names against the registry (one-line error for an unknown one); a
     plugin ``FILE.py:fn`` or ``package.module:fn`` is loaded, checked and registered as
-    ``fn``, the name its curves carry in the results."""
+    ``fn``, the name its curves carry in the results. ``field`` stands for every field
+    map metric (:mod:`.field`), which are scored from maps, not from object logs."""
     out = []
-    for n in names:
+    for n in expand(names):
+        if n in FIELD_METRICS:
+            out.append(n)
+            continue
         if n not in REGISTRY and specs.is_plugin(n):
             n = _register_plugin(n)
         if n not in REGISTRY:
             raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))}; "
-                             "or a plugin FILE.py:function)")
+                             f"the map metrics: {FIELD_SET} or one of them, docs/metrics.md; or a plugin "
+                             "FILE.py:function)")
         if n not in DEFAULT_METRICS and CHECKED.get(n) is not REGISTRY[n]:  # registered in Python: checked once
             _check_curve(REGISTRY[n], _named(n))
             CHECKED[n] = REGISTRY[n]
@@ -163,10 +170,11 @@ def _sample_log(seen: str) -> ObjectLog:
 
 
 def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> dict[str, np.ndarray]:
-    """{metric name: (..., T) float64 numpy curve} for the chosen metrics, in one compiled
+    """{metric name: (..., T) float64 numpy curve} for the chosen metrics that are scored
+    from object logs (the field map metrics among ``names`` are left out), in one compiled
     call per shape (op by op, a session paid a compile of every operation for every world)."""
     log, truth = _arrays(log, truth)
-    names = resolve(names)
+    names = tuple(n for n in resolve(names) if n not in FIELD_METRICS)
     curves = _curves(log, truth, names)  # a jitted dict comes back in sorted key order
     for n in names:  # checked on T = 3 steps when registered: a curve may depend on T
         if np.shape(curves[n]) != log.ps.shape[:-1]:

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax import metrics
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.metrics import field
 from rosmeery_jax.results import tables
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 from rosmeery_jax.world import load_world
@@ -62,12 +63,15 @@ class SemanticMap(NamedTuple):
 class Score(NamedTuple):
     """A map scored against a world: log (ObjectLog, fields (N,)); matched (N,) instance id of
     each object (-1 none); off_object: share of points on no object; unmatched: instances
-    matched to no object."""
+    matched to no object; field: {name: value} of the field map metrics asked for
+    (:mod:`rosmeery_jax.metrics.field`), and tally, what they were computed from."""
 
     log: ObjectLog
     matched: np.ndarray
     off_object: float
     unmatched: int
+    field: dict | None = None
+    tally: field.Tally | None = None
 
 
 def read_map(ply: str | Path, taxonomy) -> SemanticMap:
@@ -252,8 +256,9 @@ def _read_meta(path: Path, taxonomy):
     return frame.get("world"), time_s, labels, conf
 
 
-def score(world, m: SemanticMap, tolerance: float = TOLERANCE) -> Score:
-    """Score map ``m`` against ``world``'s ground truth (see the module docstring)."""
+def score(world, m: SemanticMap, tolerance: float = TOLERANCE, field_names: tuple[str, ...] = ()) -> Score:
+    """Score map ``m`` against ``world``'s ground truth (see the module docstring), with
+    the field map metrics ``field_names`` (:mod:`rosmeery_jax.metrics.field`)."""
     if m.world is not None and m.world != world.name:
         raise InputError(m.path.with_suffix(".json"), "frame.world", f"{m.world!r} is not the world scored ({world.name!r})")
     names = m.labels
@@ -264,7 +269,15 @@ def score(world, m: SemanticMap, tolerance: float = TOLERANCE) -> Score:
         conf = np.array([m.confidence.get(int(i), 0.0) for i in ids], np.float32)
         return label, conf
 
-    return score_tied(world, tie(world, m.points, tolerance), m.instance, labels_of)
+    sample = tie(world, m.points, tolerance)
+    sc = score_tied(world, sample, m.instance, labels_of)
+    if not field_names:
+        return sc
+    ids, inst = np.unique(m.instance, return_inverse=True)
+    label, conf = labels_of(ids)
+    scorer = field.FieldScorer(field.FieldTruth.of(world))
+    tally = scorer.tally(m.points, inst, label, conf, sample, shared_samples(world, inst, sample, len(ids)))
+    return sc._replace(field=field.values(tally, scorer.truth, field_names), tally=tally)
 
 
 def score_tied(world, sample: np.ndarray, instance: np.ndarray, labels_of) -> Score:
@@ -355,8 +368,10 @@ def _read_maps(maps, taxonomy) -> list[SemanticMap]:
     return [read_map(m, taxonomy) if isinstance(m, (str, os.PathLike)) else m for m in maps]
 
 
-def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external"):
-    """Score maps of one run (curves over their ``time_s``, else their order).
+def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external",
+             names=metrics.DEFAULT_METRICS):
+    """Score maps of one run (curves over their ``time_s``, else their order) by the metrics
+    ``names`` (``field`` or field map metrics among them: :mod:`rosmeery_jax.metrics.field`).
 
     Returns (metrics table, objects table of the last map, per-class table, summary dict),
     the first two in the session's formats (policy = ``name``, detector = "own", seed 0).
@@ -366,6 +381,8 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
         world = load_world(world)
     maps = _read_maps(maps, world.taxonomy)
     check_tolerance(tolerance, "evaluate", "tolerance")
+    names = metrics.resolve(names)
+    field_names = field.wanted(names)
     times = [m.time_s if m.time_s is not None else float(k) for k, m in enumerate(maps)]
     timed = [m.time_s is not None for m in maps]
     if any(timed) and not all(timed):  # times for some, order for others: no one order
@@ -377,20 +394,34 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
             raise InputError(m.path.with_suffix(".json"), "frame.time_s", f"{times[k]:g} s: two maps have this "
                              "time (one map per time)")
     order = np.argsort(times, kind="stable")
-    scores = [score(world, maps[k], tolerance) for k in order]
+    scores = [score(world, maps[k], tolerance, field_names) for k in order]
     t = world.truth
     table = GroundTruthTable(np.asarray(t.ps_G), np.asarray(t.num_predicates), np.asarray(t.category_index))
     log = ObjectLog(*(np.stack(f) for f in zip(*(sc.log for sc in scores))))
-    curves = metrics.compute(log, table)
+    curves = metrics.compute(log, table, names)
+    curves.update({n: np.array([sc.field[n] for sc in scores]) for n in field_names})
+    curves = {n: curves[n] for n in names}
     tags = dict(policy=name, detector="own", mapper="own", seed=0)
     metric_df = tables.metric_frame(curves, np.asarray(times)[order], world=world.name, **tags)
     objects = tables.object_frame(world, scores[-1].log, **tags)
     objects["instance"] = scores[-1].matched
-    classes = objects.groupby("category").agg(objects=("object", "size"), ps_G=("ps_G", "sum"), ps=("ps", "sum"),
-                                              coverage=("coverage", "mean")).reset_index()
-    classes["ori"] = classes.coverage  # ORI over a class's objects: ps <= ps_G, so 1 - mean(1 - coverage)
+    classes = _classes(world, objects, scores[-1])
     last = scores[-1]
     summary = {"world": world.name, "maps": [str(maps[k].path) for k in order], "tolerance_m": tolerance,
                **{k: float(v[-1]) for k, v in curves.items()}, "points_on_no_object": round(last.off_object, 6),
                "unmatched_instances": last.unmatched}
     return metric_df, objects, classes, summary
+
+
+def _classes(world, objects, last: Score):
+    """Per category: objects, ps_G, ps, coverage, ORI; with field metrics, its AP (mean over
+    0.50:0.90), AP50, AP25, segmentation IoU and accuracy (categories holding no samples: none)."""
+    classes = objects.groupby("category").agg(objects=("object", "size"), ps_G=("ps_G", "sum"), ps=("ps", "sum"),
+                                              coverage=("coverage", "mean")).reset_index()
+    classes["ori"] = classes.coverage  # ORI over a class's objects: ps <= ps_G, so 1 - mean(1 - coverage)
+    if last.tally is not None:
+        truth = field.FieldTruth.of(world)
+        per = field.per_class(last.tally, truth, world.taxonomy.names)
+        for key in ("ap", "ap50", "ap25", "iou", "accuracy"):
+            classes[key] = [per.get(c, {}).get(key, np.nan) for c in classes.category]
+    return classes
