@@ -26,7 +26,9 @@ class Decision(NamedTuple):
     ``frame_steps`` (0: none; a divisor of ``steps``, and ``log_every`` of it), with its
     depth (``frame_depth``) and the depth camera of each step of its period (``sweep``);
     ``per_step``: the action holds one command per step, (steps, ...), as a replayed
-    recording does."""
+    recording does; ``stamp``: keep, per ground-truth sample, the step of the first log row
+    that counts it observed (the built-in knowledge's map at any logged time, for the field
+    map metrics)."""
 
     steps: int
     log_every: int = 0
@@ -35,6 +37,7 @@ class Decision(NamedTuple):
     frame_depth: bool = False
     sweep: bool = False
     per_step: bool = False
+    stamp: bool = False
 
     @property
     def period(self) -> int:
@@ -76,26 +79,32 @@ class Frames(NamedTuple):
 
 class Outcome(NamedTuple):
     """What a decision kept: logs (L, N) fields or None, track (steps, ...) or None, frames
-    or None, and steps: the control steps it took (int32; fewer than ``steps`` only when an
-    ``until`` ended it)."""
+    or None, steps: the control steps it took (int32; fewer than ``steps`` only when an
+    ``until`` ended it), and stamps (S,) int32 with ``Decision.stamp``: per sample, the
+    step of the first log row counting it observed (-1: none yet)."""
 
     logs: ObjectLog | None
     track: Track | None
     frames: Frames | None
     steps: jax.Array
+    stamps: jax.Array | None = None
 
 
 def decide(env: RobotEnv, state: State, action, spec: Decision,
-           until: Callable[[jax.Array, State], jax.Array] | None = None) -> tuple[State, Outcome]:
+           until: Callable[[jax.Array, State], jax.Array] | None = None,
+           stamps: jax.Array | None = None) -> tuple[State, Outcome]:
     """Step ``state`` through one decision toward ``action``. With ``until(i, state)``, a
     step is taken only while it holds (``i`` steps taken so far), up to ``spec.steps``: a
-    decision that lasts as long as the drive (nothing is kept then)."""
+    decision that lasts as long as the drive (nothing is kept then). ``stamps`` (S,): the
+    samples' first-observed steps so far, with ``spec.stamp``."""
+    if spec.stamp and (stamps is None or not spec.log_every):
+        raise ValueError("a decision that stamps samples needs log rows and the stamps so far")
     if until is not None:
         return _until(env, state, action, spec.steps, until)
     if not (spec.log_every or spec.track or spec.frame_steps):
         state = jax.lax.fori_loop(0, spec.steps, lambda _, s: env.step(s, action), state)
         return state, Outcome(None, None, None, jnp.int32(spec.steps))
-    return _kept(env, state, action, spec.check())
+    return _kept(env, state, action, spec.check(), stamps if spec.stamp else None)
 
 
 def _until(env: RobotEnv, state: State, action, steps: int, until) -> tuple[State, Outcome]:
@@ -107,37 +116,40 @@ def _until(env: RobotEnv, state: State, action, steps: int, until) -> tuple[Stat
     return state, Outcome(None, None, None, taken)
 
 
-def _kept(env: RobotEnv, state: State, action, spec: Decision) -> tuple[State, Outcome]:
+def _kept(env: RobotEnv, state: State, action, spec: Decision, stamps) -> tuple[State, Outcome]:
     """Frame periods of log spans of steps, as nested scans: logs (L, N), track (steps, ...),
-    frames (F, ...)."""
+    frames (F, ...), stamps (S,) or None (None adds nothing to the scans' carry)."""
 
     def step(s, a):
         s = env.step(s, a if spec.per_step else action)
         return s, (Track.of(s), s.depth if spec.sweep else None)
 
-    def span(s, a):  # log_every steps, then the log: logging every step took 7 % of a paper
+    def span(carry, a):  # log_every steps, then the log: logging every step took 7 % of a paper
         # session's step, and its metrics are written once a second
+        s, st = carry
         s, track = jax.lax.scan(step, s, a, length=spec.span)
-        return s, (env.log(s) if spec.log_every else None, track)
+        if st is not None:
+            st = jnp.where((st < 0) & (jnp.asarray(s.knowledge.seen, jnp.float32) > 0.5), s.t, st)
+        return (s, st), (env.log(s) if spec.log_every else None, track)
 
-    def period(s, a):  # frame_steps steps, then the frame
-        s, (logs, (track, depths)) = jax.lax.scan(span, s, a, length=spec.spans)
+    def period(carry, a):  # frame_steps steps, then the frame
+        (s, st), (logs, (track, depths)) = jax.lax.scan(span, carry, a, length=spec.spans)
         frame = None
         if spec.frame_steps:
             img, dep, lab = env.camera_rgbd(s)
             frame = Frames(img, lab.astype(jnp.int16), dep if spec.frame_depth else None,
                            depths.reshape(spec.period, *depths.shape[2:]) if spec.sweep else None)
-        return s, ((logs, track), frame)
+        return (s, st), ((logs, track), frame)
 
     shape = (spec.frames_per, spec.spans, spec.span)
     actions = jax.tree.map(lambda a: a.reshape(*shape, *a.shape[1:]), action) if spec.per_step else None
     if spec.frames_per == 1:  # one frame per decision (a session's default): no scan of one
         # around the period, which XLA is free to compile differently
-        state, out = period(state, jax.tree.map(lambda a: a[0], actions))
+        (state, stamps), out = period((state, stamps), jax.tree.map(lambda a: a[0], actions))
         out = jax.tree.map(lambda a: a[None], out)
     else:
-        state, out = jax.lax.scan(period, state, actions, length=spec.frames_per)
+        (state, stamps), out = jax.lax.scan(period, (state, stamps), actions, length=spec.frames_per)
     (logs, track), frames = out  # (frames_per, spans, ...), frames (frames_per, ...)
     logs = jax.tree.map(lambda a: a.reshape(spec.frames_per * spec.spans, *a.shape[2:]), logs)
     track = jax.tree.map(lambda a: a.reshape(spec.steps, *a.shape[3:]), track) if spec.track else None
-    return state, Outcome(logs, track, frames, jnp.int32(spec.steps))
+    return state, Outcome(logs, track, frames, jnp.int32(spec.steps), stamps)

@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from rosmeery_jax.metrics import field_kernels as fk
 
@@ -65,9 +66,16 @@ class FieldTruth(NamedTuple):
     @staticmethod
     def of(world) -> "FieldTruth":
         t = world.truth
-        samples = np.asarray(t.samples.points, np.float64)
-        obj = np.asarray(t.samples.object, np.int64)
-        category = np.asarray(t.category_index, np.int64)
+        return FieldTruth.build(t.samples.points, t.samples.object, t.category_index, t.bbox_center, t.bbox_size,
+                                t.bbox_yaw)
+
+    @staticmethod
+    def build(samples, sample_object, category, center, size, yaw) -> "FieldTruth":
+        """From samples (S, 3) of objects sample_object (S,); per object its category (N,)
+        and box center (N, 3), size (N, 3), yaw (N,)."""
+        samples = np.asarray(samples, np.float64)
+        obj = np.asarray(sample_object, np.int64)
+        category = np.asarray(category, np.int64)
         origin = samples.min(0) - REACH
         dims = np.floor((samples.max(0) + REACH - origin) / REACH).astype(np.int64) + 1
         cells = np.floor((samples - origin) / REACH).astype(np.int64)
@@ -75,10 +83,9 @@ class FieldTruth(NamedTuple):
         order = np.argsort(key, kind="stable")
         classes = np.unique(category[obj])
         start = np.searchsorted(key[order], np.arange(int(np.prod(dims)) + 1))
-        return FieldTruth(samples, obj, category[obj], category, np.asarray(t.ps_G, np.int64),
-                          np.asarray(t.bbox_center, np.float64), np.asarray(t.bbox_size, np.float64),
-                          np.asarray(t.bbox_yaw, np.float64), classes, np.searchsorted(classes, category[obj]), origin, REACH, dims, start,
-                          order)
+        return FieldTruth(samples, obj, category[obj], category, np.bincount(obj, minlength=len(category)),
+                          np.asarray(center, np.float64), np.asarray(size, np.float64), np.asarray(yaw, np.float64),
+                          classes, np.searchsorted(classes, category[obj]), origin, REACH, dims, start, order)
 
 
 class Tally(NamedTuple):
@@ -213,6 +220,25 @@ class _Aggregates(NamedTuple):
                 np.add.at(untied, np.fromiter((i for i, _ in fresh), np.int64, len(fresh)), 1)
                 cubes |= fresh
         return _Aggregates(count, lo, hi, total, untied, cubes)
+
+
+def tally_of(truth: FieldTruth, points, instance, label, confidence, tolerance: float = 0.05,
+             sample: np.ndarray | None = None) -> Tally:
+    """The tally of one map from nothing: points (P, 3), instance (P,) any integer ids,
+    label and confidence per id as dicts or arrays indexed by id; ``sample`` (P,): the
+    points' tied samples when known (else the nearest within ``tolerance``)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    ids, inst = np.unique(np.asarray(instance, np.int64), return_inverse=True)
+    if sample is None:
+        _, sample = cKDTree(truth.samples).query(points, distance_upper_bound=tolerance)
+        sample = np.where(sample < len(truth.samples), sample, -1)
+    on = sample >= 0
+    pairs = np.unique(inst[on] * len(truth.samples) + sample[on])
+    shared = np.zeros((len(ids), len(truth.ps_G)), np.int64)
+    np.add.at(shared, (pairs // len(truth.samples), truth.sample_object[pairs % len(truth.samples)]), 1)
+    lab = np.array([label[i] for i in ids.tolist()], np.int64)
+    conf = np.array([confidence[i] for i in ids.tolist()], np.float64)
+    return FieldScorer(truth).tally(points, inst, lab, conf, sample, shared)
 
 
 def values(tally: Tally, truth: FieldTruth, names) -> dict[str, float]:

@@ -273,11 +273,12 @@ def score(world, m: SemanticMap, tolerance: float = TOLERANCE, field_names: tupl
     sc = score_tied(world, sample, m.instance, labels_of)
     if not field_names:
         return sc
-    ids, inst = np.unique(m.instance, return_inverse=True)
+    ids = np.unique(m.instance)
     label, conf = labels_of(ids)
-    scorer = field.FieldScorer(field.FieldTruth.of(world))
-    tally = scorer.tally(m.points, inst, label, conf, sample, shared_samples(world, inst, sample, len(ids)))
-    return sc._replace(field=field.values(tally, scorer.truth, field_names), tally=tally)
+    truth = field.FieldTruth.of(world)
+    tally = field.tally_of(truth, m.points, m.instance, dict(zip(ids.tolist(), label)), dict(zip(ids.tolist(), conf)),
+                           sample=sample)
+    return sc._replace(field=field.values(tally, truth, field_names), tally=tally)
 
 
 def score_tied(world, sample: np.ndarray, instance: np.ndarray, labels_of) -> Score:

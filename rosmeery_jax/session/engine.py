@@ -41,6 +41,7 @@ class Simulation(NamedTuple):
     mapped: dict | None = None
     log_every: int = 1
     digests: list | None = None  # per chunk: {part: (B,) digests} (session.digest)
+    stamps: np.ndarray | None = None  # (B, S) int32 each sample's first-observed step, -1 never (Plan.stamp)
 
 
 class Keys(NamedTuple):
@@ -91,6 +92,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
         run.host_policy.check_start(track0.pose[run.rows])
     worker = Worker(group, plan, detectors, start.attach, start.labels, data, blocks, bar, ready)
     state, pstates, key, jobs, wait_s, digests = start.state, start.pstates, keys.run, [], 0.0, []
+    stamps = (first_stamps(start.state),) if plan.stamp else ()
     queued = collections.deque()  # the key each dispatched chunk returns: ready once that chunk has run
     try:
         with interrupt.deferred():  # Ctrl-C between chunks, never inside a JAX callback
@@ -105,8 +107,9 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
                     wait_s += time.perf_counter() - t1
                 if len(queued) == QUEUED_CHUNKS:  # else JAX queues the whole run at once: Ctrl-C would
                     jax.block_until_ready(queued.popleft())  # wait for all of it, its outputs all held
-                out = start.chunk(data, blocks, state, pstates, key, pending)
+                out = start.chunk(data, blocks, state, pstates, key, pending, *stamps)
                 state, pstates, key = out.state, out.pstates, out.key
+                stamps = (out.stamps,) if plan.stamp else ()
                 queued.append(key)
                 jobs.append(worker.submit(c, out.logs, out.track, out.frames))
                 if plan.digest:  # waits for the chunk: a debugging aid, not for timed runs
@@ -125,9 +128,16 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     if plan.digest:
         for part, d in zip(digests, done):
             part["detections"] = digest.rows(d.dets) if d.dets is not None else [""] * group.size
+    keep = group.real
     return _collect(group, start, state, data, blocks, track0, done, worker, timing)._replace(
+        stamps=np.asarray(stamps[0])[keep] if stamps else None,
         digests=[{k: [v[r] for r in np.flatnonzero(group.real)] for k, v in part.items()} for part in digests]
         if plan.digest else None)
+
+
+def first_stamps(state) -> jax.Array:
+    """(B, S) int32: 0 for the samples observed at reset, -1 for the rest."""
+    return jnp.where(jnp.asarray(state.knowledge.seen, jnp.float32) > 0.5, 0, -1).astype(jnp.int32)
 
 
 def _raise_failed(jobs: list[Future]) -> None:
@@ -143,7 +153,7 @@ def _start(group: Group, plan: Plan, capture: bool, data, blocks, keys: Keys, em
     fns = Compiled(reset_fn(group), chunk_fn(group, plan, capture), label_fn(group) if capture else None,
                    blocked(lambda s, blk, st: in_world(group, s, blk)[0].log(st), group.devices),
                    blocked(lambda s, blk, st: in_world(group, s, blk)[0].labelled_knowledge(st), group.devices))
-    compiled_chunk = _compile_chunk(group, fns, data, blocks, keys, empty)
+    compiled_chunk = _compile_chunk(group, plan, fns, data, blocks, keys, empty)
     state = fns.reset(data, blocks, keys.env)
     pstates = _init_policies(group, keys.policy)
     chunk = compiled_chunk(state, pstates)
@@ -167,18 +177,21 @@ def _collect(group: Group, start: Start, state, data, blocks, track0, done: list
                       worker.plan.log_every)
 
 
-def _compile_chunk(group: Group, fns: Compiled, data, blocks, keys: Keys, empty):
+def _compile_chunk(group: Group, plan: Plan, fns: Compiled, data, blocks, keys: Keys, empty):
     """A function (state, pstates) -> the compiled chunk function. On one device the compile
     starts now, in a thread, from the arguments' shapes: XLA compiles without the GIL, so
     the reset and the small helpers compile and run meanwhile (1-2 s less of a cold start).
     On more, each device's copy compiles at the call (:class:`Replicas`, in parallel)."""
+    stamp = (lambda state: (first_stamps(state),)) if plan.stamp else (lambda state: ())
     if group.devices > 1:
-        return lambda state, pstates: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile()
+        return lambda state, pstates: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty,
+                                                      *stamp(state)).compile()
     state = jax.eval_shape(fns.reset, data, blocks, keys.env)
     strong = lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype)  # noqa: E731  (_init_policies gives numpy-made arrays)
     pstates = tuple(jax.tree.map(strong, jax.eval_shape(p.init_batch, keys.policy)) for p in group.policies)
-    job = interrupt.background(lambda: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty).compile(),
-                               "compile")
+    extra = (jax.eval_shape(first_stamps, state),) if plan.stamp else ()
+    job = interrupt.background(lambda: fns.chunk.lower(data, blocks, state, pstates, keys.run, empty,
+                                                       *extra).compile(), "compile")
     return lambda *_: interrupt.wait(job)
 
 

@@ -33,8 +33,10 @@ import pandas as pd
 from rosmeery_jax import metrics
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.env import Track
-from rosmeery_jax.mapping.protocol import mapper_label
+from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, mapper_label
+from rosmeery_jax.metrics import field
 from rosmeery_jax.metrics.map_file import build_map, write_map, write_semantic_map
+from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.results import manifest, plots, tables, time_use
 from rosmeery_jax.session.checks import run_label
 from rosmeery_jax.session.config import SessionConfig
@@ -64,6 +66,7 @@ class RunResult(NamedTuple):
     log_every: int
     seeds: range
     digests: pd.DataFrame | None = None  # seed, chunk, time_s and a digest per part (session.digest)
+    stamps: np.ndarray | None = None  # (S, samples) first-observed step per sample (engine.Simulation)
 
 
 def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: dict) -> None:
@@ -79,6 +82,8 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     keep = sampled_rows(cfg)
     counted = frames_before(cfg, step[keep])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
+    names = metrics.resolve(cfg.metrics)
+    field_names = field.wanted(names)
     curves, objects, paths = [], [], []
     for i, seed in enumerate(run.seeds):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[i], logs)
@@ -86,9 +91,12 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             k = jax.tree.map(lambda a: np.asarray(a)[i], run.knowledge)
             k = k._replace(seen=k.seen[:s], label=k.label[:n], confidence=k.confidence[:n])
             write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
-            c = metrics.compute(log, env.truth, cfg.metrics)  # {name: (T,)}
-            curves.append(tables.metric_frame({m: v[keep] for m, v in c.items()}, times[keep], seed=seed,
-                                               mapper="oracle", **tags))
+            c = {m: v[keep] for m, v in metrics.compute(log, env.truth, names).items()}  # {name: (K,)}
+            if field_names:
+                c.update(oracle_field(world, run.stamps[i, :s], step[keep], jax.tree.map(lambda a: a[keep], log),
+                                      field_names))
+            curves.append(tables.metric_frame({m: c[m] for m in names}, times[keep], seed=seed, mapper="oracle",
+                                               **tags))
             objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], log), seed=seed,
                                                 mapper="oracle", policy=policy, detector=cfg.detector))
         for spec in cfg.mappers:
@@ -97,7 +105,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             label = mapper_label(spec)
             done = run.mapped[spec][i]
             mlog = ObjectLog(*(np.stack(a) for a in zip(*(done.logs[c] for c in counted))))  # (K, N)
-            c = metrics.compute(mlog, env.truth, cfg.metrics)
+            c = metrics.compute(mlog, env.truth, names)
+            c.update({m: np.array([done.fields[k][m] for k in counted]) for m in field_names})
+            c = {m: c[m] for m in names}
             curves.append(tables.metric_frame(c, times[keep], seed=seed, mapper=label, **tags))
             objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=label,
                                                 policy=policy, detector=cfg.detector))
@@ -118,6 +128,27 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         tables.write_csv(run.digests, runs / f"{name}.digest.csv")
     tables.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
     seal_run(out, name)
+
+
+def oracle_field(world, stamps: np.ndarray, steps: np.ndarray, log: ObjectLog, names) -> dict[str, np.ndarray]:
+    """{name: (K,)} field map metrics of the built-in knowledge's map at ``steps`` (K,):
+    the samples first observed by then (``stamps`` (S,), -1 never) labelled by their
+    object's held label and confidence in ``log`` (fields (K, N)). The map grows sample
+    by sample in the order of observation, so it is scored incrementally."""
+    truth = world.truth
+    order = np.lexsort((np.arange(len(stamps)), stamps))
+    order = order[stamps[order] >= 0]
+    ends = np.searchsorted(stamps[order], steps, side="right")
+    points = np.asarray(truth.samples.points, np.float64)[order]
+    instance = np.asarray(truth.samples.object, np.int64)[order]
+    scorer = OnlineScorer(world, TOLERANCE, names)
+    out = {n: np.zeros(len(steps)) for n in names}
+    for k, end in enumerate(ends):
+        conf = np.where(log.label[k] >= 0, log.conf_any[k], 0.0).astype(np.float32)
+        sc = scorer.score(MapState(points[:end], instance[:end], np.asarray(log.label[k], np.int32), conf))
+        for n in names:
+            out[n][k] = sc.field[n]
+    return out
 
 
 def run_files(out: Path, name: str) -> list[Path]:

@@ -120,7 +120,7 @@ def reset_fn(group: Group):
 class Chunk(NamedTuple):
     """One call of the chunk function, per env: the state, policy states and key after it,
     logs (per_call * decide_every / log_every, N), track (per_call * decide_every, ...),
-    frames (per_call * frames_per, ...) or None."""
+    frames (per_call * frames_per, ...) or None, stamps (S,) or None (``Plan.stamp``)."""
 
     state: Any
     pstates: tuple
@@ -128,24 +128,26 @@ class Chunk(NamedTuple):
     logs: ObjectLog
     track: Track
     frames: Frames | None
+    stamps: jax.Array | None = None
 
 
 def chunk_fn(group: Group, plan: Plan, capture: bool):
     """One env per call of the returned function (blocked): fold the pending detections
     (F, D) into the knowledge, then ``plan.per_call`` decisions (:func:`_decision`).
     Returns a :class:`Chunk`; frames only with ``capture``, their depth only with
-    ``plan.perceive``."""
+    ``plan.perceive``; with ``plan.stamp`` the function takes the samples' stamps (S,) last
+    and returns them updated."""
     spec = plan.decision(capture, group.policies[0].per_step)  # decide checks it
 
-    def one(stacked, block, state, pstates, key, pending):
+    def one(stacked, block, state, pstates, key, pending, *stamps):
         env, policies = in_world(group, stacked, block)
         if capture:
             state = state._replace(knowledge=attach_frames(env, state.knowledge, *pending))
         decide = _decision(env, policies, block[0], spec)
-        (state, pstates, key), ((logs, track), frames) = jax.lax.scan(decide, (state, pstates, key), None,
-                                                                      length=plan.per_call)
+        (state, pstates, key, stamps), ((logs, track), frames) = jax.lax.scan(
+            decide, (state, pstates, key, stamps[0] if stamps else None), None, length=plan.per_call)
         flat = lambda a: a.reshape(a.shape[0] * a.shape[1], *a.shape[2:])  # noqa: E731 (decision, within it)
-        return Chunk(state, pstates, key, *jax.tree.map(flat, (logs, track, frames)))
+        return Chunk(state, pstates, key, *jax.tree.map(flat, (logs, track, frames)), stamps)
 
     return blocked(one, group.devices)
 
@@ -162,14 +164,14 @@ def _decision(env: RobotEnv, policies: list, q: jax.Array, spec: Decision):
         return choose
 
     def one(carry, _):
-        s, pss, k = carry
+        s, pss, k, stamps = carry  # stamps: None unless the decision stamps samples
         k, sub = jax.random.split(k)
         # Always a branch, a lone policy's twice: compiled inline it was fused with the steps
         # around it, and a padded bank of worlds rounded its steps otherwise than beside others
         branches = [branch(i) for i in range(len(policies))] * (2 if len(policies) == 1 else 1)
         action, pss = jax.lax.switch(q, branches, s, pss, sub)
-        s, out = decide(env, s, action, spec)
-        return (s, pss, k), ((out.logs, out.track), out.frames)
+        s, out = decide(env, s, action, spec, stamps=stamps)
+        return (s, pss, k, out.stamps), ((out.logs, out.track), out.frames)
 
     return one
 

@@ -136,7 +136,8 @@ def _result(group, run, sim) -> RunResult:
                                  **{k: v[r] for k, v in part.items()}}
                                 for seed, r in zip(run.seeds, rows) for c, part in enumerate(sim.digests)])
     return RunResult(group.envs[run.world], group.policies[run.policy].name, pick(sim.logs), pick(sim.track),
-                     pick(sim.knowledge), mapped, sim.log_every, run.seeds, digests)
+                     pick(sim.knowledge), mapped, sim.log_every, run.seeds, digests,
+                     pick(sim.stamps) if sim.stamps is not None else None)
 
 
 def prepare_devices(cfg: SessionConfig) -> None:

@@ -13,6 +13,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.env.decision import Decision
 from rosmeery_jax.mapping.perceived import mapper_for
+from rosmeery_jax.metrics import field
 from rosmeery_jax.rl.task import STEP_LIMIT
 
 
@@ -120,7 +121,9 @@ class Plan(NamedTuple):
     ``decide_every`` control steps per decision, a detector frame every ``frame_steps``
     steps (a divisor of ``decide_every``), a log row every ``log_every`` steps (a divisor of
     ``frame_steps``); ``mappers``: the mapper entries fed every detector frame per env
-    (needs detectors), their maps scored after each frame count in ``score_at``."""
+    (needs detectors), their maps scored after each frame count in ``score_at``; ``field``:
+    the field map metrics scored on their maps; ``stamp``: the samples' first-observed
+    steps are kept (the built-in knowledge's map over time, for those metrics)."""
 
     total: int
     per_call: int
@@ -130,14 +133,18 @@ class Plan(NamedTuple):
     mappers: tuple[str, ...] = ()
     score_at: frozenset = frozenset()
     digest: bool = False  # a digest of each env's state after every chunk (session.digest)
+    field: tuple[str, ...] = ()
+    stamp: bool = False
 
     @staticmethod
     def of(cfg) -> "Plan":
         """The plan of a session configuration's runs (the same for every group)."""
         total = decisions(cfg)
+        names = field.wanted(field.expand(cfg.metrics))
         return Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
                     tuple(m for m in cfg.mappers if m != "oracle"),
-                    frozenset(frames_before(cfg, sampled_rows(cfg) * log_every(cfg)).tolist()), cfg.digest)
+                    frozenset(frames_before(cfg, sampled_rows(cfg) * log_every(cfg)).tolist()), cfg.digest,
+                    names, bool(names) and "oracle" in cfg.mappers)
 
     @property
     def frames_per(self) -> int:
@@ -162,4 +169,4 @@ class Plan(NamedTuple):
     def decision(self, capture: bool, per_step: bool = False) -> Decision:
         """What each decision keeps: logs and track always; frames with ``capture``."""
         return Decision(self.decide_every, self.log_every, True, self.frame_steps if capture else 0,
-                        self.perceive, capture and self.sweep, per_step)
+                        self.perceive, capture and self.sweep, per_step, self.stamp)

@@ -51,14 +51,15 @@ class Finished(NamedTuple):
 @dataclass
 class Mapped:
     """One env's mapper, fed in the worker thread: the entry, the mapper, its scorer, its
-    maps scored so far (frame count of ``Plan.score_at`` -> ObjectLog with (N,) fields) and
-    the map at the last planned count."""
+    maps scored so far (frame count of ``Plan.score_at`` -> ObjectLog with (N,) fields, and
+    -> {name: value} of the field map metrics) and the map at the last planned count."""
 
     spec: str
     mapper: Any
     scorer: OnlineScorer
     logs: dict = field(default_factory=dict)
     final: MapState | None = None
+    fields: dict = field(default_factory=dict)
 
 
 class Worker:
@@ -86,7 +87,7 @@ class Worker:
         for spec in self.plan.mappers:
             cls = mapper_for(spec)
             out[spec] = Mapped(spec, cls(self.camera, env.world.taxonomy.names),
-                                OnlineScorer(env.world, TOLERANCE))
+                                OnlineScorer(env.world, TOLERANCE, self.plan.field))
             self._score(out[spec], 0)
         return out
 
@@ -98,7 +99,8 @@ class Worker:
             m = online.mapper.semantic_map()
         m = check_map(online.spec, m, len(online.scorer.world.taxonomy.names))
         t0 = time.perf_counter()  # the scoring alone: a mapper may do work when asked for its map
-        online.logs[count] = online.scorer.score(m).log
+        score = online.scorer.score(m)
+        online.logs[count], online.fields[count] = score.log, score.field
         self.timing["score_s"] += time.perf_counter() - t0
         if count == max(self.plan.score_at):
             online.final = m
