@@ -198,8 +198,13 @@ def quantise(src: Path, out: Path, frames: np.ndarray, percentile: float = CALIB
     """ONNX Runtime's static int8 quantisation of the graph ``src`` (QDQ), activation ranges
     from ``frames`` (F, H, W, 3) uint8 in batches of the graph's size; written atomically."""
     import onnxruntime as ort
-    from onnxruntime.quantization import (CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType,
-                                          quantize_static)
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        CalibrationMethod,
+        QuantFormat,
+        QuantType,
+        quantize_static,
+    )
 
     batch = ort.InferenceSession(str(src), providers=["CPUExecutionProvider"]).get_inputs()[0].shape[0]
     x = frames.transpose(0, 3, 1, 2).astype(np.float32) / np.float32(255)

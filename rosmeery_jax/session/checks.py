@@ -20,6 +20,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.gym import agent_class, check_agent
 from rosmeery_jax.mapping.protocol import check_entries as check_mappers
+from rosmeery_jax.metrics import field
 from rosmeery_jax.policies import check_entry as check_policy
 from rosmeery_jax.policies import policy_label
 from rosmeery_jax.session import schedule
@@ -36,7 +37,11 @@ def check_session(cfg, source: str) -> None:
     """Every check of ``cfg`` (a SessionConfig whose fields have their types) that needs the
     layers: InputErrors from deeper down name ``source``."""
     with _as_source(source):
-        metrics.resolve(cfg.metrics)
+        names = metrics.resolve(cfg.metrics)
+        if field.wanted(names) and "oracle" in cfg.mappers and any(specs.kind(p) == "agent" for p in cfg.policies):
+            raise InputError("config", "metrics", "the field map metrics score the built-in knowledge's map "
+                             "(mapper oracle) of policies, not of agent: runs; score an agent's runs with a mapper "
+                             "(mappers = [\"perceived\"]) or evaluate their exported maps")
         env = schedule.env_config(cfg)  # type-checks the overrides
         for w in cfg.worlds:
             check_world(w)
