@@ -37,6 +37,22 @@ def table(final: pd.DataFrame) -> None:
             print(f"| {title if m == 'ori' else ''} | {m.upper().replace('CORI', 'cORI')} | " + " | ".join(cells) + " |")
 
 
+FIELD = {"omq": "OMQ", "ap": "AP", "ap50": "AP50", "ap25": "AP25", "f1_25": "F1 @ IoU 0.25", "f1_weak": "F1 weak",
+         "accuracy_5cm": "accuracy 5 cm", "completeness_5cm": "completeness 5 cm", "chamfer_5cm": "Chamfer 5 cm (cm)",
+         "miou": "mIoU"}
+
+
+def field_table(final: pd.DataFrame) -> None:
+    """The field's map metrics (docs/metrics.md): mean [95 % bootstrap interval] over seeds,
+    per world, metric and policy; no bold (the Chamfer is better lower)."""
+    print("| world | metric | frontier | random | semantic NBV |\n|---|---|---|---|---|")
+    for w, title in TITLES.items():
+        for k, (m, name) in enumerate(FIELD.items()):
+            seeds = _per_seed(final, w, m) * (100 if m.startswith("chamfer") else 1)
+            cells = [f"{ci.mean:.2f} {ci.bounds()}" for ci in (statistics.interval(seeds[p]) for p in POLICIES)]
+            print(f"| {title if k == 0 else ''} | {name} | " + " | ".join(cells) + " |")
+
+
 def comparisons(final: pd.DataFrame, metric: str = "ori") -> None:
     """Every pair of policies per world, paired by seed: the difference of final values, its
     interval, the permutation test's p and the verdict at 95 %."""
@@ -73,6 +89,9 @@ def main(folder: str) -> None:
         part = full[full.mapper == mapper]
         table(part[np.isclose(part.time_s, end)])
         comparisons(part[np.isclose(part.time_s, end)])
+        if set(FIELD) <= set(part.metric):
+            print(f"\nthe field's map metrics, mapper {mapper}:")
+            field_table(part[np.isclose(part.time_s, end)])
     if {"oracle", "perceived"} <= set(full.mapper):
         f = full[np.isclose(full.time_s, end) & (full.metric == "ori")]
         ratio = f.pivot_table(index=["world", "policy"], columns="mapper", values="value", aggfunc="mean")
