@@ -92,10 +92,12 @@ class Tally(NamedTuple):
     """One map at one time, as every field metric reads it. Per instance (I, the ids that
     hold points): shared (I, N) samples of each object it covers; size (I,) the samples it
     covers plus the cubes of its points on no object; count (I,) points; lo, hi (I, 3) its
-    points' box; centroid (I, 3); label (I,) category (-1 none) and confidence (I,). Per
-    point: dist (P,) to the nearest sample within REACH (inf beyond). Per sample: dist (S,)
-    to the nearest map point within REACH (inf beyond) and label (S,) that point's
-    instance's label when within SEGMENT_RADIUS (-1 else)."""
+    points' box; centroid (I, 3); label (I,) category (-1 none) and confidence (I,).
+    Geometry, per tau of TAUS (2,): points_in and points_sum, the points within tau of a
+    sample and the sum of their distances, of ``points``; samples_in and samples_sum, the
+    same of the ``samples`` towards the map. confusion (C, C + 1): samples of each class
+    by the class of their nearest map point's label within SEGMENT_RADIUS (last column:
+    none, or a category holding no samples)."""
 
     shared: np.ndarray
     size: np.ndarray
@@ -105,9 +107,13 @@ class Tally(NamedTuple):
     centroid: np.ndarray
     label: np.ndarray
     confidence: np.ndarray
-    point_dist: np.ndarray
-    sample_dist: np.ndarray
-    sample_label: np.ndarray
+    points: int
+    points_in: np.ndarray
+    points_sum: np.ndarray
+    samples: int
+    samples_in: np.ndarray
+    samples_sum: np.ndarray
+    confusion: np.ndarray
 
 
 def wanted(names) -> tuple[str, ...]:
@@ -135,15 +141,18 @@ class FieldScorer:
 
     def __init__(self, truth: FieldTruth):
         self.truth = truth
+        self.class_count = np.bincount(truth.sample_class, minlength=len(truth.classes))
         self._clear()
 
     def _clear(self) -> None:
         s = len(self.truth.samples)
         self.points = np.zeros((0, 3))
         self.instance = np.zeros(0, np.int64)
-        self.point_d2 = np.zeros(0)
+        self.points_in, self.points_sum = np.zeros(len(TAUS), np.int64), np.zeros(len(TAUS))
+        self.samples_in, self.samples_sum = np.zeros(len(TAUS), np.int64), np.zeros(len(TAUS))
         self.sample_d2 = np.full(s, np.inf)
         self.sample_point = np.full(s, -1, np.int64)
+        self.near_class = np.zeros((0, len(self.truth.classes)), np.int64)  # per id: samples nearest it, by class
         self.agg = _Aggregates.empty()
 
     def tally(self, points, instance, label, confidence, sample, shared_by_id) -> Tally:
@@ -151,33 +160,55 @@ class FieldScorer:
         if not (len(points) >= old and np.array_equal(points[:old], self.points)):
             self._clear()
             old = 0
-        new = np.ascontiguousarray(points[old:], np.float64)
-        d2 = np.full(len(new), np.inf)
-        t = self.truth
-        fk.near(new, old, t.origin, t.cell, t.dims, t.start, t.order, t.samples, REACH ** 2, d2, self.sample_d2,
-                self.sample_point)
-        self.point_d2 = np.r_[self.point_d2, d2]
-        if np.array_equal(instance[:old], self.instance):
-            self.agg = self.agg.add(points[old:], instance[old:], sample[old:])
-        else:  # instances merged or renumbered: aggregate every point again
-            self.agg = _Aggregates.empty().add(points, instance, sample)
-        self.points, self.instance = np.asarray(points), np.asarray(instance)
+        instance = np.asarray(instance, np.int64)
+        merged = not np.array_equal(instance[:old], self.instance)
+        if merged:  # instances merged or renumbered: aggregate every point again
+            self.agg = _Aggregates.empty()
+            self.near_class[:] = 0
+        top = int(instance.max()) + 1 if len(instance) else 0
+        if top > len(self.near_class):
+            self.near_class = np.r_[self.near_class, np.zeros((top - len(self.near_class),
+                                                               len(self.truth.classes)), np.int64)]
+        if merged:
+            near = (self.sample_point >= 0) & (self.sample_d2 <= SEGMENT_RADIUS ** 2)
+            np.add.at(self.near_class, (instance[self.sample_point[near]], self.truth.sample_class[near]), 1)
+        self.agg = self.agg.add(points, instance, sample) if merged else \
+            self.agg.add(points[old:], instance[old:], sample[old:])
+        self._near(np.ascontiguousarray(points[old:], np.float64), old, instance)
+        self.points, self.instance = np.asarray(points), instance
         return self._tally(label, confidence, shared_by_id)
 
+    def _near(self, new: np.ndarray, base: int, instance: np.ndarray) -> None:
+        """Look the new points up (numbered from ``base``): their distances to the samples,
+        and the samples' nearest points, with the counts built on them."""
+        t = self.truth
+        d2 = np.full(len(new), np.inf)
+        taus2 = np.asarray(TAUS) ** 2
+        fk.near(new, base, instance, t.origin, t.cell, t.dims, t.start, t.order, t.samples, t.sample_class,
+                REACH ** 2, SEGMENT_RADIUS ** 2, taus2, d2, self.sample_d2, self.sample_point, self.samples_in,
+                self.samples_sum, self.near_class)
+        for k, tau2 in enumerate(taus2):
+            inlier = d2 <= tau2
+            self.points_in[k] += int(inlier.sum())
+            self.points_sum[k] += float(np.sqrt(d2[inlier]).sum())
+
     def _tally(self, label, confidence, shared_by_id) -> Tally:
-        a = self.agg
+        a, t = self.agg, self.truth
         ids = np.flatnonzero(a.count > 0)
-        shared = shared_by_id[ids] if len(ids) else np.zeros((0, len(self.truth.ps_G)), np.int64)
-        on = self.sample_point >= 0
-        near = on & (self.sample_d2 <= SEGMENT_RADIUS ** 2)
-        sample_label = np.full(len(on), -1, np.int64)
-        point_label = np.asarray(label, np.int64)[self.instance[self.sample_point[near]]]
-        sample_label[near] = point_label
+        label = np.asarray(label, np.int64)
+        shared = shared_by_id[ids] if len(ids) else np.zeros((0, len(t.ps_G)), np.int64)
         size = shared.sum(1) + a.untied[ids]
         count = a.count[ids]
+        c = len(t.classes)
+        table = np.full(max(int(t.classes.max()) + 2, int(label.max(initial=-1)) + 2), c)
+        table[t.classes] = np.arange(c)  # the last entry (index -1): no label
+        confusion = np.zeros((c + 1, c), np.int64)  # rows: the predicted class
+        np.add.at(confusion, table[label[ids]], self.near_class[ids])
+        confusion[c] += self.class_count - confusion.sum(0)  # samples with no map point near: no label
         return Tally(shared, size, count, a.lo[ids], a.hi[ids], a.total[ids] / np.maximum(count, 1)[:, None],
-                     np.asarray(label, np.int64)[ids], np.asarray(confidence, np.float64)[ids],
-                     np.sqrt(self.point_d2), np.sqrt(self.sample_d2), sample_label)
+                     label[ids], np.asarray(confidence, np.float64)[ids], len(self.points), self.points_in.copy(),
+                     self.points_sum.copy(), len(t.samples), self.samples_in.copy(), self.samples_sum.copy(),
+                     confusion.T.copy())
 
 
 class _Aggregates(NamedTuple):
@@ -271,7 +302,11 @@ def omq(tally: Tally, truth: FieldTruth) -> dict[str, float]:
                           truth.yaw)
     label_q = np.where(truth.category[:, None] == tally.label[k][None, :], tally.confidence[k][None, :], 0.0)
     quality = np.sqrt(spatial * label_q)
-    rows, cols = linear_sum_assignment(quality, maximize=True) if len(k) else (np.zeros(0, int), np.zeros(0, int))
+    positive = quality > 0
+    if (positive.sum(0) <= 1).all() and (positive.sum(1) <= 1).all():  # no pair competes: each is its best
+        rows, cols = np.nonzero(positive)
+    else:
+        rows, cols = linear_sum_assignment(quality, maximize=True)
     tp = quality[rows, cols] > 0
     rows, cols = rows[tp], cols[tp]
     fp = np.setdiff1d(np.arange(len(k)), cols)
@@ -310,6 +345,8 @@ def _one_to_one(candidates: np.ndarray, weight: np.ndarray) -> int:
     """Matches of a one-to-one assignment maximising the total weight among candidate pairs."""
     if not candidates.any():
         return 0
+    if (candidates.sum(0) <= 1).all() and (candidates.sum(1) <= 1).all():  # no pair competes: all match
+        return int(candidates.sum())
     w = np.where(candidates, weight, 0.0)
     rows, cols = linear_sum_assignment(w, maximize=True)
     return int(candidates[rows, cols].sum())
@@ -343,33 +380,25 @@ def geometry(tally: Tally, truth: FieldTruth) -> dict[str, float]:
     point), their F-score and Khronos' Chamfer distance at tau: the mean inlier distance
     each way, a way with no inliers counting tau."""
     out = {}
-    for tau in TAUS:
+    for k, tau in enumerate(TAUS):
         name = f"{round(100 * tau)}cm"
-        a_in = tally.point_dist <= tau
-        c_in = tally.sample_dist <= tau
-        acc = float(a_in.mean()) if len(a_in) else 0.0
-        comp = float(c_in.mean())
-        out[f"accuracy_{name}"], out[f"completeness_{name}"] = acc, comp
-        out[f"fscore_{name}"] = 2 * acc * comp / (acc + comp) if acc + comp > 0 else 0.0
-        way = [float(d[inl].mean()) if inl.any() else tau for d, inl in
-               ((tally.point_dist, a_in), (tally.sample_dist, c_in))]
-        out[f"chamfer_{name}"] = way[0] + way[1]
+        acc = tally.points_in[k] / tally.points if tally.points else 0.0
+        comp = tally.samples_in[k] / tally.samples
+        out[f"accuracy_{name}"], out[f"completeness_{name}"] = float(acc), float(comp)
+        out[f"fscore_{name}"] = float(2 * acc * comp / (acc + comp)) if acc + comp > 0 else 0.0
+        way = [total / n if n else tau for total, n in ((tally.points_sum[k], tally.points_in[k]),
+                                                        (tally.samples_sum[k], tally.samples_in[k]))]
+        out[f"chamfer_{name}"] = float(way[0] + way[1])
     return out
 
 
 def class_segmentation(tally: Tally, truth: FieldTruth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per class holding samples (C,): IoU, accuracy and its share of the samples."""
-    classes = truth.classes
-    gt = truth.sample_class
-    table = np.full(max(int(classes.max()) + 2, int(tally.sample_label.max()) + 2), len(classes))
-    table[classes] = np.arange(len(classes))  # the last entry (index -1): no label
-    pred = table[tally.sample_label]  # no label, or a class holding no samples: "other"
-    confusion = np.bincount(gt * (len(classes) + 1) + pred, minlength=len(classes) * (len(classes) + 1))
-    confusion = confusion.reshape(len(classes), len(classes) + 1)
+    confusion = tally.confusion
     tp = np.diag(confusion[:, :-1]).astype(np.float64)
     truth_n = confusion.sum(1)
     predicted = confusion[:, :-1].sum(0)
-    return tp / (truth_n + predicted - tp), tp / truth_n, truth_n / len(gt)
+    return tp / (truth_n + predicted - tp), tp / truth_n, truth_n / tally.samples
 
 
 def segmentation(tally: Tally, truth: FieldTruth) -> dict[str, float]:

@@ -18,13 +18,17 @@ from numba import njit
 
 
 @njit(cache=True)
-def near(points, base, origin, cell, dims, start, order, samples, r2, point_d2, sample_d2, sample_point):
-    """For new map points (k, 3), numbered ``base``, ``base + 1``, ...: each point's squared
-    distance to its nearest sample within sqrt(r2) (``point_d2`` (k,), left as is beyond),
-    and each sample's nearest map point so far (``sample_d2``, ``sample_point`` (S,),
-    updated in place; a tie keeps the earlier point). The samples are sorted by cell
-    (``order``), cell c's at ``order[start[c]:start[c + 1]]``; cells are ``cell`` wide
-    (at least sqrt(r2)) on a ``dims`` grid from ``origin``."""
+def near(points, base, instance, origin, cell, dims, start, order, samples, sample_class, r2, seg_r2, taus2,
+         point_d2, sample_d2, sample_point, samples_in, samples_sum, near_class):
+    """For new map points (k, 3), numbered ``base``, ``base + 1``, ... (``instance`` the ids
+    of every point): each point's squared distance to its nearest sample within sqrt(r2)
+    (``point_d2`` (k,), left as is beyond), and each sample's nearest map point so far
+    (``sample_d2``, ``sample_point`` (S,), updated in place; a tie keeps the earlier point)
+    with what is counted on it, kept up to date: per tau of ``taus2`` the samples within it
+    and the sum of their distances (``samples_in``, ``samples_sum``), and per id the samples
+    within sqrt(seg_r2) whose nearest point it holds, by class (``near_class``). The samples
+    are sorted by cell (``order``), cell c's at ``order[start[c]:start[c + 1]]``; cells are
+    ``cell`` wide (at least sqrt(r2)) on a ``dims`` grid from ``origin``."""
     nx, ny, nz = dims[0], dims[1], dims[2]
     for j in range(points.shape[0]):
         px, py, pz = points[j, 0], points[j, 1], points[j, 2]
@@ -43,7 +47,19 @@ def near(points, base, origin, cell, dims, start, order, samples, r2, point_d2, 
                             continue
                         if d2 < point_d2[j]:
                             point_d2[j] = d2
-                        if d2 < sample_d2[s]:
+                        old = sample_d2[s]
+                        if d2 < old:
+                            for t in range(taus2.shape[0]):
+                                if old <= taus2[t]:
+                                    samples_in[t] -= 1
+                                    samples_sum[t] -= math.sqrt(old)
+                                if d2 <= taus2[t]:
+                                    samples_in[t] += 1
+                                    samples_sum[t] += math.sqrt(d2)
+                            if old <= seg_r2:
+                                near_class[instance[sample_point[s]], sample_class[s]] -= 1
+                            if d2 <= seg_r2:
+                                near_class[instance[base + j], sample_class[s]] += 1
                             sample_d2[s] = d2
                             sample_point[s] = base + j
 
