@@ -254,7 +254,9 @@ class OnlineScorer:
         self.pairs: set[int] = set()
         self.last = None  # (label, confidence, Score) of the last call
 
-    def score(self, m: MapState) -> Score:
+    def score(self, m: MapState, ties: np.ndarray | None = None) -> Score:
+        """Score map ``m``; ``ties`` (V,): its points' tied samples when the caller knows
+        them (a map of ground-truth samples), else each new point is looked up."""
         old = len(self.points)
         if not (len(m.points) >= old and np.array_equal(m.points[:old], self.points)):
             self._clear()
@@ -267,8 +269,12 @@ class OnlineScorer:
         elif len(m.points) == old and self.last is not None and np.array_equal(self.last[0], m.label) \
                 and np.array_equal(self.last[1], m.confidence):
             return self.last[2]
-        sample = tie(self.world, m.points[old:], self.tolerance, self.tree) if len(m.points) > old \
-            else np.zeros(0, np.int64)
+        if ties is not None:
+            sample = np.asarray(ties[old:len(m.points)], np.int64)
+        elif len(m.points) > old:
+            sample = tie(self.world, m.points[old:], self.tolerance, self.tree)
+        else:
+            sample = np.zeros(0, np.int64)
         self._count(m.instance[old:], sample)
         self.points, self.instance, self.sample = m.points, m.instance, np.r_[self.sample[:old], sample]
         ids = np.flatnonzero(self.present)

@@ -145,7 +145,8 @@ def oracle_field(world, stamps: np.ndarray, steps: np.ndarray, log: ObjectLog, n
     out = {n: np.zeros(len(steps)) for n in names}
     for k, end in enumerate(ends):
         conf = np.where(log.label[k] >= 0, log.conf_any[k], 0.0).astype(np.float32)
-        sc = scorer.score(MapState(points[:end], instance[:end], np.asarray(log.label[k], np.int32), conf))
+        sc = scorer.score(MapState(points[:end], instance[:end], np.asarray(log.label[k], np.int32), conf),
+                          ties=order[:end])  # each point is its sample
         for n in names:
             out[n][k] = sc.field[n]
     return out
