@@ -17,7 +17,7 @@ import jax
 import pandas as pd
 
 from rosmeery_jax import metrics
-from rosmeery_jax.apps import detector_commands, world_commands
+from rosmeery_jax.apps import detector_commands, ros_bags, world_commands
 from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.columns import columns
@@ -178,7 +178,10 @@ def _cmd_evaluate(args) -> int:
         raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
     world = load_world(args.world)
-    maps = [map_score.read_map(p, world.taxonomy) for p in args.map]  # every map is read and checked before any write
+    if args.bag:  # a ROS mapper's PointCloud2 maps, each at its stamp (apps.ros_bags)
+        maps = ros_bags.read_maps(Path(args.bag), args.topic, args.labels_topic, world.name, world.taxonomy)
+    else:  # every map is read and checked before any write
+        maps = [map_score.read_map(p, world.taxonomy) for p in args.map]
     maps, frame = to_world(world, maps, args.transform, args.align)
     if frame and frame["source"] == "icp":
         print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
@@ -202,11 +205,13 @@ def _cmd_record(args) -> int:
     if args.seed is not None and args.seeds is not None:
         raise InputError("command line", "--seed", "give --seed S (one seed) or --seeds N (seeds 0..N-1), not both")
     seeds = [args.seed] if args.seed is not None else 1 if args.seeds is None else args.seeds
-    cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate)
+    cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate, format=args.format,
+                       depth_encoding=args.depth_encoding, detector=args.detector)
     folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
                      progress=not args.quiet)
-    print(f"recorded {len(folders)} sequence(s) (TUM RGB-D layout, laser, odometry) in {args.out}/: "
-          + ", ".join(f.name for f in folders))
+    what = "TUM RGB-D layout, laser, odometry" if cfg.format == "tum" else \
+        f"a ROS 2 bag each ({cfg.format}; play one with: ros2 bag play {folders[0] / 'bag'})"
+    print(f"recorded {len(folders)} sequence(s) ({what}) in {args.out}/: " + ", ".join(f.name for f in folders))
     return 0
 
 
@@ -368,6 +373,13 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--rate", type=float, default=rec.rate_hz, metavar="HZ", help="RGB-D frames per simulated second "
                    f"(a divisor of the control rate; default {rec.rate_hz:g}); laser, odometry and poses are written "
                    "every control step")
+    p.add_argument("--format", default=rec.format, choices=("tum", "mcap", "sqlite3"),
+                   help="tum (default): TUM RGB-D folders and text files; mcap or sqlite3: a ROS 2 bag per seed "
+                        "(the ros extra; docs/record.md)")
+    p.add_argument("--depth-encoding", default=rec.depth_encoding, choices=("32FC1", "16UC1"),
+                   help="a bag's depth images: 32FC1 metres (default) or 16UC1 millimetres")
+    p.add_argument("--detector", default=rec.detector, choices=("off", "oracle", "yolo"),
+                   help="a bag's /detections topic: off (default), oracle or yolo (the session's detectors)")
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
     p.add_argument("--quiet", action="store_true")
@@ -394,8 +406,14 @@ def _teleop_parser(sub, d: SessionConfig) -> None:
 def _evaluate_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("evaluate", help="score your own semantic map(s) (PLY + JSON) against a world's ground truth")
     p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
-    p.add_argument("--map", required=True, nargs="+", metavar="MAP.ply", help="one or more maps of one run "
-                   "(with MAP.json beside each: frame, labels; several maps with times give curves)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--map", nargs="+", metavar="MAP.ply", help="one or more maps of one run "
+                        "(with MAP.json beside each: frame, labels; several maps with times give curves)")
+    source.add_argument("--bag", metavar="DIR", help="a ROS 2 bag whose --topic holds the maps (sensor_msgs/"
+                        "PointCloud2 with an instance field; the ros extra; docs/evaluate.md)")
+    p.add_argument("--topic", default="/semantic_map", help="the bag's map topic (default /semantic_map)")
+    p.add_argument("--labels-topic", metavar="TOPIC", help="a std_msgs/String topic of JSON instance labels "
+                   "({\"objects\": [{\"id\", \"label\", \"confidence\"}]})")
     p.add_argument("--out", default="out/evaluate", metavar="DIR")
     p.add_argument("--tolerance", type=float, default=map_score.TOLERANCE, metavar="M",
                    help=f"a point within M metres of a surface sample lies on it (default {map_score.TOLERANCE:g})")

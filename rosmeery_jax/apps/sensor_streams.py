@@ -40,7 +40,9 @@ from scipy.spatial.transform import Rotation
 
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.apps.ros_bags import FORMATS, BagStreams, rosbags
 from rosmeery_jax.core.files import require_same, write_atomic
+from rosmeery_jax.detector.detections import DETECTORS, make_detector
 from rosmeery_jax.env import make
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
@@ -56,6 +58,9 @@ class RecordConfig:
     height: int = 480
     rate_hz: float = 5.0  # RGB-D frames per simulated second (a divisor of the 10 Hz control rate)
     decide_every: int = 10
+    format: str = "tum"  # tum (folders of PNG and text), or a ROS 2 bag: mcap, sqlite3 (apps.ros_bags)
+    depth_encoding: str = "32FC1"  # a bag's depth images: 32FC1 metres, or 16UC1 millimetres
+    detector: str = "off"  # a bag's /detections: off, oracle or yolo (the session's detectors)
 
     def stride(self, dt: float) -> int:
         """Control steps between frames."""
@@ -73,6 +78,17 @@ def check(cfg: RecordConfig, out: Path, resume: bool, dt: float) -> None:
     if not (cfg.rate_hz > 0 and abs(stride - round(stride)) < 1e-9 and stride >= 1):
         raise InputError("command line", "--rate", f"{cfg.rate_hz!r} Hz must divide the {1 / dt:g} Hz control rate "
                          "(10, 5, 2, 1, 0.5, ...)")
+    if cfg.format not in FORMATS:
+        raise InputError("command line", "--format", f"{cfg.format!r} is not one of {', '.join(FORMATS)}")
+    if cfg.depth_encoding not in ("32FC1", "16UC1"):
+        raise InputError("command line", "--depth-encoding", f"{cfg.depth_encoding!r} is not 32FC1 or 16UC1")
+    if cfg.detector not in DETECTORS:
+        raise InputError("command line", "--detector", f"{cfg.detector!r} is not one of {', '.join(DETECTORS)}")
+    if cfg.format != "tum":
+        rosbags()  # the optional package, before anything runs
+    elif cfg.detector != "off":
+        raise InputError("command line", "--detector", "detections are written to ROS 2 bags only (--format mcap "
+                         "or sqlite3)")
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "--out", "is a file, not a folder")
     if out.exists() and any(out.iterdir()) and not resume:
@@ -169,20 +185,44 @@ def _render_fn(env, camera: CameraConfig):
 def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, folder: Path, info: dict) -> None:
     tmp = folder.with_name(f".{folder.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
-    for sub in ("rgb", "depth", "seg"):
-        (tmp / sub).mkdir(parents=True)
+    tmp.mkdir(parents=True)
     camera = replace(env.config.camera, rgb_width=cfg.width, rgb_height=cfg.height)
     frames = np.arange(0, len(times), cfg.stride(env.dt))
-    stamps = [f"{times[i]:.6f}" for i in frames]
+    if cfg.format == "tum":
+        _write_tum(env, cfg, camera, times, poses, frames, tmp, info)
+    else:
+        _write_bag(env, cfg, camera, times, poses, frames, tmp / "bag", info)
+    truth = env.world.truth
+    (tmp / "objects.json").write_text(json.dumps(
+        {"seg_values": "object id + 1; 0 = wall, floor or nothing", "objects": [
+            {"id": i, "seg": i + 1, "name": n, "category": c} for i, (n, c) in enumerate(zip(truth.names,
+                                                                                        truth.categories))]},
+        indent=1))
+    mount = {"x": camera.mount_x, "y": 0.0, "z": camera.mount_height, "pitch_rad": camera.pitch}
+    (tmp / "camera.json").write_text(json.dumps({**camera_intrinsics(camera, cfg.width, cfg.height),
+                                                 "rate_hz": cfg.rate_hz, "base_to_camera": mount}, indent=1))
+    (tmp / "info.json").write_text(json.dumps({**info, "frames": len(frames), "control_dt_s": env.dt,
+                                               "format": cfg.format}, indent=1))
+    tmp.rename(folder)
+
+
+def _rendered(env, camera: CameraConfig, poses: np.ndarray, frames: np.ndarray):
+    """(start, RGB, depth, labels) per batch of FRAME_BATCH frames, rendered in order."""
     render = _render_fn(env, camera)
+    for start in range(0, len(frames), FRAME_BATCH):
+        part = frames[start:start + FRAME_BATCH]
+        batch = np.zeros((FRAME_BATCH, 3), np.float32)  # a fixed batch shape: one compile
+        batch[:len(part)] = poses[part]
+        yield (start, *(np.asarray(a)[:len(part)] for a in render(jnp.asarray(batch))))
+
+
+def _write_tum(env, cfg: RecordConfig, camera, times, poses, frames, tmp: Path, info: dict) -> None:
+    for sub in ("rgb", "depth", "seg"):
+        (tmp / sub).mkdir()
+    stamps = [f"{times[i]:.6f}" for i in frames]
     with ThreadPoolExecutor(max_workers=2) as pool:  # PNG encoding overlaps the next render
-        jobs = []
-        for start in range(0, len(frames), FRAME_BATCH):
-            part = frames[start:start + FRAME_BATCH]
-            batch = np.zeros((FRAME_BATCH, 3), np.float32)  # a fixed batch shape: one compile
-            batch[:len(part)] = poses[part]
-            img, depth, label = (np.asarray(a)[:len(part)] for a in render(jnp.asarray(batch)))
-            jobs.append(pool.submit(_write_pngs, tmp, stamps[start:start + FRAME_BATCH], img, depth, label))
+        jobs = [pool.submit(_write_pngs, tmp, stamps[start:start + FRAME_BATCH], img, depth, label)
+                for start, img, depth, label in _rendered(env, camera, poses, frames)]
         for j in jobs:
             j.result()
     for sub in ("rgb", "depth", "seg"):
@@ -193,17 +233,33 @@ def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, fo
                  [f"{t:.6f} " + " ".join(f"{v:.6f}" for v in row) for t, row in zip(times, gt)])
     _write_laser(env, tmp, times, poses)
     _write_odometry(tmp, times, poses, env.dt)
-    truth = env.world.truth
-    (tmp / "objects.json").write_text(json.dumps(
-        {"seg_values": "object id + 1; 0 = wall, floor or nothing", "objects": [
-            {"id": i, "seg": i + 1, "name": n, "category": c} for i, (n, c) in enumerate(zip(truth.names,
-                                                                                        truth.categories))]},
-        indent=1))
-    mount = {"x": camera.mount_x, "y": 0.0, "z": camera.mount_height, "pitch_rad": camera.pitch}
-    (tmp / "camera.json").write_text(json.dumps({**camera_intrinsics(camera, cfg.width, cfg.height),
-                                                 "rate_hz": cfg.rate_hz, "base_to_camera": mount}, indent=1))
-    (tmp / "info.json").write_text(json.dumps({**info, "frames": len(frames), "control_dt_s": env.dt}, indent=1))
-    tmp.rename(folder)
+
+
+def _write_bag(env, cfg: RecordConfig, camera, times, poses, frames, path: Path, info: dict) -> None:
+    """The run as a ROS 2 bag (apps.ros_bags): every control step's clock, transforms,
+    odometry, ground truth and laser; every frame's images, camera info and detections."""
+    streams = BagStreams(path, cfg.format, cfg.depth_encoding)
+    laser_cfg = env.config.laser
+    ranges = _ranges(env, poses)
+    v, w = _rates(poses, env.dt)
+    angles = laser_dirs(laser_cfg)
+    intr = camera_intrinsics(camera, cfg.width, cfg.height)
+    detector = make_detector(cfg.detector, env.world, 0.25) if cfg.detector != "off" else None
+    names = env.world.taxonomy.names
+    streams.static(camera, laser_cfg)
+    step = 0
+    try:
+        for start, img, depth, label in _rendered(env, camera, poses, frames):
+            dets = detector(img, label, [(info["seed"], start + k) for k in range(len(img))]) if detector else None
+            for k, i in enumerate(frames[start:start + len(img)]):
+                for j in range(step, i + 1):  # the steps up to the frame's, then the frame: time order
+                    streams.step(times[j], poses[j], poses[j], v[j], w[j], ranges[j], laser_cfg, angles)
+                step = i + 1
+                streams.frame(times[i], img[k], depth[k], intr, dets[k][1:4] if dets else None, names)
+        for j in range(step, len(times)):
+            streams.step(times[j], poses[j], poses[j], v[j], w[j], ranges[j], laser_cfg, angles)
+    finally:
+        streams.close()
 
 
 def _write_pngs(folder: Path, stamps: list[str], img, depth, label) -> None:
@@ -217,24 +273,33 @@ def _write_table(path: Path, header: str, lines: list[str]) -> None:
     path.write_text(f"# {header}\n" + "\n".join(lines) + "\n")
 
 
+def _ranges(env, poses: np.ndarray) -> np.ndarray:
+    """(T, K) laser ranges at the poses (T, 3)."""
+    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.laser_rays, env.config.laser, p)))(jnp.asarray(poses))
+    return np.asarray(ranges)
+
+
 def _write_laser(env, folder: Path, times: np.ndarray, poses: np.ndarray) -> None:
     cfg = env.config.laser
-    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.laser_rays, cfg, p)))(jnp.asarray(poses))
+    ranges = _ranges(env, poses)
     angles = laser_dirs(cfg)
     header = (f"laser ranges (m), {cfg.beams} beams from {angles[0]:.6f} to {angles[-1]:.6f} rad "
               f"(increment {angles[1] - angles[0]:.6f}) in the robot frame, {cfg.height} m above the floor at the "
               f"robot's centre; range {cfg.min_range}-{cfg.max_range} m, max_range = no return: timestamp r_0 ... r_K-1")
     _write_table(folder / "scan.txt", header, [f"{t:.6f} " + " ".join(f"{r:.4f}" for r in row)
-                                               for t, row in zip(times, np.asarray(ranges))])
+                                               for t, row in zip(times, ranges)])
+
+
+def _rates(poses: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Forward and turn rates (T,) from the pose differences (backward, 0 at the start)."""
+    d = np.diff(poses, axis=0, prepend=poses[:1])
+    yaw = poses[:, 2]
+    return (d[:, 0] * np.cos(yaw) + d[:, 1] * np.sin(yaw)) / dt, np.angle(np.exp(1j * d[:, 2])) / dt
 
 
 def _write_odometry(folder: Path, times: np.ndarray, poses: np.ndarray, dt: float) -> None:
-    """Noise-free odometry (the simulated base pose) with forward and turn rates from the
-    pose differences (backward, 0 at the start)."""
-    d = np.diff(poses, axis=0, prepend=poses[:1])
-    yaw = poses[:, 2]
-    v = (d[:, 0] * np.cos(yaw) + d[:, 1] * np.sin(yaw)) / dt
-    w = np.angle(np.exp(1j * d[:, 2])) / dt
+    """Noise-free odometry (the simulated base pose) with forward and turn rates."""
+    v, w = _rates(poses, dt)
     _write_table(folder / "odometry.txt", "base pose in the odom frame (= world, no drift): timestamp x y yaw v w",
                  [f"{t:.6f} {x:.6f} {y:.6f} {a:.6f} {vv:.5f} {ww:.5f}"
                   for t, (x, y, a), vv, ww in zip(times, poses, v, w)])

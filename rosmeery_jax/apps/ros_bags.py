@@ -1,0 +1,353 @@
+"""ROS 2 bags without ROS (docs/record.md, docs/evaluate.md), read and written with rosbags.
+
+Out: :class:`BagStreams` writes one recorded run as a ROS 2 bag (MCAP or SQLite 3) in the
+standard message types and REP 103 / 105 frames: colour and depth images with their
+``CameraInfo`` in the camera's optical frame, the ``LaserScan``, wheel odometry
+(``nav_msgs/Odometry``, odom -> base_link) and the ground truth on its own topic, ``/tf``
+(map -> odom -> base_link) and ``/tf_static`` (base_link -> camera_link ->
+camera_optical_frame, base_link -> laser), ``/clock`` and the detector's boxes
+(``vision_msgs/Detection2DArray``, whose definitions the bag carries).
+
+In: :func:`read_maps` turns the ``sensor_msgs/PointCloud2`` maps a ROS mapper published
+into the semantic maps ``rosmeery evaluate`` scores: ``x y z`` and an instance field
+(``instance``, ``instance_id`` or ``object_id``), optional ``label`` (taxonomy index, -1
+none) and ``confidence`` fields, instance labels from a ``std_msgs/String`` JSON topic (the
+format of a map's JSON: ``{"objects": [{"id", "label", "confidence"}]}``), each message's
+header stamp its time.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from rosmeery_jax.core.errors import InputError
+
+FORMATS = ("tum", "mcap", "sqlite3")
+HINT = "rosbags is missing: pip install 'rosmeery-jax[ros]' (or pip install rosbags)"
+FRAMES = {"map": "map", "odom": "odom", "base": "base_link", "camera": "camera_link",
+          "optical": "camera_optical_frame", "laser": "laser"}
+INSTANCE_FIELDS = ("instance", "instance_id", "object_id")
+
+# vision_msgs 4.x (ROS 2 Humble): not in rosbags' stores, so the bag carries their definitions
+VISION_MSGS = {
+    "vision_msgs/msg/Point2D": "float64 x\nfloat64 y\n",
+    "vision_msgs/msg/Pose2D": "vision_msgs/Point2D position\nfloat64 theta\n",
+    "vision_msgs/msg/BoundingBox2D": "vision_msgs/Pose2D center\nfloat64 size_x\nfloat64 size_y\n",
+    "vision_msgs/msg/ObjectHypothesis": "string class_id\nfloat64 score\n",
+    "vision_msgs/msg/ObjectHypothesisWithPose": "vision_msgs/ObjectHypothesis hypothesis\n"
+                                                "geometry_msgs/PoseWithCovariance pose\n",
+    "vision_msgs/msg/Detection2D": "std_msgs/Header header\nvision_msgs/ObjectHypothesisWithPose[] results\n"
+                                   "vision_msgs/BoundingBox2D bbox\nstring id\n",
+    "vision_msgs/msg/Detection2DArray": "std_msgs/Header header\nvision_msgs/Detection2D[] detections\n",
+}
+
+
+def rosbags():
+    """The rosbags modules this file uses, or one line saying how to install them."""
+    try:
+        from rosbags import rosbag2, typesys
+    except ImportError:
+        raise InputError("rosbags", "import", HINT) from None
+    return rosbag2, typesys
+
+
+def typestore():
+    """ROS 2 Humble's message types with vision_msgs added."""
+    _, typesys = rosbags()
+    store = typesys.get_typestore(typesys.Stores.ROS2_HUMBLE)
+    types = {}
+    for name, text in VISION_MSGS.items():
+        types.update(typesys.get_types_from_msg(text, name))
+    store.register(types)
+    return store
+
+
+def stamp_ns(t: float) -> int:
+    return int(round(t * 1e9))
+
+
+class BagStreams:
+    """One run's streams written to a new ROS 2 bag at ``path`` (``fmt`` mcap or sqlite3).
+    Call :meth:`static` once, then :meth:`step` every control step and :meth:`frame` every
+    RGB-D frame, in time order; :meth:`close` ends the bag."""
+
+    def __init__(self, path: Path, fmt: str, depth_encoding: str = "32FC1"):
+        rosbag2, _ = rosbags()
+        self.store = typestore()
+        plugin = {"mcap": rosbag2.StoragePlugin.MCAP, "sqlite3": rosbag2.StoragePlugin.SQLITE3}[fmt]
+        self.writer = rosbag2.Writer(path, version=9, storage_plugin=plugin)
+        self.writer.open()
+        self.depth_encoding = depth_encoding
+        self.t = self.store.types
+        topics = {"/clock": "rosgraph_msgs/msg/Clock", "/tf": "tf2_msgs/msg/TFMessage",
+                  "/tf_static": "tf2_msgs/msg/TFMessage", "/odom": "nav_msgs/msg/Odometry",
+                  "/ground_truth/odom": "nav_msgs/msg/Odometry", "/scan": "sensor_msgs/msg/LaserScan",
+                  "/camera/color/image_raw": "sensor_msgs/msg/Image",
+                  "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
+                  "/camera/depth/image_raw": "sensor_msgs/msg/Image",
+                  "/camera/depth/camera_info": "sensor_msgs/msg/CameraInfo",
+                  "/detections": "vision_msgs/msg/Detection2DArray"}
+        self.conn = {}
+        for topic, typ in topics.items():
+            self.conn[topic] = self.writer.add_connection(topic, typ, typestore=self.store,
+                                                          offered_qos_profiles=self._qos(topic))
+        self.types = topics
+
+    def _qos(self, topic: str) -> list:
+        """/tf_static is latched (keep last 1, reliable, transient local), as ROS 2 tools expect."""
+        if topic != "/tf_static":
+            return []
+        from rosbags import interfaces as i  # noqa: PLC0415 (with rosbags, found above)
+
+        never = i.QosTime(0x7FFFFFFF, 0xFFFFFFFF)
+        return [i.Qos(i.QosHistory.KEEP_LAST, 1, i.QosReliability.RELIABLE, i.QosDurability.TRANSIENT_LOCAL, never,
+                      never, i.QosLiveliness.AUTOMATIC, never, False)]
+
+    def _write(self, topic: str, t: float, msg) -> None:
+        self.writer.write(self.conn[topic], stamp_ns(t), self.store.serialize_cdr(msg, self.types[topic]))
+
+    def _header(self, t: float, frame: str):
+        ns = stamp_ns(t)
+        return self.t["std_msgs/msg/Header"](stamp=self.t["builtin_interfaces/msg/Time"](
+            sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame)
+
+    def _transform(self, t: float, parent: str, child: str, xyz, quat):
+        T = self.t
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=self._header(t, parent), child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2])),
+                rotation=T["geometry_msgs/msg/Quaternion"](x=float(quat[0]), y=float(quat[1]), z=float(quat[2]),
+                                                           w=float(quat[3]))))
+
+    def static(self, camera, laser) -> None:
+        """The fixed frames: base_link -> camera_link (the mount, pitched down), camera_link
+        -> camera_optical_frame (x right, y down, z forward), base_link -> laser."""
+        pitch = Rotation.from_euler("y", camera.pitch).as_quat()  # pitched down for a positive pitch
+        optical = Rotation.from_matrix([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]).as_quat()
+        tfs = [self._transform(0.0, FRAMES["base"], FRAMES["camera"], (camera.mount_x, 0.0, camera.mount_height),
+                               pitch),
+               self._transform(0.0, FRAMES["camera"], FRAMES["optical"], (0.0, 0.0, 0.0), optical),
+               self._transform(0.0, FRAMES["base"], FRAMES["laser"], (0.0, 0.0, laser.height), (0, 0, 0, 1.0))]
+        self._write("/tf_static", 0.0, self.t["tf2_msgs/msg/TFMessage"](transforms=tfs))
+
+    def _odometry(self, t: float, frame: str, pose, v: float, w: float):
+        T = self.t
+        q = Rotation.from_euler("z", float(pose[2])).as_quat()
+        cov = np.zeros(36)
+        return T["nav_msgs/msg/Odometry"](
+            header=self._header(t, frame), child_frame_id=FRAMES["base"],
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])), covariance=cov),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
+                linear=T["geometry_msgs/msg/Vector3"](x=float(v), y=0.0, z=0.0),
+                angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=float(w))), covariance=cov))
+
+    def step(self, t: float, odom_pose, true_pose, v: float, w: float, ranges, laser, angles) -> None:
+        """One control step: /clock, /tf (map -> odom the odometry's correction, identity
+        while odometry is exact; odom -> base_link), /odom, /ground_truth/odom, /scan."""
+        T = self.t
+        ns = stamp_ns(t)
+        self._write("/clock", t, T["rosgraph_msgs/msg/Clock"](clock=T["builtin_interfaces/msg/Time"](
+            sec=ns // 10**9, nanosec=ns % 10**9)))
+        correction = np.asarray(true_pose, np.float64) - np.asarray(odom_pose, np.float64)  # exact odometry: zero
+        q_odom = Rotation.from_euler("z", float(odom_pose[2])).as_quat()
+        tfs = [self._transform(t, FRAMES["map"], FRAMES["odom"], (correction[0], correction[1], 0.0),
+                               Rotation.from_euler("z", float(correction[2])).as_quat()),
+               self._transform(t, FRAMES["odom"], FRAMES["base"], (odom_pose[0], odom_pose[1], 0.0), q_odom)]
+        self._write("/tf", t, T["tf2_msgs/msg/TFMessage"](transforms=tfs))
+        self._write("/odom", t, self._odometry(t, FRAMES["odom"], odom_pose, v, w))
+        self._write("/ground_truth/odom", t, self._odometry(t, FRAMES["map"], true_pose, v, w))
+        self._write("/scan", t, T["sensor_msgs/msg/LaserScan"](
+            header=self._header(t, FRAMES["laser"]), angle_min=float(angles[0]), angle_max=float(angles[-1]),
+            angle_increment=float(angles[1] - angles[0]), time_increment=0.0, scan_time=0.0,
+            range_min=float(laser.min_range), range_max=float(laser.max_range),
+            ranges=np.asarray(ranges, np.float32), intensities=np.zeros(0, np.float32)))
+
+    def camera_info(self, t: float, intr: dict):
+        T = self.t
+        k = [intr["fx"], 0.0, intr["cx"], 0.0, intr["fy"], intr["cy"], 0.0, 0.0, 1.0]
+        p = [intr["fx"], 0.0, intr["cx"], 0.0, 0.0, intr["fy"], intr["cy"], 0.0, 0.0, 0.0, 1.0, 0.0]
+        return T["sensor_msgs/msg/CameraInfo"](
+            header=self._header(t, FRAMES["optical"]), height=intr["height"], width=intr["width"],
+            distortion_model="plumb_bob", d=np.zeros(5), k=np.asarray(k), r=np.eye(3).reshape(-1), p=np.asarray(p),
+            binning_x=0, binning_y=0, roi=T["sensor_msgs/msg/RegionOfInterest"](
+                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+
+    def frame(self, t: float, rgb: np.ndarray, depth: np.ndarray, intr: dict, detections=None,
+              categories: tuple[str, ...] = ()) -> None:
+        """One RGB-D frame (rgb (H, W, 3) uint8, depth (H, W) float32 metres, 0 none) with its
+        CameraInfo on both cameras and, when given, its detections (label, confidence, box
+        (D, 4) pixel corners) as a Detection2DArray."""
+        T = self.t
+        h, w = depth.shape
+        self._write("/camera/color/image_raw", t, T["sensor_msgs/msg/Image"](
+            header=self._header(t, FRAMES["optical"]), height=h, width=w, encoding="rgb8", is_bigendian=0,
+            step=3 * w, data=np.ascontiguousarray(rgb, np.uint8).reshape(-1)))
+        if self.depth_encoding == "16UC1":  # millimetres, 0: no return (REP 118)
+            data, step = np.round(depth * 1000.0).clip(0, 65535).astype("<u2"), 2 * w
+        else:  # metres as 32-bit floats, NaN: no return (REP 118)
+            data, step = np.where(depth > 0, depth, np.nan).astype("<f4"), 4 * w
+        self._write("/camera/depth/image_raw", t, T["sensor_msgs/msg/Image"](
+            header=self._header(t, FRAMES["optical"]), height=h, width=w, encoding=self.depth_encoding,
+            is_bigendian=0, step=step, data=np.frombuffer(data.tobytes(), np.uint8)))
+        info = self.camera_info(t, intr)
+        self._write("/camera/color/camera_info", t, info)
+        self._write("/camera/depth/camera_info", t, info)
+        if detections is not None:
+            self._write("/detections", t, self._detections(t, *detections, categories))
+
+    def _detections(self, t: float, label, conf, box, categories):
+        T = self.t
+        out = []
+        for k, (lab, c, (x1, y1, x2, y2)) in enumerate(zip(label, conf, box)):
+            hyp = T["vision_msgs/msg/ObjectHypothesisWithPose"](
+                hypothesis=T["vision_msgs/msg/ObjectHypothesis"](class_id=categories[int(lab)], score=float(c)),
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+                    orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)),
+                    covariance=np.zeros(36)))
+            bbox = T["vision_msgs/msg/BoundingBox2D"](center=T["vision_msgs/msg/Pose2D"](
+                position=T["vision_msgs/msg/Point2D"](x=float(x1 + x2) / 2, y=float(y1 + y2) / 2), theta=0.0),
+                size_x=float(x2 - x1), size_y=float(y2 - y1))
+            out.append(T["vision_msgs/msg/Detection2D"](header=self._header(t, FRAMES["optical"]), results=[hyp],
+                                                        bbox=bbox, id=str(k)))
+        return T["vision_msgs/msg/Detection2DArray"](header=self._header(t, FRAMES["optical"]), detections=out)
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+# --- maps in -------------------------------------------------------------------------------
+
+_POINT_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}  # PointField datatypes
+
+
+def read_maps(bag: Path, topic: str, labels_topic: str | None, world: str, taxonomy) -> list:
+    """The PointCloud2 maps of ``topic`` in ``bag`` (module docstring) as SemanticMaps of
+    ``world``, each at its header stamp; one InputError naming the bag, topic and field."""
+    from rosmeery_jax.metrics.map_score import SemanticMap  # noqa: PLC0415 (evaluate's type)
+
+    rosbag2, _ = rosbags()
+    store = typestore()
+    bag = Path(bag)
+    where = f"{bag} {topic}"
+    try:
+        reader = rosbag2.Reader(bag)
+        reader.open()
+    except Exception as err:  # rosbags raises several kinds on a missing, truncated or foreign bag
+        raise InputError(bag, "bag", f"not a readable ROS 2 bag ({type(err).__name__}: {err})") from None
+    try:
+        conns = [c for c in reader.connections if c.topic == topic]
+        if not conns:
+            raise InputError(bag, "topic", f"{topic!r} is not in the bag (topics: "
+                             f"{', '.join(sorted({c.topic for c in reader.connections}))})")
+        if conns[0].msgtype != "sensor_msgs/msg/PointCloud2":
+            raise InputError(bag, topic, f"is {conns[0].msgtype}, not sensor_msgs/msg/PointCloud2")
+        label_conns = [c for c in reader.connections if labels_topic and c.topic == labels_topic]
+        if labels_topic and not label_conns:
+            raise InputError(bag, "labels topic", f"{labels_topic!r} is not in the bag")
+        maps, labels, last = [], [], -1.0
+        try:
+            for conn, ns, raw in reader.messages(connections=conns + label_conns):
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 if conn.topic == topic else ns * 1e-9
+                if conn.topic != topic:
+                    labels.append((t, _label_message(bag, labels_topic, msg.data, taxonomy)))
+                    continue
+                if t < last:
+                    raise InputError(bag, f"{topic} header.stamp", f"{t:.9f} s comes after {last:.9f} s: stamps "
+                                     "must not go back")
+                last = t
+                maps.append((t, _cloud(where, msg)))
+        except InputError:
+            raise
+        except Exception as err:
+            raise InputError(bag, topic, f"cannot be read to its end ({type(err).__name__}: {err}): a truncated "
+                             "bag?") from None
+    finally:
+        reader.close()
+    if not maps:
+        raise InputError(bag, topic, "holds no messages")
+    out = []
+    for t, (points, instance, point_label, point_conf) in maps:
+        lab, conf = _instance_labels(instance, point_label, point_conf, taxonomy)
+        for lt, (side_lab, side_conf) in labels:  # the side channel's latest message at or before the map
+            if lt <= t + 1e-9:
+                lab, conf = {**lab, **side_lab}, {**conf, **side_conf}
+        out.append(SemanticMap(bag / f"{topic.strip('/').replace('/', '_')}@{t:.3f}", points, instance, lab, conf,
+                               world, t))
+    return out
+
+
+def _cloud(where: str, msg) -> tuple:
+    """points (P, 3), instance (P,), label (P,) or None, confidence (P,) or None of one cloud."""
+    fields = {f.name: f for f in msg.fields}
+    for axis in "xyz":
+        if axis not in fields:
+            raise InputError(where, f"field {axis}", "missing: a map needs x, y and z")
+    name = next((n for n in INSTANCE_FIELDS if n in fields), None)
+    if name is None:
+        raise InputError(where, "fields", f"no instance field ({', '.join(INSTANCE_FIELDS)}); it has "
+                         f"{', '.join(fields) or 'none'}")
+    n = msg.width * msg.height
+    data = np.asarray(msg.data, np.uint8)
+    if msg.point_step * n > len(data):
+        raise InputError(where, "data", f"{len(data)} bytes for {n} points of {msg.point_step}")
+    endian = ">" if msg.is_bigendian else "<"
+
+    def column(key: str) -> np.ndarray:
+        f = fields[key]
+        if f.datatype not in _POINT_TYPES:
+            raise InputError(where, f"field {key}", f"datatype {f.datatype} is not a PointField type")
+        dtype = np.dtype(endian + _POINT_TYPES[f.datatype])
+        rows = data[:n * msg.point_step].reshape(n, msg.point_step)
+        return rows[:, f.offset:f.offset + dtype.itemsize].copy().view(dtype)[:, 0].astype(np.float64)
+
+    points = np.stack([column(a) for a in "xyz"], 1)
+    ok = np.isfinite(points).all(1)  # ROS clouds mark invalid points with NaN
+    inst = column(name)[ok]
+    if not (np.isfinite(inst) & (inst == np.round(inst))).all():
+        raise InputError(where, f"field {name}", "holds values that are not whole numbers")
+    label = column("label")[ok].astype(np.int64) if "label" in fields else None
+    conf = column("confidence")[ok] if "confidence" in fields else None
+    return points[ok], inst.astype(np.int64), label, conf
+
+
+def _instance_labels(instance, point_label, point_conf, taxonomy) -> tuple[dict, dict]:
+    """Per instance id: its points' most common label (a category name, None for -1) and
+    highest confidence (1 without a confidence field)."""
+    labels, conf = {}, {}
+    for i in np.unique(instance).tolist():
+        mask = instance == i
+        if point_label is not None:
+            values, counts = np.unique(point_label[mask], return_counts=True)
+            k = int(values[np.argmax(counts)])
+            labels[i] = taxonomy.names[k] if 0 <= k < len(taxonomy.names) else None
+        conf[i] = float(point_conf[mask].max()) if point_conf is not None else 1.0
+    return labels, conf
+
+
+def _label_message(bag: Path, topic: str, text: str, taxonomy) -> tuple[dict, dict]:
+    """A side-channel message: {"objects": [{"id", "label", "confidence"}]}."""
+    try:
+        objects = json.loads(text).get("objects", [])
+    except (json.JSONDecodeError, AttributeError):
+        raise InputError(bag, f"{topic} data", "not a JSON object with an objects list") from None
+    labels, conf = {}, {}
+    for k, obj in enumerate(objects):
+        if not isinstance(obj, dict) or not isinstance(obj.get("id"), int):
+            raise InputError(bag, f"{topic} objects[{k}].id", "each object needs an integer id")
+        label = obj.get("label")
+        if label is not None and label not in taxonomy:
+            raise InputError(bag, f"{topic} objects[{k}].label", f"{label!r} is not a category of the taxonomy")
+        c = obj.get("confidence", 1.0)
+        if not isinstance(c, (int, float)) or not 0 <= c <= 1:
+            raise InputError(bag, f"{topic} objects[{k}].confidence", f"{c!r} is not a number in [0, 1]")
+        labels[obj["id"]], conf[obj["id"]] = label, float(c)
+    return labels, conf

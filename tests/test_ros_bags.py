@@ -1,0 +1,208 @@
+"""ROS 2 bags: a recording written as a bag and read back with rosbags' own reader (types,
+frames, stamps, encodings, intrinsics, depth that lands on the objects), and maps a ROS
+mapper would publish, written by rosbags' writer here, scored as the same map in PLY."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from rosmeery_jax.apps.cli import main  # noqa: E402
+from rosmeery_jax.apps.ros_bags import typestore  # noqa: E402
+from rosmeery_jax.metrics.map_score import read_map  # noqa: E402
+from rosmeery_jax.world import load_world  # noqa: E402
+
+ARGS = ["record", "--world", "small_office", "--policy", "frontier", "--duration", "4", "--width", "160",
+        "--height", "120", "--rate", "5", "--seed", "0", "--quiet"]
+STORE = get_typestore(Stores.ROS2_HUMBLE)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """The same run as a TUM folder and as an MCAP bag with the oracle detector's boxes."""
+    root = tmp_path_factory.mktemp("bags")
+    assert main([*ARGS, "--out", str(root / "tum")]) == 0
+    assert main([*ARGS, "--format", "mcap", "--detector", "oracle", "--out", str(root / "mcap")]) == 0
+    return root
+
+
+def _messages(bag: Path) -> dict:
+    store = typestore()
+    out: dict = {}
+    with Reader(bag) as reader:
+        for conn, ns, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((ns, conn.msgtype, store.deserialize_cdr(raw, conn.msgtype)))
+    return out
+
+
+def _matrix(tf) -> np.ndarray:
+    t, q = tf.transform.translation, tf.transform.rotation
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    m[:3, 3] = [t.x, t.y, t.z]
+    return m
+
+
+def test_the_bag_has_the_standard_topics_frames_and_encodings(recorded):
+    msgs = _messages(recorded / "mcap" / "seed0" / "bag")
+    types = {topic: m[0][1] for topic, m in msgs.items()}
+    assert types == {"/clock": "rosgraph_msgs/msg/Clock", "/tf": "tf2_msgs/msg/TFMessage",
+                     "/tf_static": "tf2_msgs/msg/TFMessage", "/odom": "nav_msgs/msg/Odometry",
+                     "/ground_truth/odom": "nav_msgs/msg/Odometry", "/scan": "sensor_msgs/msg/LaserScan",
+                     "/camera/color/image_raw": "sensor_msgs/msg/Image",
+                     "/camera/color/camera_info": "sensor_msgs/msg/CameraInfo",
+                     "/camera/depth/image_raw": "sensor_msgs/msg/Image",
+                     "/camera/depth/camera_info": "sensor_msgs/msg/CameraInfo",
+                     "/detections": "vision_msgs/msg/Detection2DArray"}
+    assert len(msgs["/scan"]) == 41 and len(msgs["/camera/color/image_raw"]) == 21  # 10 Hz and 5 Hz over 4 s
+    for topic, m in msgs.items():  # stamps in order, and each message's header stamp its log time
+        ns = [x[0] for x in m]
+        assert ns == sorted(ns), topic
+    rgb, depth = msgs["/camera/color/image_raw"][5][2], msgs["/camera/depth/image_raw"][5][2]
+    assert (rgb.encoding, rgb.width, rgb.height, rgb.step) == ("rgb8", 160, 120, 480)
+    assert (depth.encoding, depth.step, depth.header.frame_id) == ("32FC1", 640, "camera_optical_frame")
+    assert msgs["/odom"][0][2].header.frame_id == "odom" and msgs["/odom"][0][2].child_frame_id == "base_link"
+    assert msgs["/ground_truth/odom"][0][2].header.frame_id == "map"
+    assert msgs["/scan"][3][2].header.frame_id == "laser" and len(msgs["/scan"][3][2].ranges) == 90
+    tf = msgs["/tf"][0][2].transforms
+    assert [(t.header.frame_id, t.child_frame_id) for t in tf] == [("map", "odom"), ("odom", "base_link")]
+    static = msgs["/tf_static"][0][2].transforms
+    assert [(t.header.frame_id, t.child_frame_id) for t in static] == [
+        ("base_link", "camera_link"), ("camera_link", "camera_optical_frame"), ("base_link", "laser")]
+    info = msgs["/camera/color/camera_info"][0][2]
+    cam = json.loads((recorded / "mcap" / "seed0" / "camera.json").read_text())
+    np.testing.assert_allclose(info.k.reshape(3, 3), [[cam["fx"], 0, cam["cx"]], [0, cam["fy"], cam["cy"]],
+                                                      [0, 0, 1]])
+    dets = [d for _, _, m in msgs["/detections"] for d in m.detections]
+    assert dets and all(d.results[0].hypothesis.class_id in load_world("small_office").taxonomy for d in dets)
+
+
+def test_depth_back_projected_with_camera_info_and_tf_lands_on_the_objects(recorded, tmp_path):
+    """The bag's depth, back-projected with its CameraInfo and its transforms map -> odom ->
+    base_link -> camera_link -> camera_optical_frame, equals the TUM recording's depth and
+    camera poses, and its object pixels (the TUM folder's instance images) lie on objects."""
+    msgs = _messages(recorded / "mcap" / "seed0" / "bag")
+    tum = recorded / "tum" / "seed0"
+    static = {t.child_frame_id: _matrix(t) for t in msgs["/tf_static"][0][2].transforms}
+    tf_at = {ns: [_matrix(t) for t in m.transforms] for ns, _, m in msgs["/tf"]}
+    gt = {f"{float(r[0]):.6f}": np.array(r[1:], float) for r in
+          (line.split() for line in (tum / "groundtruth.txt").read_text().splitlines() if not line.startswith("#"))}
+    info = msgs["/camera/depth/camera_info"][0][2]
+    k = info.k.reshape(3, 3)
+    points, ids = [], []
+    for ns, _, img in msgs["/camera/depth/image_raw"]:
+        stamp = f"{ns * 1e-9:.6f}"
+        depth = np.frombuffer(img.data.tobytes(), "<f4").reshape(img.height, img.width)
+        tum_depth = cv2.imread(str(tum / "depth" / f"{stamp}.png"), cv2.IMREAD_UNCHANGED) / 5000.0
+        np.testing.assert_allclose(np.nan_to_num(depth), tum_depth, atol=1e-4)  # TUM: 0.2 mm steps
+        map_odom, odom_base = tf_at[ns]
+        pose = map_odom @ odom_base @ static["camera_link"] @ static["camera_optical_frame"]
+        t, q = gt[stamp][:3], gt[stamp][3:]
+        np.testing.assert_allclose(pose[:3, 3], t, atol=1e-5)
+        np.testing.assert_allclose(np.abs(Rotation.from_matrix(pose[:3, :3]).as_quat() @ q), 1.0, atol=1e-5)
+        seg = cv2.imread(str(tum / "seg" / f"{stamp}.png"), cv2.IMREAD_UNCHANGED).astype(int) - 1
+        v, u = np.nonzero((seg >= 0) & np.isfinite(depth))
+        z = depth[v, u]
+        cam = np.stack([(u - k[0, 2]) * z / k[0, 0], (v - k[1, 2]) * z / k[1, 1], z, np.ones_like(z)])
+        points.append((pose @ cam)[:3].T)
+        ids.append(seg[v, u])
+    points, ids = np.concatenate(points), np.concatenate(ids)
+    assert len(points) > 1000
+    _write_ply(tmp_path / "map.ply", points, ids)
+    (tmp_path / "map.json").write_text(json.dumps({"frame": {"world": "small_office", "time_s": 4.0}}))
+    assert main(["evaluate", "--world", "small_office", "--map", str(tmp_path / "map.ply"),
+                 "--out", str(tmp_path / "ev")]) == 0
+    summary = json.loads((tmp_path / "ev" / "summary.json").read_text())
+    assert summary["points_on_no_object"] < 0.005 and summary["ori"] > 0.05
+
+
+def _write_ply(path: Path, points: np.ndarray, ids: np.ndarray) -> None:
+    rows = np.zeros(len(points), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("object_id", "<i4")])
+    rows["x"], rows["y"], rows["z"], rows["object_id"] = *points.T, ids
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(points)}\nproperty double x\n"
+              "property double y\nproperty double z\nproperty int object_id\nend_header\n")
+    path.write_bytes(header.encode() + rows.tobytes())
+
+
+def _cloud(points, instance, stamp_s: float, fields=("x", "y", "z", "instance")):
+    """A PointCloud2 built by hand: float64 x, y, z and int32 instance (as a ROS mapper would)."""
+    T = STORE.types
+    kinds = {"x": (8, "<f8"), "y": (8, "<f8"), "z": (8, "<f8"), "instance": (5, "<i4"), "segment": (5, "<i4")}
+    dtype = np.dtype([(f, kinds[f][1]) for f in fields])
+    rows = np.zeros(len(points), dtype)
+    for axis, col in zip("xyz", points.T):
+        rows[axis] = col
+    rows[fields[3]] = instance
+    offsets = [dtype.fields[f][1] for f in fields]
+    sec = int(stamp_s)
+    return T["sensor_msgs/msg/PointCloud2"](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+            sec=sec, nanosec=int(round((stamp_s - sec) * 1e9))), frame_id="map"),
+        height=1, width=len(points), fields=[T["sensor_msgs/msg/PointField"](
+            name=f, offset=o, datatype=kinds[f][0], count=1) for f, o in zip(fields, offsets)],
+        is_bigendian=False, point_step=dtype.itemsize, row_step=dtype.itemsize * len(points),
+        data=np.frombuffer(rows.tobytes(), np.uint8), is_dense=True)
+
+
+def _map_bag(path: Path, clouds: list, labels: dict | None = None) -> None:
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection("/semantic_map", "sensor_msgs/msg/PointCloud2", typestore=STORE)
+        s = w.add_connection("/semantic_map/labels", "std_msgs/msg/String", typestore=STORE) if labels else None
+        if labels:
+            w.write(s, 0, STORE.serialize_cdr(STORE.types["std_msgs/msg/String"](data=json.dumps(labels)),
+                                              "std_msgs/msg/String"))
+        for t, msg in clouds:
+            w.write(c, int(t * 1e9), STORE.serialize_cdr(msg, "sensor_msgs/msg/PointCloud2"))
+
+
+def test_a_map_topic_written_by_another_tool_scores_as_the_same_map_in_ply(recorded, tmp_path):
+    ply = recorded / "mcap" / "session" / "maps" / "small_office__frontier__seed0.ply"
+    world = load_world("small_office")
+    m = read_map(ply, world.taxonomy)
+    meta = json.loads(ply.with_suffix(".json").read_text())
+    labels = {"objects": [{"id": o["id"], "label": o["label"], "confidence": o["confidence"]}
+                          for o in meta["objects"]]}
+    half = len(m.points) // 2
+    bag = tmp_path / "maps"
+    _map_bag(bag, [(2.0, _cloud(m.points[:half], m.instance[:half], 2.0)),
+                   (m.time_s, _cloud(m.points, m.instance, m.time_s))], labels)
+    assert main(["evaluate", "--world", "small_office", "--bag", str(bag), "--labels-topic", "/semantic_map/labels",
+                 "--metrics", "ori,cori,opi,field", "--out", str(tmp_path / "from_bag")]) == 0
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--metrics", "ori,cori,opi,field",
+                 "--out", str(tmp_path / "from_ply")]) == 0
+    a = json.loads((tmp_path / "from_bag" / "summary.json").read_text())
+    b = json.loads((tmp_path / "from_ply" / "summary.json").read_text())
+    for key in ("ori", "cori", "opi", "omq", "ap50", "f1_25", "completeness_5cm", "miou", "points_on_no_object"):
+        assert a[key] == pytest.approx(b[key], abs=1e-6), key  # ORI in float32, from 2 maps or 1
+    assert len(a["maps"]) == 2 and a["ori"] > 0
+
+
+@pytest.mark.parametrize("case, field", [("no topic", "topic"), ("no instance field", "fields"),
+                                         ("stamps go back", "header.stamp"), ("truncated", "bag")])
+def test_a_bad_bag_is_one_line_naming_file_topic_and_field(tmp_path, capsys, case, field):
+    pts = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]])
+    bag = tmp_path / "bag"
+    if case == "no instance field":
+        _map_bag(bag, [(1.0, _cloud(pts, [0, 0], 1.0, ("x", "y", "z", "segment")))])
+    elif case == "stamps go back":
+        _map_bag(bag, [(1.0, _cloud(pts, [0, 0], 2.0)), (2.0, _cloud(pts, [0, 0], 1.0))])
+    else:
+        _map_bag(bag, [(1.0, _cloud(pts, [0, 0], 1.0))])
+    if case == "truncated":
+        mcap = next(bag.glob("*.mcap"))
+        mcap.write_bytes(mcap.read_bytes()[:200])
+    topic = "/elsewhere" if case == "no topic" else "/semantic_map"
+    out = tmp_path / "out"
+    assert main(["evaluate", "--world", "small_office", "--bag", str(bag), "--topic", topic, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bag) in err[0] and field in err[0], err
+    assert not out.exists()
