@@ -18,6 +18,10 @@ plus the laser and odometry (docs/record.md has every convention)::
     OUT/session/                     the session that drove the robot (its own scores)
     OUT/record.json                  the settings every seed was recorded with (a resume keeps them)
 
+With ``RecordConfig.format`` "mcap" or "sqlite3" a seed is a ROS 2 bag instead
+(``OUT/seed<k>/bag/``, :mod:`rosmeery_jax.apps.ros_bags`), beside its camera.json,
+objects.json and info.json.
+
 Timestamps are simulated seconds from the start. Each seed's folder is written under a
 temporary name and renamed when complete, so a folder that exists is whole, and
 ``resume=True`` records only the seeds still missing.
