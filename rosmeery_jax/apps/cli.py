@@ -17,7 +17,7 @@ import jax
 import pandas as pd
 
 from rosmeery_jax import metrics
-from rosmeery_jax.apps import detector_commands, ros_bags, world_commands
+from rosmeery_jax.apps import detector_commands, rerun_view, ros_bags, world_commands
 from rosmeery_jax.apps.arguments import WEIGHTS_HELP, int_list, positive
 from rosmeery_jax.apps.bench import BenchConfig, check, format_table, run_bench
 from rosmeery_jax.apps.columns import columns
@@ -95,8 +95,31 @@ def _cmd_run(args) -> int:
     seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
           f"{cfg.out}")
+    if args.rerun:
+        rerun_view.check_out(args.rerun)  # the optional package and the name, before the session runs
     out = Session(cfg, progress=not args.quiet, cluster=args.cluster, cache=not args.no_cache).run(resume=args.resume)
     _print_summary(out)
+    if args.rerun:
+        _logged(rerun_view.view(out, args.rerun), args.rerun)
+    return 0
+
+
+def _logged(what: dict, rrd) -> None:
+    print(f"rerun: {rrd} ({what['bytes'] / 1e6:.1f} MB: {what['runs']} runs, {what['maps']} maps, "
+          f"{what['curves']} curves, {what['frames']} frames; open it with: rerun {rrd})")
+
+
+def _cmd_view(args) -> int:
+    d = Path(args.dir)
+    check_folder(d)
+    out = Path(args.out) if args.out else d / "session.rrd"
+    split = (lambda text: [x.strip() for x in text.split(",") if x.strip()] if text else None)  # noqa: E731
+    positive(args, "max_points")
+    try:
+        seeds = [int(s) for s in split(args.seeds)] if args.seeds else None
+    except ValueError:
+        raise InputError("command line", "--seeds", f"{args.seeds!r} is not a list of seed numbers") from None
+    _logged(rerun_view.view(d, out, split(args.worlds), split(args.policies), seeds, args.max_points), out)
     return 0
 
 
@@ -169,6 +192,8 @@ def _cmd_teleop(args) -> int:
 
 def _cmd_evaluate(args) -> int:
     map_score.check_tolerance(args.tolerance, "command line", "--tolerance")
+    if args.rerun:
+        rerun_view.check_out(args.rerun)
     names = tuple(n.strip() for n in args.metrics.split(",") if n.strip())
     try:
         names = metrics.resolve(names)
@@ -198,10 +223,14 @@ def _cmd_evaluate(args) -> int:
           f"; {100 * summary['points_on_no_object']:.1f}% of points on no object; "
           f"{summary['unmatched_instances']} instances matched to no object")
     print(f"results in {out}/ (metrics.csv, objects.csv, classes.csv, summary.json)")
+    if args.rerun:
+        _logged(rerun_view.view(out, args.rerun, maps=maps), args.rerun)
     return 0
 
 
 def _cmd_record(args) -> int:
+    if args.rerun:
+        rerun_view.check_out(args.rerun)
     if args.seed is not None and args.seeds is not None:
         raise InputError("command line", "--seed", "give --seed S (one seed) or --seeds N (seeds 0..N-1), not both")
     seeds = [args.seed] if args.seed is not None else 1 if args.seeds is None else args.seeds
@@ -212,6 +241,8 @@ def _cmd_record(args) -> int:
     what = "TUM RGB-D layout, laser, odometry" if cfg.format == "tum" else \
         f"a ROS 2 bag each ({cfg.format}; play one with: ros2 bag play {folders[0] / 'bag'})"
     print(f"recorded {len(folders)} sequence(s) ({what}) in {args.out}/: " + ", ".join(f.name for f in folders))
+    if args.rerun:
+        _logged(rerun_view.view(Path(args.out) / "session", args.rerun, recording=folders[0]), args.rerun)
     return 0
 
 
@@ -341,6 +372,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"FILE.py:Name or package.module:Name (docs/byo.md); default {','.join(d.mappers)}")
     p.add_argument("--out", metavar="DIR", help=f"results folder (default {d.out})")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write the results as a Rerun recording (the view "
+                   "extra; rosmeery view)")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
@@ -381,6 +414,8 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--detector", default=rec.detector, choices=("off", "oracle", "yolo"),
                    help="a bag's /detections topic: off (default), oracle or yolo (the session's detectors)")
     p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write the run, with the first seed's camera frames, as a "
+                   "Rerun recording (the view extra)")
     p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_record)
@@ -418,6 +453,8 @@ def _evaluate_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--tolerance", type=float, default=map_score.TOLERANCE, metavar="M",
                    help=f"a point within M metres of a surface sample lies on it (default {map_score.TOLERANCE:g})")
     p.add_argument("--name", default="external", help="the policy column of the tables (default external)")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write the maps and curves as a Rerun recording "
+                   "(the view extra)")
     p.add_argument("--metrics", metavar="M,N", default=",".join(d.metrics),
                    help=f"metrics to score (default: {','.join(d.metrics)}; field: every field map metric, "
                         "docs/metrics.md)")
@@ -443,6 +480,16 @@ def _plot_parser(sub, d: SessionConfig) -> None:
     p = sub.add_parser("plot", help="redraw the plots of a results folder")
     p.add_argument("dir", metavar="DIR")
     p.set_defaults(func=_cmd_plot)
+    p = sub.add_parser("view", help="write a results folder as a Rerun recording: worlds, paths, maps, curves "
+                       "(the view extra; docs/sessions.md)")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--out", metavar="FILE.rrd", help="default DIR/session.rrd")
+    p.add_argument("--worlds", metavar="A,B", help="only these worlds")
+    p.add_argument("--policies", metavar="P,Q", help="only these policies")
+    p.add_argument("--seeds", metavar="S,T", help="only these seeds")
+    p.add_argument("--max-points", type=int, default=rerun_view.MAX_POINTS, metavar="N",
+                   help=f"thin every map to N points (default {rerun_view.MAX_POINTS:,})")
+    p.set_defaults(func=_cmd_view)
 
 
 RESUMABLE = " (finished runs are kept: the same command with --resume continues)"
