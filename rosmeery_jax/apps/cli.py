@@ -91,7 +91,7 @@ def _cmd_run(args) -> int:
                       metrics=args.metrics, conf_threshold=args.conf_threshold, weights=args.weights,
                       chunk_s=args.chunk_s, detector_runtime=args.detector_runtime,
                       detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
-                      digest=args.digest or None)
+                      digest=args.digest or None, noise=args.noise)
     seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
           f"{cfg.out}")
@@ -374,6 +374,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write the results as a Rerun recording (the view "
                    "extra; rosmeery view)")
+    p.add_argument("--noise", metavar="PRESET", help="sensor and actuation noise: off (default: the exact "
+                   "sensors) or realistic (docs/robot.md; each parameter as env noise__NAME in the config)")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")

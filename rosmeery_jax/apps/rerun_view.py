@@ -165,8 +165,9 @@ def _given_maps(rr, rec, world, base: str, maps: list, max_points: int) -> int:
 def _frames(rr, rec, seq: Path, base: str, most: int = 300) -> int:
     """A TUM sequence's camera (pinhole at its ground-truth pose) with its colour and depth
     images, at most ``most`` frames evenly spread."""
-    import cv2  # noqa: PLC0415
     import json  # noqa: PLC0415
+
+    import cv2  # noqa: PLC0415
 
     cam = json.loads((seq / "camera.json").read_text())
     if not (seq / "rgb.txt").exists():

@@ -42,9 +42,9 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from rosmeery_jax.apps.ros_bags import FORMATS, BagStreams, rosbags
 from rosmeery_jax.core import xla
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.apps.ros_bags import FORMATS, BagStreams, rosbags
 from rosmeery_jax.core.files import require_same, write_atomic
 from rosmeery_jax.detector.detections import DETECTORS, make_detector
 from rosmeery_jax.env import make

@@ -12,6 +12,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig
 from rosmeery_jax.sim.knowledge import KnowledgeConfig
 from rosmeery_jax.sim.navigation import NavConfig
+from rosmeery_jax.sim.noise import NoiseConfig
 from rosmeery_jax.sim.occupancy import MapConfig
 from rosmeery_jax.sim.robot import RobotConfig
 from rosmeery_jax.world import WorldConfig
@@ -57,17 +58,19 @@ class EnvConfig:
     mapping: MapConfig = field(default_factory=MapConfig)
     nav: NavConfig = field(default_factory=NavConfig)
     knowledge: KnowledgeConfig = field(default_factory=KnowledgeConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)  # all off: the exact sensors (sim.noise)
     start_yaw: str = "random"  # "random": heading uniform in [-pi, pi) drawn from the reset key,
     # so different keys start differently; "spawn": the world's spawn yaw (teleop, replays)
     labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
     # (detector off); "detections": only what `RobotEnv.attach` folds in (a detector)
 
     @classmethod
-    def from_table(cls, values: dict, source: str = "config", table: str = "env") -> "EnvConfig":
-        """The config a file's ``[env]`` table (nested or ``__`` keys) sets; an error names
-        the key as the file spells it (``env.robot.max_speed``)."""
+    def from_table(cls, values: dict, source: str = "config", table: str = "env",
+                   base: "EnvConfig | None" = None) -> "EnvConfig":
+        """The config a file's ``[env]`` table (nested or ``__`` keys) sets on ``base`` (the
+        defaults); an error names the key as the file spells it (``env.robot.max_speed``)."""
         try:
-            return cls().with_overrides(source, **overrides_.flatten(values))
+            return (base or cls()).with_overrides(source, **overrides_.flatten(values))
         except InputError as err:
             raise overrides_.in_table(err, table) from None
 
@@ -76,6 +79,7 @@ class EnvConfig:
         unknown or badly typed key is one error naming ``source`` and the key)."""
         cfg = overrides_.apply(self, overrides, source)
         _check_limits(cfg, source)
+        cfg.noise.check(source)
         near, pairs = cfg.robot.near_proxies, cfg.robot.max_pairs
         if near < 0 or 0 < near < pairs:
             raise InputError(source, "robot__near_proxies", f"{near} must be 0 (every proxy) or at least "

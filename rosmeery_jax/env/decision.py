@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.env.environment import RobotEnv, State, Track
+from rosmeery_jax.sim import noise
 from rosmeery_jax.sim.knowledge import ObjectLog
 
 
@@ -122,7 +123,7 @@ def _kept(env: RobotEnv, state: State, action, spec: Decision, stamps) -> tuple[
 
     def step(s, a):
         s = env.step(s, a if spec.per_step else action)
-        return s, (Track.of(s), s.depth if spec.sweep else None)
+        return s, (Track.of(s), env.sensed(s, s.depth, stream=noise.SWEEP)[0] if spec.sweep else None)
 
     def span(carry, a):  # log_every steps, then the log: logging every step took 7 % of a paper
         # session's step, and its metrics are written once a second
@@ -137,6 +138,7 @@ def _kept(env: RobotEnv, state: State, action, spec: Decision, stamps) -> tuple[
         frame = None
         if spec.frame_steps:
             img, dep, lab = env.camera_rgbd(s)
+            dep, img = env.sensed(s, dep, img)  # as the robot's cameras report them (noise, when set)
             frame = Frames(img, lab.astype(jnp.int16), dep if spec.frame_depth else None,
                            depths.reshape(spec.period, *depths.shape[2:]) if spec.sweep else None)
         return (s, st), ((logs, track), frame)

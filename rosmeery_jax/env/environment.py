@@ -24,7 +24,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.world_data import Sizes, WorldData, near_physics_model, physics_model, truth_table, world_data
 from rosmeery_jax.raycast.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
-from rosmeery_jax.sim import occupancy
+from rosmeery_jax.sim import noise, occupancy
 from rosmeery_jax.sim.knowledge import Knowledge, ObjectLog, SpatialKnowledge
 from rosmeery_jax.sim.mjx import mjx
 from rosmeery_jax.sim.navigation import IDLE, Navigator, NavState
@@ -118,12 +118,18 @@ class RobotEnv:
     def step(self, state: State, action: jax.Array) -> State:
         """0.1 s: the stages below in order (the bench times each alone, ``stage_chain``)."""
         nav, cmd = self.navigate(state, action)
+        if self.config.noise.actuation:  # the drive executes the command imperfectly
+            cmd = noise.command(noise.key(state.key, state.t, noise.ACTUATION), cmd, self.config.noise)
         physics, pose = self.move(state.physics, cmd)
         state = state._replace(physics=physics, pose=pose, nav=nav, t=state.t + 1)
         return self._sense(state)
 
     def _sense(self, state: State) -> State:
         ranges, labels = self.scan(state.pose)
+        if self.config.noise.laser:  # the robot's own map and what policies read come from the noisy laser
+            las = self.config.laser
+            ranges = noise.ranges(noise.key(state.key, state.t, noise.LASER), ranges, self.config.noise,
+                                  las.min_range, las.max_range)
         logodds = self.update_map(state.logodds, state.pose, ranges, labels)
         depth, seg = self.look(state.pose)
         knowledge = self.sk.observe(state.knowledge, state.pose, depth)
@@ -180,6 +186,20 @@ class RobotEnv:
         """The detector's frame with its depth: RGB (Hr, Wr, 3) uint8, depth (Hr, Wr) (0 = no
         return) and object labels (Hr, Wr) int32."""
         return rgbd(self.rays, self.config.camera, state.pose)
+
+    def sensed(self, state: State, depth: jax.Array | None = None, image: jax.Array | None = None,
+               stream: int = noise.DEPTH):
+        """What the robot's cameras report of an exact ``depth`` (h, w) and ``image`` (H, W,
+        3) at ``state``: with the config's noise (sim.noise), else as they are (``stream``:
+        the detector frame's depth, or the depth camera of every step, ``noise.SWEEP``). The
+        knowledge's coverage reads the exact depth: it scores what was in view."""
+        cfg = self.config.noise
+        if depth is not None and cfg.depth:
+            depth = noise.depth(noise.key(state.key, state.t, stream), depth, cfg,
+                                self.config.camera.focal(depth.shape[1]))
+        if image is not None and cfg.rgb:
+            image = noise.rgb(noise.key(state.key, state.t, noise.RGB), image, cfg)
+        return depth, image
 
     def attach(self, state: State, obj: jax.Array, label: jax.Array, conf: jax.Array) -> State:
         """Fold detections (D,) object index / category / confidence into the knowledge."""

@@ -21,7 +21,7 @@ from rosmeery_jax.session.checks import check_session
 LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "first_seed", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
-                 "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime")
+                 "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime", "noise")
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,8 @@ class SessionConfig:
     digest: bool = False  # write a digest of each robot's state per chunk (runs/*.digest.csv), to
     # find where two runs part (rosmeery diff); it waits for every chunk, so it is slower
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
+    noise: str = "off"  # sensor and actuation noise preset: "off" (exact sensors) or "realistic"
+    # (rosmeery_jax.sim.noise; each parameter also as env noise__NAME)
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
     # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
     # the YOLO detector runs), at most one per block

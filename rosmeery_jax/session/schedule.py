@@ -15,11 +15,13 @@ from rosmeery_jax.env.decision import Decision
 from rosmeery_jax.mapping.perceived import mapper_for
 from rosmeery_jax.metrics import field
 from rosmeery_jax.rl.task import STEP_LIMIT
+from rosmeery_jax.sim import noise
 
 
 def env_config(cfg) -> EnvConfig:
-    """The env configuration of the session's robots (its ``env`` overrides applied)."""
-    return EnvConfig.from_table(cfg.env)
+    """The env configuration of the session's robots: its noise preset, then its ``env``
+    overrides (``noise__laser_sigma`` and the like included)."""
+    return EnvConfig.from_table(cfg.env, base=EnvConfig(noise=noise.preset(cfg.noise)))
 
 
 def control_dt(cfg) -> float:

@@ -1,0 +1,106 @@
+"""Sensor and actuation noise (rosmeery_jax.sim.noise): each model's statistics from many
+samples, determinism per robot, the options' checks."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+import pytest
+
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.sim import noise
+from rosmeery_jax.sim.noise import NoiseConfig
+
+KEY = jax.random.key(0)
+
+
+@pytest.mark.parametrize("z", [1.0, 2.0, 4.0])
+def test_depth_error_follows_the_axial_model(z):
+    cfg = NoiseConfig(depth_sigma0=0.0012, depth_sigma2=0.0019, depth_z0=0.4)
+    out = np.asarray(noise.depth(KEY, jnp.full((300, 300), z, jnp.float32), cfg, 500.0))
+    want = 0.0012 + 0.0019 * (z - 0.4) ** 2
+    assert abs(out.mean() - z) < 3 * want / 300
+    assert out.std() == pytest.approx(want, rel=0.1)
+
+
+def test_disparity_quantisation_puts_depth_on_its_steps():
+    cfg = NoiseConfig(disparity_step=0.125, disparity_focal=580.0, disparity_baseline=0.075)
+    z = jnp.linspace(0.5, 6.0, 4000, dtype=jnp.float32).reshape(40, 100)
+    out = np.asarray(noise.depth(KEY, z, cfg, 500.0)).astype(np.float64)
+    disparity = 580.0 * 0.075 / out / 0.125
+    np.testing.assert_allclose(disparity, np.round(disparity), atol=1e-3)
+    assert np.abs(out - np.asarray(z)).max() <= 6.0 ** 2 / (580 * 0.075) * 0.125 / 2 * 1.01  # half a step at 6 m
+
+
+def test_depth_drops_edges_and_grazing_returns_and_keeps_holes():
+    z = np.full((50, 50), 2.0, np.float32)
+    z[:, 25:] = 4.0  # an edge
+    z[0, 0] = 0.0  # a hole stays a hole
+    cfg = NoiseConfig(edge_jump=0.5, edge_dropout=1.0)
+    out = np.asarray(noise.depth(KEY, jnp.asarray(z), cfg, 50.0))
+    assert (out[:, 24:26] == 0).all() and out[0, 0] == 0 and (out[1:, :23] == 2.0).all()
+    ramp = np.tile(np.linspace(1.0, 6.0, 50, dtype=np.float32), (50, 1))  # a wall turning away from the camera
+    out = np.asarray(noise.depth(KEY, jnp.asarray(ramp), NoiseConfig(max_incidence=math.radians(60)), 50.0))
+    grazing = (5.0 / 49) * 50.0 / ramp > math.tan(math.radians(60))  # depth step per pixel footprint z / f
+    assert grazing[:, 1:-1].any() and not grazing.all()
+    assert (out[:, 1:-1][grazing[:, 1:-1]] == 0).all() and (out[~grazing] == ramp[~grazing]).all()
+    flat = np.asarray(noise.depth(KEY, jnp.full((50, 50), 2.0), NoiseConfig(max_incidence=math.radians(60)), 50.0))
+    assert (flat == 2.0).all()
+
+
+def test_laser_rgb_and_actuation_noise_have_their_statistics():
+    r = jnp.full(200_000, 5.0)
+    out = np.asarray(noise.ranges(KEY, r, NoiseConfig(laser_sigma=0.01, laser_dropout=0.05), 0.2, 15.0))
+    dropped = out == 15.0
+    assert dropped.mean() == pytest.approx(0.05, abs=0.003)
+    assert out[~dropped].std() == pytest.approx(0.01, rel=0.05)
+    assert (np.asarray(noise.ranges(KEY, jnp.full(10, 15.0), NoiseConfig(laser_sigma=0.5), 0.2, 15.0)) == 15.0).all()
+    img = jnp.full((200, 200, 3), 128, jnp.uint8)
+    assert np.asarray(noise.rgb(KEY, img, NoiseConfig(rgb_sigma=3.0))).astype(float).std() == pytest.approx(3.0,
+                                                                                                           rel=0.05)
+    cfg = NoiseConfig(motion_a1=0.01, motion_a2=0.001, motion_a3=0.002, motion_a4=0.01)
+    keys = jax.random.split(KEY, 50_000)
+    cmds = np.asarray(jax.vmap(lambda k: noise.command(k, jnp.array([0.5, 1.0]), cfg))(keys))
+    assert cmds[:, 0].std() == pytest.approx(math.sqrt(0.01 * 0.25 + 0.001), rel=0.05)
+    assert cmds[:, 1].std() == pytest.approx(math.sqrt(0.002 * 0.25 + 0.01), rel=0.05)
+    assert cmds.mean(0) == pytest.approx([0.5, 1.0], abs=0.003)
+
+
+def test_off_is_the_exact_sensors():
+    cfg = noise.PRESETS["off"]
+    assert not (cfg.depth or cfg.laser or cfg.rgb or cfg.actuation)
+    real = noise.PRESETS["realistic"]
+    assert real.depth and real.laser and real.rgb and real.actuation
+
+
+ARGS = ["run", "--worlds", "small_office", "--policies", "frontier", "--detector", "off", "--duration", "6",
+        "--noise", "realistic", "--quiet"]
+
+
+def test_noisy_runs_are_reproducible_per_seed_whatever_their_batch(tmp_path):
+    """Seed 1 beside seed 0, and alone: the same noisy run, bit for bit; seed 0 differs."""
+    assert main([*ARGS, "--seeds", "2", "--out", str(tmp_path / "two")]) == 0
+    assert main([*ARGS, "--seeds", "1", "--first-seed", "1", "--out", str(tmp_path / "one")]) == 0
+    two, one = (pd.read_csv(tmp_path / d / "trajectories.csv") for d in ("two", "one"))
+    pd.testing.assert_frame_equal(two[two.seed == 1].reset_index(drop=True), one.reset_index(drop=True))
+    m2, m1 = (pd.read_csv(tmp_path / d / "metrics.csv") for d in ("two", "one"))
+    pd.testing.assert_frame_equal(m2[m2.seed == 1].reset_index(drop=True), m1.reset_index(drop=True))
+
+
+@pytest.mark.parametrize("extra, field", [
+    (["--noise", "foggy"], "noise"),
+    (["--noise", "realistic", "--config", "{cfg}"], "noise.laser_sigma"),
+])
+def test_bad_noise_is_one_line_naming_the_field(tmp_path, capsys, extra, field):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[env.noise]\nlaser_sigma = -0.01\n")
+    args = ["run", "--worlds", "small_office", "--policies", "random", "--detector", "off", "--duration", "2",
+            "--quiet", "--out", str(tmp_path / "out"), *[a.replace("{cfg}", str(cfg)) for a in extra]]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and field in err[0], err
+    assert not (tmp_path / "out").exists()
