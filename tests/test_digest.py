@@ -9,10 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import room_xml
 
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.session import digest, engine
+
+from conftest import room_xml
 
 BODIES = """
 <body name="desk_1" pos="1.0 0.6 0"><geom type="box" pos="0 0 0.4" size="0.5 0.3 0.4"/></body>

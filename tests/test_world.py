@@ -7,12 +7,12 @@ import json
 import mujoco
 import numpy as np
 import pytest
-from conftest import room_xml
 
+from conftest import room_xml
 from rosmeery_jax.apps.cli import main
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.world import PAPER_WORLDS, WALL, WorldConfig, load_world
 from rosmeery_jax.world.taxonomy import load_taxonomy
+from rosmeery_jax.world import PAPER_WORLDS, WALL, WorldConfig, load_world
 
 PAPER_COUNTS = {"kitchen": 35, "laboratory": 21, "small_office": 11, "large_office": 41}
 
