@@ -235,7 +235,7 @@ def _cmd_record(args) -> int:
         raise InputError("command line", "--seed", "give --seed S (one seed) or --seeds N (seeds 0..N-1), not both")
     seeds = [args.seed] if args.seed is not None else 1 if args.seeds is None else args.seeds
     cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate, format=args.format,
-                       depth_encoding=args.depth_encoding, detector=args.detector)
+                       depth_encoding=args.depth_encoding, detector=args.detector, noise=args.noise)
     folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
                      progress=not args.quiet)
     what = "TUM RGB-D layout, laser, odometry" if cfg.format == "tum" else \
@@ -418,6 +418,9 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write the run, with the first seed's camera frames, as a "
                    "Rerun recording (the view extra)")
+    p.add_argument("--noise", default=rec.noise, metavar="PRESET", help="sensor and actuation noise: off (default) "
+                   "or realistic (docs/robot.md): the robot drives with it, and the images and laser written carry "
+                   "it; the ground truth stays true")
     p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_record)

@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 import shutil
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import cv2
@@ -50,6 +50,7 @@ from rosmeery_jax.detector.detections import DETECTORS, make_detector
 from rosmeery_jax.env import make
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
+from rosmeery_jax.sim import noise
 from rosmeery_jax.session.schedule import control_dt
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
@@ -65,6 +66,7 @@ class RecordConfig:
     format: str = "tum"  # tum (folders of PNG and text), or a ROS 2 bag: mcap, sqlite3 (apps.ros_bags)
     depth_encoding: str = "32FC1"  # a bag's depth images: 32FC1 metres, or 16UC1 millimetres
     detector: str = "off"  # a bag's /detections: off, oracle or yolo (the session's detectors)
+    noise: str = "off"  # sensor and actuation noise preset (sim.noise): the run and the streams written
 
     def stride(self, dt: float) -> int:
         """Control steps between frames."""
@@ -82,6 +84,7 @@ def check(cfg: RecordConfig, out: Path, resume: bool, dt: float) -> None:
     if not (cfg.rate_hz > 0 and abs(stride - round(stride)) < 1e-9 and stride >= 1):
         raise InputError("command line", "--rate", f"{cfg.rate_hz!r} Hz must divide the {1 / dt:g} Hz control rate "
                          "(10, 5, 2, 1, 0.5, ...)")
+    noise.preset(cfg.noise, "command line", "--noise")
     if cfg.format not in FORMATS:
         raise InputError("command line", "--format", f"{cfg.format!r} is not one of {', '.join(FORMATS)}")
     if cfg.depth_encoding not in ("32FC1", "16UC1"):
@@ -115,7 +118,7 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     _check_settings(out, settings)
     session = SessionConfig(worlds=(world,), policies=(policy,), seeds=wanted[-1] - wanted[0] + 1,
                             first_seed=wanted[0], duration=duration, detector="off", decide_every=cfg.decide_every,
-                            sample_s=dt, out=str(out / "session"))
+                            sample_s=dt, out=str(out / "session"), noise=cfg.noise)
     session = session.validate("command line")  # a count this machine's memory holds, before it is listed
     if not (out / SETTINGS).exists():
         write_atomic(out / SETTINGS, json.dumps(settings, indent=2))
@@ -154,8 +157,10 @@ def _check_settings(out: Path, settings: dict) -> None:
 
 
 def _env(world: str, session):
-    """The env the session drove (same camera, laser and robot settings)."""
-    return make(world, **{"labels": "observed", **session.env})
+    """The env the session drove (same camera, laser, robot and noise settings)."""
+    preset = noise.preset(session.noise)
+    return make(world, **{"labels": "observed", **{f"noise__{f.name}": getattr(preset, f.name) for f in
+                                                   fields(preset)}, **session.env})
 
 
 def camera_intrinsics(camera: CameraConfig, width: int, height: int) -> dict:
@@ -182,8 +187,18 @@ def optical_poses(camera: CameraConfig, poses: np.ndarray) -> np.ndarray:
 
 
 def _render_fn(env, camera: CameraConfig):
-    """jit: poses (F, 3) -> RGB (F, H, W, 3), depth (F, H, W), labels (F, H, W)."""
-    return xla.jit(jax.vmap(lambda pose: rgbd(env.rays, camera, pose)))
+    """jit: poses (F, 3), key, steps (F,) -> RGB (F, H, W, 3), depth (F, H, W), labels (F, H, W)."""
+    cfg = env.config.noise
+
+    def one(pose, key, step):
+        img, depth, label = rgbd(env.rays, camera, pose)
+        if cfg.depth:
+            depth = noise.depth(noise.key(key, step, noise.DEPTH), depth, cfg, camera.focal(depth.shape[1]))
+        if cfg.rgb:
+            img = noise.rgb(noise.key(key, step, noise.RGB), img, cfg)
+        return img, depth, label
+
+    return xla.jit(jax.vmap(one, in_axes=(0, None, 0)))
 
 
 def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, folder: Path, info: dict) -> None:
@@ -210,14 +225,17 @@ def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, fo
     tmp.rename(folder)
 
 
-def _rendered(env, camera: CameraConfig, poses: np.ndarray, frames: np.ndarray):
-    """(start, RGB, depth, labels) per batch of FRAME_BATCH frames, rendered in order."""
+def _rendered(env, camera: CameraConfig, poses: np.ndarray, frames: np.ndarray, seed: int):
+    """(start, RGB, depth, labels) per batch of FRAME_BATCH frames, rendered in order, with
+    the env's camera noise (drawn from the seed and the frame's step)."""
     render = _render_fn(env, camera)
     for start in range(0, len(frames), FRAME_BATCH):
         part = frames[start:start + FRAME_BATCH]
         batch = np.zeros((FRAME_BATCH, 3), np.float32)  # a fixed batch shape: one compile
-        batch[:len(part)] = poses[part]
-        yield (start, *(np.asarray(a)[:len(part)] for a in render(jnp.asarray(batch))))
+        steps = np.zeros(FRAME_BATCH, np.int32)
+        batch[:len(part)], steps[:len(part)] = poses[part], part
+        img, depth, label = render(jnp.asarray(batch), jax.random.key(seed), jnp.asarray(steps))
+        yield (start, *(np.asarray(a)[:len(part)] for a in (img, depth, label)))
 
 
 def _write_tum(env, cfg: RecordConfig, camera, times, poses, frames, tmp: Path, info: dict) -> None:
@@ -226,7 +244,7 @@ def _write_tum(env, cfg: RecordConfig, camera, times, poses, frames, tmp: Path, 
     stamps = [f"{times[i]:.6f}" for i in frames]
     with ThreadPoolExecutor(max_workers=2) as pool:  # PNG encoding overlaps the next render
         jobs = [pool.submit(_write_pngs, tmp, stamps[start:start + FRAME_BATCH], img, depth, label)
-                for start, img, depth, label in _rendered(env, camera, poses, frames)]
+                for start, img, depth, label in _rendered(env, camera, poses, frames, info["seed"])]
         for j in jobs:
             j.result()
     for sub in ("rgb", "depth", "seg"):
@@ -235,7 +253,7 @@ def _write_tum(env, cfg: RecordConfig, camera, times, poses, frames, tmp: Path, 
     gt = optical_poses(camera, poses)
     _write_table(tmp / "groundtruth.txt", "camera optical frame in the world: timestamp tx ty tz qx qy qz qw",
                  [f"{t:.6f} " + " ".join(f"{v:.6f}" for v in row) for t, row in zip(times, gt)])
-    _write_laser(env, tmp, times, poses)
+    _write_laser(env, tmp, times, poses, info["seed"])
     _write_odometry(tmp, times, poses, env.dt)
 
 
@@ -244,7 +262,7 @@ def _write_bag(env, cfg: RecordConfig, camera, times, poses, frames, path: Path,
     odometry, ground truth and laser; every frame's images, camera info and detections."""
     streams = BagStreams(path, cfg.format, cfg.depth_encoding)
     laser_cfg = env.config.laser
-    ranges = _ranges(env, poses)
+    ranges = _ranges(env, poses, info["seed"])
     v, w = _rates(poses, env.dt)
     angles = laser_dirs(laser_cfg)
     intr = camera_intrinsics(camera, cfg.width, cfg.height)
@@ -253,7 +271,7 @@ def _write_bag(env, cfg: RecordConfig, camera, times, poses, frames, path: Path,
     streams.static(camera, laser_cfg)
     step = 0
     try:
-        for start, img, depth, label in _rendered(env, camera, poses, frames):
+        for start, img, depth, label in _rendered(env, camera, poses, frames, info["seed"]):
             dets = detector(img, label, [(info["seed"], start + k) for k in range(len(img))]) if detector else None
             for k, i in enumerate(frames[start:start + len(img)]):
                 for j in range(step, i + 1):  # the steps up to the frame's, then the frame: time order
@@ -277,15 +295,23 @@ def _write_table(path: Path, header: str, lines: list[str]) -> None:
     path.write_text(f"# {header}\n" + "\n".join(lines) + "\n")
 
 
-def _ranges(env, poses: np.ndarray) -> np.ndarray:
-    """(T, K) laser ranges at the poses (T, 3)."""
-    ranges, _ = xla.jit(jax.vmap(lambda p: laser(env.laser_rays, env.config.laser, p)))(jnp.asarray(poses))
-    return np.asarray(ranges)
+def _ranges(env, poses: np.ndarray, seed: int) -> np.ndarray:
+    """(T, K) laser ranges at the poses (T, 3), with the env's laser noise (drawn from the
+    seed and the step)."""
+    las, cfg = env.config.laser, env.config.noise
+
+    def one(p, step):
+        r = laser(env.laser_rays, las, p)[0]
+        if cfg.laser:
+            r = noise.ranges(noise.key(jax.random.key(seed), step, noise.LASER), r, cfg, las.min_range, las.max_range)
+        return r
+
+    return np.asarray(xla.jit(jax.vmap(one))(jnp.asarray(poses), jnp.arange(len(poses))))
 
 
-def _write_laser(env, folder: Path, times: np.ndarray, poses: np.ndarray) -> None:
+def _write_laser(env, folder: Path, times: np.ndarray, poses: np.ndarray, seed: int) -> None:
     cfg = env.config.laser
-    ranges = _ranges(env, poses)
+    ranges = _ranges(env, poses, seed)
     angles = laser_dirs(cfg)
     header = (f"laser ranges (m), {cfg.beams} beams from {angles[0]:.6f} to {angles[-1]:.6f} rad "
               f"(increment {angles[1] - angles[0]:.6f}) in the robot frame, {cfg.height} m above the floor at the "
