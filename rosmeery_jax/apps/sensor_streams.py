@@ -50,8 +50,8 @@ from rosmeery_jax.detector.detections import DETECTORS, make_detector
 from rosmeery_jax.env import make
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
-from rosmeery_jax.sim import noise
 from rosmeery_jax.session.schedule import control_dt
+from rosmeery_jax.sim import noise
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
 FRAME_BATCH = 8  # frames rendered per jitted call (bounds the memory of a 640 x 480 cast)
