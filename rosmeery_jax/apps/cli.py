@@ -91,7 +91,7 @@ def _cmd_run(args) -> int:
                       metrics=args.metrics, conf_threshold=args.conf_threshold, weights=args.weights,
                       chunk_s=args.chunk_s, detector_runtime=args.detector_runtime,
                       detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
-                      digest=args.digest or None, noise=args.noise)
+                      digest=args.digest or None, noise=args.noise, localisation=args.localisation)
     seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
           f"{cfg.out}")
@@ -235,7 +235,8 @@ def _cmd_record(args) -> int:
         raise InputError("command line", "--seed", "give --seed S (one seed) or --seeds N (seeds 0..N-1), not both")
     seeds = [args.seed] if args.seed is not None else 1 if args.seeds is None else args.seeds
     cfg = RecordConfig(width=args.width, height=args.height, rate_hz=args.rate, format=args.format,
-                       depth_encoding=args.depth_encoding, detector=args.detector, noise=args.noise)
+                       depth_encoding=args.depth_encoding, detector=args.detector, noise=args.noise,
+                       localisation=args.localisation)
     folders = record(args.world, args.policy, seeds, args.duration, args.out, cfg, resume=args.resume,
                      progress=not args.quiet)
     what = "TUM RGB-D layout, laser, odometry" if cfg.format == "tum" else \
@@ -376,6 +377,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    "extra; rosmeery view)")
     p.add_argument("--noise", metavar="PRESET", help="sensor and actuation noise: off (default: the exact "
                    "sensors) or realistic (docs/robot.md; each parameter as env noise__NAME in the config)")
+    p.add_argument("--localisation", choices=("ground_truth", "dead_reckoning", "scan_matching"),
+                   help="the robot's pose: told (ground_truth, the default) or its own estimate (docs/robot.md)")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
@@ -421,6 +424,9 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--noise", default=rec.noise, metavar="PRESET", help="sensor and actuation noise: off (default) "
                    "or realistic (docs/robot.md): the robot drives with it, and the images and laser written carry "
                    "it; the ground truth stays true")
+    p.add_argument("--localisation", default=rec.localisation, choices=("ground_truth", "dead_reckoning",
+                                                                          "scan_matching"),
+                   help="the odometry written: the true pose (default) or the robot's own estimate (docs/robot.md)")
     p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_record)

@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 import shutil
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -50,7 +50,7 @@ from rosmeery_jax.detector.detections import DETECTORS, make_detector
 from rosmeery_jax.env import make
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
-from rosmeery_jax.session.schedule import control_dt
+from rosmeery_jax.session.schedule import control_dt, env_overrides
 from rosmeery_jax.sim import noise
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
@@ -67,6 +67,7 @@ class RecordConfig:
     depth_encoding: str = "32FC1"  # a bag's depth images: 32FC1 metres, or 16UC1 millimetres
     detector: str = "off"  # a bag's /detections: off, oracle or yolo (the session's detectors)
     noise: str = "off"  # sensor and actuation noise preset (sim.noise): the run and the streams written
+    localisation: str = "ground_truth"  # odometry: the true pose, or the robot's own estimate (sim.localisation)
 
     def stride(self, dt: float) -> int:
         """Control steps between frames."""
@@ -118,7 +119,8 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     _check_settings(out, settings)
     session = SessionConfig(worlds=(world,), policies=(policy,), seeds=wanted[-1] - wanted[0] + 1,
                             first_seed=wanted[0], duration=duration, detector="off", decide_every=cfg.decide_every,
-                            sample_s=dt, out=str(out / "session"), noise=cfg.noise)
+                            sample_s=dt, out=str(out / "session"), noise=cfg.noise,
+                            localisation=cfg.localisation)
     session = session.validate("command line")  # a count this machine's memory holds, before it is listed
     if not (out / SETTINGS).exists():
         write_atomic(out / SETTINGS, json.dumps(settings, indent=2))
@@ -131,7 +133,8 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
     env = _env(world, session)
     for k, folder in todo:
         poses = trajectory[trajectory.seed == k].sort_values("time_s")
-        _write_seed(env, cfg, poses.time_s.to_numpy(), poses[["x", "y", "yaw"]].to_numpy(np.float32), folder,
+        odom = poses[["est_x", "est_y", "est_yaw"] if "est_x" in poses else ["x", "y", "yaw"]].to_numpy(np.float32)
+        _write_seed(env, cfg, poses.time_s.to_numpy(), poses[["x", "y", "yaw"]].to_numpy(np.float32), odom, folder,
                     {"world": env.world.name, "policy": policy, "seed": k, "duration_s": duration})
     return folders
 
@@ -158,9 +161,7 @@ def _check_settings(out: Path, settings: dict) -> None:
 
 def _env(world: str, session):
     """The env the session drove (same camera, laser, robot and noise settings)."""
-    preset = noise.preset(session.noise)
-    return make(world, **{"labels": "observed", **{f"noise__{f.name}": getattr(preset, f.name) for f in
-                                                   fields(preset)}, **session.env})
+    return make(world, **{"labels": "observed", **env_overrides(session)})
 
 
 def camera_intrinsics(camera: CameraConfig, width: int, height: int) -> dict:
@@ -201,16 +202,19 @@ def _render_fn(env, camera: CameraConfig):
     return xla.jit(jax.vmap(one, in_axes=(0, None, 0)))
 
 
-def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, folder: Path, info: dict) -> None:
+def _write_seed(env, cfg: RecordConfig, times: np.ndarray, poses: np.ndarray, odom: np.ndarray, folder: Path,
+                info: dict) -> None:
+    """One seed's folder from its true poses (T, 3) and its odometry (T, 3): the robot's own
+    estimate when it localises itself, else the true poses."""
     tmp = folder.with_name(f".{folder.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     camera = replace(env.config.camera, rgb_width=cfg.width, rgb_height=cfg.height)
     frames = np.arange(0, len(times), cfg.stride(env.dt))
     if cfg.format == "tum":
-        _write_tum(env, cfg, camera, times, poses, frames, tmp, info)
+        _write_tum(env, cfg, camera, times, poses, odom, frames, tmp, info)
     else:
-        _write_bag(env, cfg, camera, times, poses, frames, tmp / "bag", info)
+        _write_bag(env, cfg, camera, times, poses, odom, frames, tmp / "bag", info)
     truth = env.world.truth
     (tmp / "objects.json").write_text(json.dumps(
         {"seg_values": "object id + 1; 0 = wall, floor or nothing", "objects": [
@@ -238,7 +242,7 @@ def _rendered(env, camera: CameraConfig, poses: np.ndarray, frames: np.ndarray, 
         yield (start, *(np.asarray(a)[:len(part)] for a in (img, depth, label)))
 
 
-def _write_tum(env, cfg: RecordConfig, camera, times, poses, frames, tmp: Path, info: dict) -> None:
+def _write_tum(env, cfg: RecordConfig, camera, times, poses, odom, frames, tmp: Path, info: dict) -> None:
     for sub in ("rgb", "depth", "seg"):
         (tmp / sub).mkdir()
     stamps = [f"{times[i]:.6f}" for i in frames]
@@ -254,16 +258,16 @@ def _write_tum(env, cfg: RecordConfig, camera, times, poses, frames, tmp: Path, 
     _write_table(tmp / "groundtruth.txt", "camera optical frame in the world: timestamp tx ty tz qx qy qz qw",
                  [f"{t:.6f} " + " ".join(f"{v:.6f}" for v in row) for t, row in zip(times, gt)])
     _write_laser(env, tmp, times, poses, info["seed"])
-    _write_odometry(tmp, times, poses, env.dt)
+    _write_odometry(tmp, times, odom, env.dt, env.config.localisation != "ground_truth")
 
 
-def _write_bag(env, cfg: RecordConfig, camera, times, poses, frames, path: Path, info: dict) -> None:
+def _write_bag(env, cfg: RecordConfig, camera, times, poses, odom, frames, path: Path, info: dict) -> None:
     """The run as a ROS 2 bag (apps.ros_bags): every control step's clock, transforms,
     odometry, ground truth and laser; every frame's images, camera info and detections."""
     streams = BagStreams(path, cfg.format, cfg.depth_encoding)
     laser_cfg = env.config.laser
     ranges = _ranges(env, poses, info["seed"])
-    v, w = _rates(poses, env.dt)
+    v, w = _rates(odom, env.dt)
     angles = laser_dirs(laser_cfg)
     intr = camera_intrinsics(camera, cfg.width, cfg.height)
     detector = make_detector(cfg.detector, env.world, 0.25) if cfg.detector != "off" else None
@@ -275,11 +279,11 @@ def _write_bag(env, cfg: RecordConfig, camera, times, poses, frames, path: Path,
             dets = detector(img, label, [(info["seed"], start + k) for k in range(len(img))]) if detector else None
             for k, i in enumerate(frames[start:start + len(img)]):
                 for j in range(step, i + 1):  # the steps up to the frame's, then the frame: time order
-                    streams.step(times[j], poses[j], poses[j], v[j], w[j], ranges[j], laser_cfg, angles)
+                    streams.step(times[j], odom[j], poses[j], v[j], w[j], ranges[j], laser_cfg, angles)
                 step = i + 1
                 streams.frame(times[i], img[k], depth[k], intr, dets[k][1:4] if dets else None, names)
         for j in range(step, len(times)):
-            streams.step(times[j], poses[j], poses[j], v[j], w[j], ranges[j], laser_cfg, angles)
+            streams.step(times[j], odom[j], poses[j], v[j], w[j], ranges[j], laser_cfg, angles)
     finally:
         streams.close()
 
@@ -327,9 +331,10 @@ def _rates(poses: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return (d[:, 0] * np.cos(yaw) + d[:, 1] * np.sin(yaw)) / dt, np.angle(np.exp(1j * d[:, 2])) / dt
 
 
-def _write_odometry(folder: Path, times: np.ndarray, poses: np.ndarray, dt: float) -> None:
-    """Noise-free odometry (the simulated base pose) with forward and turn rates."""
+def _write_odometry(folder: Path, times: np.ndarray, poses: np.ndarray, dt: float, estimated: bool = False) -> None:
+    """The odometry (the robot's own pose estimate, or the true pose) with forward and turn rates."""
     v, w = _rates(poses, dt)
-    _write_table(folder / "odometry.txt", "base pose in the odom frame (= world, no drift): timestamp x y yaw v w",
+    _write_table(folder / "odometry.txt", "base pose in the odom frame (= world, no drift): timestamp x y yaw v w"
+                 if estimated is False else "base pose in the odom frame, the robot's own estimate: timestamp x y yaw v w",
                  [f"{t:.6f} {x:.6f} {y:.6f} {a:.6f} {vv:.5f} {ww:.5f}"
                   for t, (x, y, a), vv, ww in zip(times, poses, v, w)])

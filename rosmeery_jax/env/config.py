@@ -11,6 +11,7 @@ from rosmeery_jax.core import overrides as overrides_
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig
 from rosmeery_jax.sim.knowledge import KnowledgeConfig
+from rosmeery_jax.sim.localisation import MODES
 from rosmeery_jax.sim.navigation import NavConfig
 from rosmeery_jax.sim.noise import NoiseConfig
 from rosmeery_jax.sim.occupancy import MapConfig
@@ -59,6 +60,8 @@ class EnvConfig:
     nav: NavConfig = field(default_factory=NavConfig)
     knowledge: KnowledgeConfig = field(default_factory=KnowledgeConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)  # all off: the exact sensors (sim.noise)
+    localisation: str = "ground_truth"  # the robot's pose: told (ground_truth), or its own estimate
+    # (dead_reckoning, scan_matching: sim.localisation)
     start_yaw: str = "random"  # "random": heading uniform in [-pi, pi) drawn from the reset key,
     # so different keys start differently; "spawn": the world's spawn yaw (teleop, replays)
     labels: str = "observed"  # "observed": ground-truth label once min_fraction is seen
@@ -91,6 +94,7 @@ class EnvConfig:
                 raise InputError(source, name, f"{value} must be a whole number in [1, {MAX_PIXELS}]")
         for name, value, allowed in (("start_yaw", cfg.start_yaw, ("spawn", "random")),
                                      ("labels", cfg.labels, ("observed", "detections")),
+                                     ("localisation", cfg.localisation, MODES),
                                      ("action_mode", cfg.action_mode, ("velocity", "target"))):
             if value not in allowed:
                 raise InputError(source, name, f"{value!r} is not one of {', '.join(map(repr, allowed))}")

@@ -24,7 +24,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env.config import EnvConfig, body_dimensions
 from rosmeery_jax.env.world_data import Sizes, WorldData, near_physics_model, physics_model, truth_table, world_data
 from rosmeery_jax.raycast.sensors import depth_seg, laser, laser_dirs, rgb, rgbd
-from rosmeery_jax.sim import noise, occupancy
+from rosmeery_jax.sim import localisation, noise, occupancy
 from rosmeery_jax.sim.knowledge import Knowledge, ObjectLog, SpatialKnowledge
 from rosmeery_jax.sim.mjx import mjx
 from rosmeery_jax.sim.navigation import IDLE, Navigator, NavState
@@ -38,7 +38,10 @@ class State(NamedTuple):
     physics: MJX data; pose (3,) x, y, yaw; logodds (H, W) the robot's occupancy map;
     nav: navigator state; ranges (K,) laser; depth (h, w) and seg (h, w) camera;
     t int32 control steps since reset; key: PRNG key for stochastic consumers;
-    knowledge: the spatial knowledge (coverage of the ground-truth samples, labels).
+    knowledge: the spatial knowledge (coverage of the ground-truth samples, labels);
+    truth (3,): the true pose when the robot localises itself (``pose`` is then its
+    estimate, what its map, navigator, policies and mappers use), else None (``pose`` is
+    the truth).
     """
 
     physics: mjx.Data
@@ -51,18 +54,31 @@ class State(NamedTuple):
     t: jax.Array
     key: jax.Array
     knowledge: Knowledge
+    truth: jax.Array | None = None
+
+    @property
+    def true_pose(self) -> jax.Array:
+        return self.pose if self.truth is None else self.truth
 
 
 class Track(NamedTuple):
     """Where the robot was and what its navigator reported at each control step: pose
-    (..., 3) and status (...) int8 (``sim.navigation``'s codes)."""
+    (..., 3) the true pose, status (...) int8 (``sim.navigation``'s codes), and estimate
+    (..., 3) the robot's own pose estimate when it localises itself (else None)."""
 
     pose: jax.Array
     status: jax.Array
+    estimate: jax.Array | None = None
 
     @staticmethod
     def of(state: State) -> "Track":
-        return Track(state.pose, state.nav.status.astype(jnp.int8))
+        return Track(state.true_pose, state.nav.status.astype(jnp.int8),
+                     None if state.truth is None else state.pose)
+
+    @property
+    def believed(self) -> jax.Array:
+        """The poses the robot believed it had (its mappers' frames carry these)."""
+        return self.pose if self.estimate is None else self.estimate
 
 
 class RobotEnv:
@@ -112,7 +128,8 @@ class RobotEnv:
                       jnp.zeros(self.config.laser.beams, jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.float32),
                       jnp.zeros((self.config.camera.height, self.config.camera.width), jnp.int32),
-                      jnp.int32(0), key, self.sk.init())
+                      jnp.int32(0), key, self.sk.init(),
+                      None if self.config.localisation == "ground_truth" else pose)  # the start is known
         return self._sense(state)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -121,18 +138,26 @@ class RobotEnv:
         if self.config.noise.actuation:  # the drive executes the command imperfectly
             cmd = noise.command(noise.key(state.key, state.t, noise.ACTUATION), cmd, self.config.noise)
         physics, pose = self.move(state.physics, cmd)
-        state = state._replace(physics=physics, pose=pose, nav=nav, t=state.t + 1)
+        if state.truth is None:
+            state = state._replace(physics=physics, pose=pose, nav=nav, t=state.t + 1)
+        else:  # the robot's estimate follows its odometry; the truth, the physics
+            estimate = localisation.odometry(noise.key(state.key, state.t, noise.ODOMETRY), state.truth, pose,
+                                             state.pose, self.config.noise)
+            state = state._replace(physics=physics, pose=estimate, truth=pose, nav=nav, t=state.t + 1)
         return self._sense(state)
 
     def _sense(self, state: State) -> State:
-        ranges, labels = self.scan(state.pose)
+        ranges, labels = self.scan(state.true_pose)
         if self.config.noise.laser:  # the robot's own map and what policies read come from the noisy laser
             las = self.config.laser
             ranges = noise.ranges(noise.key(state.key, state.t, noise.LASER), ranges, self.config.noise,
                                   las.min_range, las.max_range)
-        logodds = self.update_map(state.logodds, state.pose, ranges, labels)
-        depth, seg = self.look(state.pose)
-        knowledge = self.sk.observe(state.knowledge, state.pose, depth)
+        if self.config.localisation == "scan_matching":  # the prediction refined on the map so far
+            state = state._replace(pose=localisation.match(state.logodds, self.grid, state.pose, self.beam_angles,
+                                                           ranges, self.config.laser.max_range))
+        logodds = self.update_map(state.logodds, state.pose, ranges, labels)  # in the robot's own frame
+        depth, seg = self.look(state.true_pose)
+        knowledge = self.sk.observe(state.knowledge, state.true_pose, depth)  # what was in view: the truth
         return state._replace(ranges=ranges, logodds=logodds, depth=depth, seg=seg, knowledge=knowledge)
 
     # The step's stages, one concept each; ``step`` composes them.
@@ -180,12 +205,12 @@ class RobotEnv:
 
     def camera_rgb(self, state: State) -> tuple[jax.Array, jax.Array]:
         """The detector's frame: RGB (Hr, Wr, 3) uint8 and object labels (Hr, Wr) int32."""
-        return rgb(self.rays, self.config.camera, state.pose)
+        return rgb(self.rays, self.config.camera, state.true_pose)
 
     def camera_rgbd(self, state: State) -> tuple[jax.Array, jax.Array, jax.Array]:
         """The detector's frame with its depth: RGB (Hr, Wr, 3) uint8, depth (Hr, Wr) (0 = no
         return) and object labels (Hr, Wr) int32."""
-        return rgbd(self.rays, self.config.camera, state.pose)
+        return rgbd(self.rays, self.config.camera, state.true_pose)
 
     def sensed(self, state: State, depth: jax.Array | None = None, image: jax.Array | None = None,
                stream: int = noise.DEPTH):

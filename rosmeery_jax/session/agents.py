@@ -22,14 +22,15 @@ from rosmeery_jax.env import Track
 from rosmeery_jax.gym import GymConfig, VectorEnv, agent_class
 from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.outputs import RunResult
-from rosmeery_jax.session.schedule import decisions, log_every
+from rosmeery_jax.session.schedule import decisions, env_overrides, log_every
 
 
 def run_agent(cfg: SessionConfig, world: str, spec: str, bar) -> tuple[RunResult, dict]:
     """Run the agent entry ``spec`` in ``world`` for every seed; its result and timing."""
     t0 = time.perf_counter()
     cls = agent_class(spec)
-    vec = VectorEnv([world], cfg.seeds, GymConfig(cfg.duration, cfg.decide_every, camera=cls.camera, env=cfg.env),
+    vec = VectorEnv([world], cfg.seeds, GymConfig(cfg.duration, cfg.decide_every, camera=cls.camera,
+                                                     env=env_overrides(cfg)),
                     log_every(cfg))
     with plugins.raised_by(spec, "policies", "its constructor"):
         agent = cls(vec)

@@ -24,11 +24,10 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.env import EnvConfig, RobotEnv, world_bank
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.policies import make_policy, policy_class
-from rosmeery_jax.session.schedule import decisions
+from rosmeery_jax.session.schedule import decisions, env_overrides
 from rosmeery_jax.world import load_world
 
 BLOCK = 5  # envs per compiled block (module docstring): 5 seeds, the paper's and the default, fill one
@@ -112,7 +111,7 @@ def build_groups(pairs: list[tuple[str, str]], cfg) -> list[Group]:
     by_config: dict[EnvConfig, list] = {}
     for world, spec in pairs:
         name = load_world(world).name
-        overrides = {"labels": "detections" if cfg.detector != "off" else "observed", **flatten(cfg.env),
+        overrides = {"labels": "detections" if cfg.detector != "off" else "observed", **env_overrides(cfg),
                      **policy_class(spec).env_overrides(spec, name)}
         config = EnvConfig().with_overrides("config", **overrides)
         by_config.setdefault(config, []).append((world, spec))

@@ -21,7 +21,8 @@ from rosmeery_jax.session.checks import check_session
 LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "first_seed", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
-                 "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime", "noise")
+                 "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime", "noise",
+                 "localisation")
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,8 @@ class SessionConfig:
     env: dict = field(default_factory=dict)  # EnvConfig overrides, e.g. {"camera__cull": 0}
     noise: str = "off"  # sensor and actuation noise preset: "off" (exact sensors) or "realistic"
     # (rosmeery_jax.sim.noise; each parameter also as env noise__NAME)
+    localisation: str = "ground_truth"  # the robot's pose: told (ground_truth), or estimated by itself:
+    # dead_reckoning (odometry integrated) or scan_matching (odometry refined on its own map): sim.localisation
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
     # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
     # the YOLO detector runs), at most one per block

@@ -112,9 +112,12 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=label,
                                                 policy=policy, detector=cfg.detector))
             _write_mapper_map(env, done.final, out / "maps" / f"{name}__seed{seed}__{label}", times[-1])
-        paths.append(pd.DataFrame({"world": world.name, "policy": policy, "seed": seed,
-                                   "time_s": tables.seconds(times[keep]), "x": poses[i, step[keep], 0],
-                                   "y": poses[i, step[keep], 1], "yaw": poses[i, step[keep], 2]}))
+        path = {"world": world.name, "policy": policy, "seed": seed, "time_s": tables.seconds(times[keep]),
+                "x": poses[i, step[keep], 0], "y": poses[i, step[keep], 1], "yaw": poses[i, step[keep], 2]}
+        if run.track.estimate is not None:  # the robot's own estimate beside the truth
+            est = np.asarray(run.track.estimate)[i, step[keep]]
+            path.update(est_x=est[:, 0], est_y=est[:, 1], est_yaw=est[:, 2])
+        paths.append(pd.DataFrame(path))
     runs = out / "runs"
     tables.write_csv(pd.concat(objects, ignore_index=True), runs / f"{name}.objects.csv")
     write_atomic(runs / f"{name}.timing.json", json.dumps(

@@ -5,11 +5,13 @@ Each function raises one InputError naming the field when the durations do not d
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from typing import NamedTuple
 
 import numpy as np
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.env.decision import Decision
 from rosmeery_jax.mapping.perceived import mapper_for
@@ -18,10 +20,26 @@ from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.sim import noise
 
 
+def _session_overrides(cfg) -> dict:
+    """The noise preset's parameters and the localisation, where they are not the defaults."""
+    preset = noise.preset(cfg.noise)
+    out = {f"noise__{f.name}": getattr(preset, f.name) for f in fields(preset)
+           if getattr(preset, f.name) != f.default}
+    if cfg.localisation != EnvConfig.localisation:
+        out["localisation"] = cfg.localisation
+    return out
+
+
+def env_overrides(cfg) -> dict:
+    """The EnvConfig overrides of a session, flat: its noise preset's parameters and its
+    localisation, then its ``env`` table (which may set any of them again)."""
+    return {**_session_overrides(cfg), **flatten(cfg.env)}
+
+
 def env_config(cfg) -> EnvConfig:
-    """The env configuration of the session's robots: its noise preset, then its ``env``
-    overrides (``noise__laser_sigma`` and the like included)."""
-    return EnvConfig.from_table(cfg.env, base=EnvConfig(noise=noise.preset(cfg.noise)))
+    """The env configuration of the session's robots (:func:`env_overrides` applied; an
+    error in the ``env`` table names its key as the file spells it)."""
+    return EnvConfig.from_table(cfg.env, base=EnvConfig().with_overrides("config", **_session_overrides(cfg)))
 
 
 def control_dt(cfg) -> float:

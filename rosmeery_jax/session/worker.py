@@ -143,7 +143,7 @@ class Worker:
             logs = self._relabel(c, logs, dets)
             t1 = time.perf_counter()
             if self.mappers:
-                self._feed(c * plan.frames_per_call, track.pose, frames, dets)
+                self._feed(c * plan.frames_per_call, track.believed, frames, dets)  # the robot's own poses
             self.timing["detector_s"] += t1 - t0  # this thread alone writes them; read after close()
             self.timing["mapper_s"] += time.perf_counter() - t1
             self.timing["frames"] += int(self.group.real.sum()) * plan.frames_per_call

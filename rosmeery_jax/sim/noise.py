@@ -12,7 +12,9 @@ the exact rendering, seeded per robot and step, pure JAX inside the step.
 - RGB: Gaussian pixel noise (8-bit units), clipped;
 - actuation: the executed velocity differs from the command, the velocity motion model of
   Thrun, Burgard and Fox (Probabilistic Robotics, 5.3): v + N(0, a1 v^2 + a2 w^2),
-  w + N(0, a3 v^2 + a4 w^2).
+  w + N(0, a3 v^2 + a4 w^2);
+- wheel odometry (read when the robot localises itself, :mod:`.localisation`): the
+  odometry motion model's ``odom_a1 .. a4`` (5.4).
 
 Every parameter 0 is that noise off; ``NoiseConfig()`` is all off (the exact sensors).
 ``PRESETS["realistic"]`` is a Kinect-class depth camera, a 2D lidar, a webcam and a
@@ -30,7 +32,7 @@ import jax.numpy as jnp
 
 from rosmeery_jax.core.errors import InputError
 
-DEPTH, LASER, RGB, ACTUATION, SWEEP = 1, 2, 3, 4, 5  # key streams (SWEEP: the depth camera of every step)
+DEPTH, LASER, RGB, ACTUATION, SWEEP, ODOMETRY = 1, 2, 3, 4, 5, 6  # key streams (SWEEP: the depth camera of every step)
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,10 @@ class NoiseConfig:
     motion_a2: float = 0.0  # ... per w^2 (m^2 / rad^2)
     motion_a3: float = 0.0  # executed w's variance per v^2 (rad^2 / m^2)
     motion_a4: float = 0.0  # ... per w^2
+    odom_a1: float = 0.0  # wheel odometry (sim.localisation): a turn's variance per turn^2
+    odom_a2: float = 0.0  # ... per translation^2 (rad^2 / m^2)
+    odom_a3: float = 0.0  # a translation's variance per translation^2
+    odom_a4: float = 0.0  # ... per turn^2 (m^2 / rad^2)
 
     @property
     def depth(self) -> bool:
@@ -95,7 +101,8 @@ PRESETS = {
     "realistic": NoiseConfig(depth_sigma0=0.0012, depth_sigma2=0.0019, depth_z0=0.4, depth_lateral_px=0.5,
                              disparity_step=0.125, edge_jump=0.1, edge_dropout=0.5, max_incidence=math.radians(80),
                              laser_sigma=0.01, laser_dropout=0.01, rgb_sigma=3.0, motion_a1=0.01, motion_a2=0.001,
-                             motion_a3=0.001, motion_a4=0.01),
+                             motion_a3=0.001, motion_a4=0.01, odom_a1=0.0025, odom_a2=0.0025, odom_a3=0.0025,
+                             odom_a4=0.0001),
 }
 
 
