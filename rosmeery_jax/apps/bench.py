@@ -28,7 +28,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import jax
@@ -47,6 +47,7 @@ from rosmeery_jax.raycast.sensors import camera_rays, depth_seg, laser, laser_di
 from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.program import Replicas
+from rosmeery_jax.sim import noise
 
 
 @dataclass(frozen=True)
@@ -373,6 +374,13 @@ def run_bench(cfg: BenchConfig, progress=print) -> dict:
     result["speedup_vs_mujoco_c"] = round(ours / peer["env_steps_per_s"], 2)
     result["speedup_full_step_vs_mujoco_c"] = round(ref_rate / peer["env_steps_per_s"], 2)
     result["reference_batch"] = cfg.reference_batch
+    progress(f"full step with realistic noise and scan matching at batch {cfg.reference_batch} ...")
+    real = noise.PRESETS["realistic"]
+    noisy_env = make(cfg.world, localisation="scan_matching",
+                     **{f"noise__{f.name}": getattr(real, f.name) for f in fields(real)})
+    noisy = env_throughput(noisy_env, cfg.reference_batch, cfg)["env_steps_per_s"]
+    result["noisy_env_steps_per_s"] = round(noisy, 1)
+    result["noisy_cost"] = round(ref_rate / noisy, 2)  # the noisy step's time over the exact one's
     n = split_devices(cfg, len(jax.devices()))
     if n > 1:  # every core busy, as the peer's threads keep them
         progress(f"full and platform step at batch {cfg.reference_batch} split over {n} devices ...")
@@ -418,6 +426,8 @@ def format_table(r: dict) -> str:
               *([f"split over {dv['devices']} devices (every core busy, like the peer's threads): full step "
                  f"{dv['env_steps_per_s']:,.0f} env-steps/s, without coverage {dv['platform_env_steps_per_s']:,.0f}, "
                  f"{dv['speedup_vs_mujoco_c']:.2f}x the peer"] if (dv := r.get("devices")) else []),
+              *([f"full step with realistic noise and scan matching: {r['noisy_env_steps_per_s']:,.0f} env-steps/s, "
+                 f"{r['noisy_cost']:.2f} times the exact step's time"] if "noisy_cost" in r else []),
               f"equal work (our physics + laser + camera on the peer's poses): "
               f"{r['equal_work_env_steps_per_s']:,.0f} env-steps/s, {r['equal_work_ratio']:.2f}x the peer",
               f"peak memory (this process): {r['peak_memory_gb']:.2f} GB"]

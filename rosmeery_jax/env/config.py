@@ -47,6 +47,14 @@ LIMITS = {
     "camera__mount_x": (lambda v: True, "a number"),  # ahead of the centre or behind it; finite, as every value
     "knowledge__coverage__max_incidence": (lambda v: 0 < v <= math.pi / 2, "an angle in (0, pi / 2] radians"),
     "knowledge__coverage__min_facing": (lambda v: -1 <= v < 1, "a cosine in [-1, 1)"),
+    # sensor and actuation noise (sim.noise): 0 is that noise off
+    **dict.fromkeys(("noise__depth_sigma0", "noise__depth_sigma2", "noise__depth_z0", "noise__depth_lateral_px",
+                     "noise__disparity_step", "noise__edge_jump", "noise__laser_sigma", "noise__rgb_sigma",
+                     "noise__motion_a1", "noise__motion_a2", "noise__motion_a3", "noise__motion_a4",
+                     "noise__odom_a1", "noise__odom_a2", "noise__odom_a3", "noise__odom_a4"), _NOT_NEGATIVE),
+    **dict.fromkeys(("noise__disparity_focal", "noise__disparity_baseline"), _POSITIVE),
+    **dict.fromkeys(("noise__edge_dropout", "noise__laser_dropout"), (lambda v: 0 <= v <= 1, "a probability in [0, 1]")),
+    "noise__max_incidence": (lambda v: 0 <= v < math.pi / 2, "an angle in [0, pi / 2) radians (0: none dropped)"),
 }
 
 
@@ -82,7 +90,6 @@ class EnvConfig:
         unknown or badly typed key is one error naming ``source`` and the key)."""
         cfg = overrides_.apply(self, overrides, source)
         _check_limits(cfg, source)
-        cfg.noise.check(source)
         near, pairs = cfg.robot.near_proxies, cfg.robot.max_pairs
         if near < 0 or 0 < near < pairs:
             raise InputError(source, "robot__near_proxies", f"{near} must be 0 (every proxy) or at least "

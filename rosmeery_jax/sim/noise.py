@@ -25,7 +25,7 @@ number, so a robot's noise depends on its seed and time only, not on its batch-m
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -75,22 +75,6 @@ class NoiseConfig:
     @property
     def actuation(self) -> bool:
         return bool(self.motion_a1 or self.motion_a2 or self.motion_a3 or self.motion_a4)
-
-    def check(self, source: str, prefix: str = "noise__") -> "NoiseConfig":
-        """Every parameter a finite number >= 0, the probabilities <= 1, the incidence below
-        pi / 2; else one InputError naming the field."""
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise InputError(source, prefix + f.name, f"{v!r} must be a finite number >= 0")
-        for name in ("edge_dropout", "laser_dropout"):
-            if getattr(self, name) > 1:
-                raise InputError(source, prefix + name, f"{getattr(self, name)} is a probability, at most 1")
-        if self.max_incidence >= math.pi / 2:
-            raise InputError(source, prefix + "max_incidence", f"{self.max_incidence} must be below pi / 2")
-        if self.disparity_step and not (self.disparity_focal > 0 and self.disparity_baseline > 0):
-            raise InputError(source, prefix + "disparity_focal", "quantisation needs a focal length and baseline > 0")
-        return self
 
 
 PRESETS = {
