@@ -206,3 +206,24 @@ def test_a_bad_bag_is_one_line_naming_file_topic_and_field(tmp_path, capsys, cas
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(bag) in err[0] and field in err[0], err
     assert not out.exists()
+
+
+def test_a_sqlite3_bag_holds_the_same_messages(tmp_path):
+    """The writer's two storage formats: a few steps and a frame as SQLite 3, read back."""
+    from rosmeery_jax.apps.ros_bags import BagStreams
+    from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, laser_dirs
+
+    bag = tmp_path / "bag"
+    streams = BagStreams(bag, "sqlite3", depth_encoding="16UC1")
+    streams.static(CameraConfig(), LaserConfig())
+    for k in range(3):
+        streams.step(0.1 * k, np.array([0.1 * k, 0.0, 0.0]), np.array([0.1 * k, 0.0, 0.0]), 1.0, 0.0,
+                     np.full(90, 2.0), LaserConfig(), laser_dirs(LaserConfig()))
+    intr = {"width": 4, "height": 3, "fx": 2.0, "fy": 2.0, "cx": 1.5, "cy": 1.0}
+    streams.frame(0.2, np.zeros((3, 4, 3), np.uint8), np.full((3, 4), 1.234, np.float32), intr)
+    streams.close()
+    assert next(bag.glob("*.db3"))
+    msgs = _messages(bag)
+    assert len(msgs["/odom"]) == 3 and "/detections" not in msgs
+    depth = msgs["/camera/depth/image_raw"][0][2]
+    assert depth.encoding == "16UC1" and np.frombuffer(depth.data.tobytes(), "<u2").tolist() == [1234] * 12
