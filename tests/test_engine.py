@@ -263,6 +263,26 @@ def test_relabel_counts_a_frame_from_the_step_after_it():
     # Logged once per decision (after steps 3 and 6): frame 0 counts from step 4, so row 2 has it.
     rows = ObjectLog(*(np.zeros((1, 2, n), np.float32) for _ in range(6)))
     assert worker._relabel(rows, per_frame, 3, log_every=3).label[0, :, 0].tolist() == [0, 1]
+    # In a later chunk, the steps before its first frame counts hold the labels after the
+    # previous chunk's last frame, not the log's own (the robot's, a detector period behind)
+    before = tuple(np.array([[7, 7]], np.float32) for _ in range(5))  # (B, N)
+    assert worker._relabel(logs, per_frame, 3, before=before).label[0, :, 0].tolist() == [7, 7, 7, 1, 1, 1]
+
+
+def test_held_labels_never_drop_out_of_the_metrics_between_chunks(tmp_path):
+    """With the oracle detector a held label is only ever replaced, so OPI (predicates
+    declared) never falls: at each chunk's first rows it fell to the robot's lagging labels
+    before (0 at 11 s in every paper run)."""
+    import pandas as pd
+
+    from rosmeery_jax.apps.cli import main
+
+    assert main(["run", "--worlds", "small_office", "--policies", "random", "--seeds", "2", "--detector", "oracle",
+                 "--duration", "40", "--quiet", "--out", str(tmp_path / "o")]) == 0
+    df = pd.read_csv(tmp_path / "o" / "metrics.csv")
+    for seed, g in df[df.metric == "opi"].groupby("seed"):
+        v = g.sort_values("time_s").value.to_numpy()
+        assert (np.diff(v) >= -1e-9).all() and v[-1] > 0, (seed, v)
 
 
 def test_compilation_cache_folder(monkeypatch, tmp_path):

@@ -73,6 +73,7 @@ class Worker:
                  ready: Future | None = None):
         self.group, self.plan, self.detectors, self.bar, self.ready = group, plan, detectors, bar, ready
         self.attach, self.labels, self.data, self.blocks = attach, labels, data, blocks
+        self.last_fields = None  # the label fields after the last frame so far (B, N) each
         self.camera = Camera.of(group.config.camera)
         self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0, "score_s": 0.0}  # score_s: within mapper_s
         self.mappers = [self._mappers(group.envs[w]) if real else None for w, real in zip(group.world, group.real)] \
@@ -204,7 +205,10 @@ class Worker:
             obj[:, -1] = -1
         self.labels, per_frame = self.attach(self.data, self.blocks, self.labels,
                                              *(jnp.asarray(d) for d in (obj, *dets[1:3])))
-        return _relabel(logs, per_frame, self.plan.frame_steps, self.plan.log_every)
+        per_frame = [np.asarray(v) for v in per_frame]
+        out = _relabel(logs, per_frame, self.plan.frame_steps, self.plan.log_every, self.last_fields)
+        self.last_fields = [v[:, -1] for v in per_frame]
+        return out
 
 
 def prepare_detectors(detectors: dict, camera) -> Future:
@@ -256,18 +260,23 @@ def _detect(group: Group, detectors: dict, frames: Frames, first_frame: int):
     return obj, label, conf, box
 
 
-def _relabel(logs: ObjectLog, per_frame, frame_steps: int, log_every: int = 1) -> ObjectLog:
+def _relabel(logs: ObjectLog, per_frame, frame_steps: int, log_every: int = 1, before=None) -> ObjectLog:
     """Rewrite the chunk's label fields (B, n, N), one row after every ``log_every``-th
     step, from the step after each frame on: a frame taken at the end of frame period f
-    (``frame_steps`` steps) counts from period f + 1 (before the chunk's first frame, the
-    labels the previous chunk ended with)."""
+    (``frame_steps`` steps) counts from period f + 1. Before the chunk's first frame counts,
+    the labels after the previous chunk's last frame (``before``, (B, N) per field; None in
+    the first chunk, where no frame has counted and the log's own fields hold none). The
+    robot's knowledge in the log gets its labels a detector period later, so its fields
+    would show labels the metrics had already counted dropping away for a row."""
     step = (np.arange(logs.ps.shape[1]) + 1) * log_every - 1  # each row's step in the chunk, from 0
     frame_of_step = step // frame_steps - 1
     take = frame_of_step >= 0
     updates = {}
-    for name, values in zip(LABEL_FIELDS, per_frame):
+    for k, (name, values) in enumerate(zip(LABEL_FIELDS, per_frame)):
         new = getattr(logs, name).copy()
         new[:, take] = np.asarray(values)[:, frame_of_step[take]].astype(new.dtype)
+        if before is not None:
+            new[:, ~take] = np.asarray(before[k])[:, None].astype(new.dtype)
         updates[name] = new
     return logs._replace(**updates)
 
