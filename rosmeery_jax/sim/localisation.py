@@ -10,8 +10,9 @@
 - ``scan_matching``: dead reckoning's prediction refined by a correlative scan matcher
   against the robot's own occupancy map, as a 2D SLAM front end does: the laser's hit
   points are scored on the map's occupancy (bilinear in the log-odds, occupied side only)
-  over a grid of poses around the prediction, coarse then fine (two stages of 5 x 5 x 5),
-  and the best pose is kept when it scores better than the prediction.
+  over a grid of poses around the prediction, coarse to fine (three stages of 3 x 3 x 3,
+  each around the last's best), and the best pose is kept when it scores better than the
+  prediction.
 
 Shapes: K laser beams, C candidate poses.
 """
@@ -27,8 +28,8 @@ from rosmeery_jax.sim.noise import NoiseConfig
 from rosmeery_jax.sim.occupancy import GridGeometry
 
 MODES = ("ground_truth", "dead_reckoning", "scan_matching")
-# (step xy m, step yaw rad) of the matcher's stages; each searches +-2 steps on every axis
-STAGES = ((0.04, math.radians(1.0)), (0.01, math.radians(0.25)))
+# (step xy m, step yaw rad) of the matcher's stages; each searches +-1 step on every axis
+STAGES = ((0.04, math.radians(1.0)), (0.02, math.radians(0.5)), (0.01, math.radians(0.25)))
 
 
 def wrap(a: jax.Array) -> jax.Array:
@@ -56,8 +57,6 @@ def odometry(key: jax.Array, before: jax.Array, after: jax.Array, estimate: jax.
 def _occupancy(logodds: jax.Array, geo: GridGeometry, xy: jax.Array) -> jax.Array:
     """Bilinear positive log-odds (occupied evidence) at world points (..., 2); 0 outside."""
     occ = jnp.maximum(logodds, 0.0)
-    occ = jax.scipy.signal.convolve2d(occ, jnp.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 16,
-                                      mode="same")  # a likelihood field: a point near a wall still scores
     u = (xy[..., 0] - geo.origin[0]) / geo.resolution - 0.5
     v = (xy[..., 1] - geo.origin[1]) / geo.resolution - 0.5
     j0, i0 = jnp.floor(u), jnp.floor(v)
@@ -74,8 +73,8 @@ def _occupancy(logodds: jax.Array, geo: GridGeometry, xy: jax.Array) -> jax.Arra
 
 
 def _offsets(step_xy: float, step_yaw: float) -> jax.Array:
-    """(125, 3) offsets of +-2 steps per axis, the zero offset first (a tie keeps it)."""
-    r = jnp.arange(-2, 3, dtype=jnp.float32)
+    """(27, 3) offsets of +-1 step per axis, the zero offset first (a tie keeps it)."""
+    r = jnp.arange(-1, 2, dtype=jnp.float32)
     g = jnp.stack(jnp.meshgrid(r * step_xy, r * step_xy, r * step_yaw, indexing="ij"), -1).reshape(-1, 3)
     zero = jnp.argmin(jnp.sum(jnp.abs(g), -1))
     return jnp.concatenate([g[zero][None], jnp.delete(g, zero, axis=0, assume_unique_indices=True)])
