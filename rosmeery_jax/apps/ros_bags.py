@@ -334,20 +334,13 @@ def _instance_labels(instance, point_label, point_conf, taxonomy) -> tuple[dict,
 
 
 def _label_message(bag: Path, topic: str, text: str, taxonomy) -> tuple[dict, dict]:
-    """A side-channel message: {"objects": [{"id", "label", "confidence"}]}."""
+    """A side-channel message: {"objects": [{"id", "label", "confidence"}]}, read as a map's JSON."""
+    from rosmeery_jax.metrics.map_score import object_labels  # noqa: PLC0415 (evaluate's reader)
+
     try:
-        objects = json.loads(text).get("objects", [])
-    except (json.JSONDecodeError, AttributeError):
-        raise InputError(bag, f"{topic} data", "not a JSON object with an objects list") from None
-    labels, conf = {}, {}
-    for k, obj in enumerate(objects):
-        if not isinstance(obj, dict) or not isinstance(obj.get("id"), int):
-            raise InputError(bag, f"{topic} objects[{k}].id", "each object needs an integer id")
-        label = obj.get("label")
-        if label is not None and label not in taxonomy:
-            raise InputError(bag, f"{topic} objects[{k}].label", f"{label!r} is not a category of the taxonomy")
-        c = obj.get("confidence", 1.0)
-        if not isinstance(c, (int, float)) or not 0 <= c <= 1:
-            raise InputError(bag, f"{topic} objects[{k}].confidence", f"{c!r} is not a number in [0, 1]")
-        labels[obj["id"]], conf[obj["id"]] = label, float(c)
-    return labels, conf
+        message = json.loads(text)
+    except json.JSONDecodeError:
+        message = None
+    if not isinstance(message, dict):
+        raise InputError(bag, f"{topic} data", "not a JSON object with an objects list")
+    return object_labels(bag, message.get("objects", []), taxonomy, f"{topic} objects")

@@ -237,23 +237,29 @@ def _read_meta(path: Path, taxonomy):
     if time_s is not None and (isinstance(time_s, bool) or not isinstance(time_s, (int, float))
                                or not math.isfinite(time_s) or time_s < 0):
         raise InputError(path, "frame.time_s", f"{time_s!r} is not a time in seconds (a finite number >= 0)")
-    objects = meta.get("objects", [])
+    labels, conf = object_labels(path, meta.get("objects", []), taxonomy)
+    return frame.get("world"), time_s, labels, conf
+
+
+def object_labels(source, objects, taxonomy, where: str = "objects") -> tuple[dict, dict]:
+    """A map's objects list (``[{"id", "label", "confidence"}]``) as {id: category name or
+    None} and {id: confidence}; one InputError naming ``source`` and the element."""
     if not isinstance(objects, list):
-        raise InputError(path, "objects", "must be a list")
+        raise InputError(source, where, "must be a list")
     labels, conf = {}, {}
     for j, obj in enumerate(objects):
         if not isinstance(obj, dict) or not isinstance(obj.get("id"), int) or isinstance(obj.get("id"), bool):
-            raise InputError(path, f"objects[{j}].id", "each object needs an integer id (its points' instance id)")
+            raise InputError(source, f"{where}[{j}].id", "each object needs an integer id (its points' instance id)")
         if obj["id"] in labels:
-            raise InputError(path, f"objects[{j}].id", f"{obj['id']} appears twice")
+            raise InputError(source, f"{where}[{j}].id", f"{obj['id']} appears twice")
         label = obj.get("label")
         if label is not None and label not in taxonomy:
-            raise InputError(path, f"objects[{j}].label", f"{label!r} is not a category of the taxonomy")
+            raise InputError(source, f"{where}[{j}].label", f"{label!r} is not a category of the taxonomy")
         c = obj.get("confidence", 1.0)
         if not isinstance(c, (int, float)) or not 0.0 <= c <= 1.0:
-            raise InputError(path, f"objects[{j}].confidence", f"{c!r} is not a number in [0, 1]")
+            raise InputError(source, f"{where}[{j}].confidence", f"{c!r} is not a number in [0, 1]")
         labels[obj["id"]], conf[obj["id"]] = label, float(c)
-    return frame.get("world"), time_s, labels, conf
+    return labels, conf
 
 
 def score(world, m: SemanticMap, tolerance: float = TOLERANCE, field_names: tuple[str, ...] = ()) -> Score:
