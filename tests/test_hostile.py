@@ -122,7 +122,7 @@ def test_an_ascii_vertex_line_holds_one_value_per_property(tmp_path, capsys):
 def test_each_instance_takes_its_most_common_label_the_smallest_of_ties(pairs):
     """The one-sort labelling agrees with counting instance by instance (which took
     instances x points steps: a map of 10^6 one-point instances did not finish)."""
-    from rosmeery_jax.metrics.map_score import _most_common
+    from rosmeery_jax.metrics.map_score import most_common
 
     group, value = (np.array(x) for x in zip(*pairs))
     ids, inst = np.unique(group, return_inverse=True)
@@ -130,7 +130,7 @@ def test_each_instance_takes_its_most_common_label_the_smallest_of_ties(pairs):
     for i in ids:
         vals, counts = np.unique(value[group == i], return_counts=True)
         want.append(vals[np.argmax(counts)])
-    np.testing.assert_array_equal(_most_common(inst, value, len(ids)), want)
+    np.testing.assert_array_equal(most_common(inst, value, len(ids)), want)
 
 
 def test_messages_name_the_join_and_the_transforms_cell(tmp_path):

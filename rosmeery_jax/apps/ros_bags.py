@@ -321,16 +321,18 @@ def _cloud(where: str, msg) -> tuple:
 
 def _instance_labels(instance, point_label, point_conf, taxonomy) -> tuple[dict, dict]:
     """Per instance id: its points' most common label (a category name, None for -1) and
-    highest confidence (1 without a confidence field)."""
-    labels, conf = {}, {}
-    for i in np.unique(instance).tolist():
-        mask = instance == i
-        if point_label is not None:
-            values, counts = np.unique(point_label[mask], return_counts=True)
-            k = int(values[np.argmax(counts)])
-            labels[i] = taxonomy.names[k] if 0 <= k < len(taxonomy.names) else None
-        conf[i] = float(point_conf[mask].max()) if point_conf is not None else 1.0
-    return labels, conf
+    highest confidence (1 without a confidence field), by evaluate's one-sort vote."""
+    from rosmeery_jax.metrics.map_score import most_common  # noqa: PLC0415 (evaluate's vote)
+
+    ids, inst = np.unique(instance, return_inverse=True)
+    k = most_common(inst, point_label, len(ids)) if point_label is not None else np.full(len(ids), -1)
+    best = np.ones(len(ids))
+    if point_conf is not None:
+        best = np.full(len(ids), -np.inf)
+        np.maximum.at(best, inst, point_conf)
+    names = taxonomy.names
+    labels = {i: names[c] if 0 <= c < len(names) else None for i, c in zip(ids.tolist(), k.tolist())}
+    return labels, dict(zip(ids.tolist(), best.tolist()))
 
 
 def _label_message(bag: Path, topic: str, text: str, taxonomy) -> tuple[dict, dict]:

@@ -196,7 +196,7 @@ def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[di
             row = int(np.argmax(bad))
             raise InputError(ply, "vertex confidence", f"{point_conf[row]} (row {row}) is not a number in [0, 1]")
     ids, inst = np.unique(instance, return_inverse=True)
-    k = _most_common(inst, point_label, len(ids)) if point_label is not None else np.full(len(ids), -1)
+    k = most_common(inst, point_label, len(ids)) if point_label is not None else np.full(len(ids), -1)
     bad = (k < -1) | (k >= len(taxonomy.names))
     if bad.any():
         raise InputError(ply, "vertex label", f"{k[np.argmax(bad)]} is not a category index of the taxonomy "
@@ -210,7 +210,7 @@ def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[di
     return labels, conf
 
 
-def _most_common(group: np.ndarray, value: np.ndarray, groups: int) -> np.ndarray:
+def most_common(group: np.ndarray, value: np.ndarray, groups: int) -> np.ndarray:
     """(G,) each group's most common value, the smallest of those tied (as np.unique and
     argmax pick), in one sort: O(P log P) for P points, whatever the number of groups."""
     pairs, counts = np.unique(np.stack([group, value.astype(np.int64)]), axis=1, return_counts=True)
