@@ -131,28 +131,41 @@ def within_boxes(boxes, inst, at, x, y, z, margin):
 
 
 @njit(cache=True)
-def group_ids(keys):
-    """(ids (K,), G): each of int64 ``keys`` (K,) numbered by the first appearance of its
-    value, and the number of distinct values; one pass over a hash table."""
-    size = 1
-    while size < 2 * len(keys):
-        size *= 2
-    mask = size - 1
-    slot_key = np.empty(size, np.int64)
-    slot_id = np.full(size, -1, np.int64)
-    ids = np.empty(len(keys), np.int64)
-    count = 0
+def _number(keys, slot_key, slot_id, ids):
+    """Number ``keys`` by first appearance into ``ids`` with an empty table (slot_key,
+    slot_id): their count, or -1 once the table is more than half full."""
+    mask, count = len(slot_id) - 1, 0
     for i in range(len(keys)):
+        if i and keys[i] == keys[i - 1]:  # neighbouring pixels mostly repeat a key
+            ids[i] = ids[i - 1]
+            continue
         h = np.uint64(keys[i]) * _MIX
         h ^= h >> np.uint64(29)
         s = np.int64(h & np.uint64(mask))
         while slot_id[s] >= 0 and slot_key[s] != keys[i]:
             s = (s + 1) & mask
         if slot_id[s] < 0:
+            if 2 * (count + 1) > len(slot_id):
+                return -1
             slot_key[s], slot_id[s] = keys[i], count
             count += 1
         ids[i] = slot_id[s]
-    return ids, count
+    return count
+
+
+@njit(cache=True)
+def group_ids(keys):
+    """(ids (K,), G): each of int64 ``keys`` (K,) numbered by the first appearance of its
+    value, and the number of distinct values; one pass over a hash table, begun small (a
+    cloud's keys repeat: a table sized for every key costs more to clear than to use) and
+    begun again twice as large when it fills."""
+    size = 1024
+    ids = np.empty(len(keys), np.int64)
+    while True:
+        count = _number(keys, np.empty(size, np.int64), np.full(size, -1, np.int64), ids)
+        if count >= 0:
+            return ids, count
+        size *= 4
 
 
 @njit(cache=True)
@@ -222,25 +235,61 @@ def _slot(keys, key, mask):
 
 
 @njit(cache=True)
-def _get(keys, values, query, out):
-    mask = len(keys) - 1
-    for j in range(len(query)):
-        s = _slot(keys, query[j], mask)
-        out[j] = values[s] if keys[s] == query[j] else -1
+def lookup(keys, values, key):
+    """The value of ``key`` in a table's arrays (:class:`HashTable`), -1 if not held."""
+    s = _slot(keys, key, len(keys) - 1)
+    return values[s] if keys[s] == key else -1
 
 
 @njit(cache=True)
-def _put(keys, values, new, vals):
-    mask = len(keys) - 1
+def room(keys, values, n, extra):
+    """A table's arrays (keys, values) holding ``n`` keys with room for ``extra`` more: the
+    same, or doubled until those would fill it to at most half. (Called before a loop that
+    :func:`put` s: arrays reassigned inside a loop cost reference counting every turn.)"""
+    size = len(keys)
+    while 2 * (n + extra) > size:
+        size *= 2
+    if size == len(keys):
+        return keys, values
+    old_keys, old_values = keys, values
+    keys, values = np.full(size, EMPTY, np.int64), np.zeros(size, np.int64)
+    for j in range(len(old_keys)):
+        if old_keys[j] != EMPTY:
+            s = _slot(keys, old_keys[j], size - 1)
+            keys[s], values[s] = old_keys[j], old_values[j]
+    return keys, values
+
+
+@njit(cache=True)
+def put(keys, values, key, value):
+    """Record ``key`` -> ``value`` in a table's arrays that have room (:func:`room`), if the
+    key is not held yet; whether it was new."""
+    s = _slot(keys, key, len(keys) - 1)
+    if keys[s] == key:
+        return False
+    keys[s], values[s] = key, value
+    return True
+
+
+@njit(cache=True)
+def _get(keys, values, query, out):
+    for j in range(len(query)):
+        out[j] = lookup(keys, values, query[j])
+
+
+@njit(cache=True)
+def _add(keys, values, n, new, vals):
+    keys, values = room(keys, values, n, len(new))
     for j in range(len(new)):
-        s = _slot(keys, new[j], mask)
-        keys[s], values[s] = new[j], vals[j]
+        n += put(keys, values, new[j], vals[j])
+    return keys, values, n
 
 
 class HashTable:
     """int64 keys (>= 0) to int64 values, looked up and added many at once: ``get(keys)``
     gives -1 for a key not held; ``add(keys, values)`` records keys not held yet. Filled to
-    at most half, then doubled."""
+    at most half, then doubled. Compiled code reads and fills its arrays (``arrays``, then
+    ``update``) with :func:`lookup`, :func:`room` and :func:`put`."""
 
     def __init__(self, capacity: int = 1 << 12):
         self._keys = np.full(capacity, EMPTY, np.int64)
@@ -250,20 +299,19 @@ class HashTable:
     def __len__(self) -> int:
         return self._n
 
+    @property
+    def arrays(self) -> tuple:
+        """(keys, values, n): the table as compiled code takes it."""
+        return self._keys, self._values, self._n
+
+    def update(self, arrays: tuple) -> None:
+        """Take back the table's (keys, values, n) from compiled code that filled it."""
+        self._keys, self._values, self._n = arrays
+
     def get(self, keys: np.ndarray) -> np.ndarray:
         out = np.empty(len(keys), np.int64)
         _get(self._keys, self._values, np.ascontiguousarray(keys, np.int64), out)
         return out
 
     def add(self, keys: np.ndarray, values: np.ndarray) -> None:
-        keys = np.ascontiguousarray(keys, np.int64)
-        if 2 * (self._n + len(keys)) > len(self._keys):
-            held = self._keys != EMPTY
-            old_keys, old_values = self._keys[held], self._values[held]
-            size = len(self._keys)
-            while 2 * (self._n + len(keys)) > size:
-                size *= 2
-            self._keys, self._values = np.full(size, EMPTY, np.int64), np.zeros(size, np.int64)
-            _put(self._keys, self._values, old_keys, old_values)
-        _put(self._keys, self._values, keys, np.ascontiguousarray(values, np.int64))
-        self._n += len(keys)
+        self.update(_add(*self.arrays, np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(values, np.int64)))

@@ -17,12 +17,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rosmeery_jax.mapping.box_points import Boxed, Cloud, box_points
+from rosmeery_jax.mapping.box_points import Boxed, Cloud
 from rosmeery_jax.mapping.config import PerceivedConfig
-from rosmeery_jax.mapping.depth_segments import box_owner, depth_rays, segments
-from rosmeery_jax.mapping.kernels import HashTable, back_project, group_ids, grow_ranks, within_boxes
+from rosmeery_jax.mapping.depth_segments import depth_rays
+from rosmeery_jax.mapping.kernels import HashTable
+from rosmeery_jax.mapping.passes import boxes_pass, claim_pass, cloud_pass, grow_pass, off_walls
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState, mapper_class
-from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, Rows, cube_keys, first_claims
+from rosmeery_jax.mapping.voxel_table import Rows, cube_keys
 
 
 class _Seen(NamedTuple):
@@ -148,52 +149,33 @@ class PerceivedMapper(Mapper):
         points (keys (V,), points (V, 3), each of instance ``insts[rank]``) and record their
         coarse ``cells`` (C,) (of ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the
         first instance that reaches it, and its first point in that instance's points stays."""
-        rank, cell_rank = np.broadcast_to(rank, keys.shape), np.broadcast_to(cell_rank, cells.shape)
-        new = first_claims(keys, rank)
-        new = new[self.owner.get(keys[new]) < 0]
-        self.owner.add(keys[new], insts[rank[new]])
+        rank = np.ascontiguousarray(np.broadcast_to(rank, keys.shape), np.int64)
+        cell_rank = np.ascontiguousarray(np.broadcast_to(cell_rank, cells.shape), np.int64)
+        new, *tables = claim_pass(np.ascontiguousarray(insts, np.int64), np.ascontiguousarray(keys, np.int64), rank,
+                                  np.ascontiguousarray(cells, np.int64), cell_rank, self.owner.arrays,
+                                  self.claimed.arrays, self.cells.arrays)
+        for table, arrays in zip((self.owner, self.claimed, self.cells), tables):
+            table.update(arrays)
         split = np.searchsorted(rank[new], np.arange(1, len(insts)))  # ordered by instance: one batch each
         for inst, batch in zip(insts.tolist(), np.split(pts[new], split)):
             if len(batch):
                 self.pending[inst].append(batch)
             self._publish(inst)
-        fresh = first_claims(cells, cell_rank)
-        fresh = fresh[self.claimed.get(cells[fresh]) < 0]
-        self.claimed.add(cells[fresh], insts[cell_rank[fresh]])
-        near = (cells[fresh][:, None] + NEIGHBOURS).ravel()  # the fresh cells and their neighbours
-        near_rank = np.repeat(cell_rank[fresh], len(NEIGHBOURS))
-        first = first_claims(near, near_rank)
-        first = first[self.cells.get(near[first]) < 0]  # the first seen stays
-        self.cells.add(near[first], insts[near_rank[first]])
 
     def _grow(self, cloud: Cloud) -> None:
         """Rule 7: each frame segment mostly held by one instance grows it by its points in
-        that instance's cells or next to them (an unconfirmed instance's points wait with it, rule 6)."""
+        that instance's cells or next to them, within reach of what its detections took
+        (``grow_margin``); an unconfirmed instance's points wait with it (rule 6)."""
         if not len(cloud.part) or not len(self.claimed):
             return
-        cell = cube_keys((cloud.x, cloud.y, cloud.z), self.cfg.cell)
-        cell_ix, n_cells = group_ids(cell)
-        cells = np.empty(n_cells, np.int64)
-        cells[cell_ix] = cell
-        root = self._roots()
-        held = root[self.claimed.get(cells)]  # looked up once per cell
-        beside = root[self.cells.get(cells)]  # the instance seen in the cell or next to it
-        rank, grown = grow_ranks(cloud.part, cell_ix, held, beside, len(cloud.size), n_cells, float(self.cfg.grow))
-        if not len(grown):
-            return
-        take = np.flatnonzero(rank >= 0)
-        take = take[self._within_reach(grown[rank[take]], cloud, take)]
-        x, y, z = cloud.x[take], cloud.y[take], cloud.z[take]
-        self._claim(grown, cube_keys((x, y, z), self.cfg.voxel), np.stack([x, y, z], -1), cell[take], rank[take],
-                    rank[take])
-
-    def _within_reach(self, inst: np.ndarray, cloud: Cloud, at: np.ndarray) -> np.ndarray:
-        """Rule 7: (k,) which of the cloud's points ``at`` (k,) lie within ``grow_margin`` of
-        the 3D box of the points that the detections of instance ``inst`` (k,) took."""
-        if not np.isfinite(self.cfg.grow_margin):
-            return np.ones(len(at), bool)
-        return within_boxes(self.extent.rows, np.ascontiguousarray(inst, np.int64), np.ascontiguousarray(at, np.int64),
-                            cloud.x, cloud.y, cloud.z, float(self.cfg.grow_margin))
+        cfg = self.cfg
+        grown, take, rank, keys, cells = grow_pass(
+            cloud.x, cloud.y, cloud.z, cloud.part, len(cloud.size), float(cfg.cell), float(cfg.voxel),
+            self.claimed.arrays, self.cells.arrays, self._roots(), self.extent.rows, float(cfg.grow_margin),
+            float(cfg.grow))
+        if len(grown):
+            pts = np.stack([cloud.x[take], cloud.y[take], cloud.z[take]], -1)
+            self._claim(grown, keys, pts, cells, rank, rank)
 
     def _roots(self) -> np.ndarray:
         """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to -1."""
@@ -211,39 +193,47 @@ class PerceivedMapper(Mapper):
                                              and np.array_equal(last.boxes, boxes))
         if not self._repeat:
             cloud = self._cloud(np.asarray(pose)[None], np.asarray(depth)[None], self.rays, self.cfg)
-            owner = box_owner(boxes, depth.shape)[cloud.valid[0]]  # (k,) the box each point lies most inside
             self._last = last = _Seen(np.array(pose), np.array(depth), np.array(boxes), cloud,
-                                      [box_points(cloud, mine, self.cfg) for mine in _by_box(owner, len(boxes))])
+                                      self._box_points(cloud, np.asarray(boxes, np.float64)))
         return last.voxels
 
+    def _box_points(self, cloud: Cloud, boxes: np.ndarray) -> list[Boxed]:
+        """Each box's points (boxes (D, 4)) in a one-frame cloud (rules 1-3)."""
+        cfg, kind = self.cfg, cloud.depth.dtype.type  # margins in the depth's precision, as numpy adds them
+        keys, points, cells, core = boxes_pass(
+            boxes, cloud.valid[0], cloud.depth, cloud.x, cloud.y, cloud.z, cloud.part, cloud.size, float(cfg.voxel),
+            float(cfg.cell), float(cfg.inside), float(cfg.min_share), float(cfg.front_share), kind(cfg.behind),
+            float(cfg.part_share), kind(cfg.part_behind))
+        return [Boxed(*b) for b in zip(keys, cells, points, core)]
+
     def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> Cloud:
-        """F frames' depth pixels above the floor, in the world frame, cut into segments
-        (each frame's own): pose (F, 3), depth (F, H, W); ``rays`` the frames' (:func:`depth_rays`)."""
+        """F frames' depth pixels above the floor and off the walls (rule 10), in the world
+        frame, cut into segments (each frame's own): pose (F, 3), depth (F, H, W); ``rays``
+        the frames' (:func:`depth_rays`). Points higher than ``wall_above`` mark their cells
+        as a wall's first, and the map's points in a new wall's cells leave it."""
         pose, depth = np.asarray(pose), np.ascontiguousarray(depth)
-        valid, d, x, y, z = back_project(  # the floor is dropped here; rays in the camera frame, turned by yaw
+        kind = depth.dtype.type  # thresholds in the depth's precision, as numpy takes a Python number beside it
+        valid, d, x, y, z, part, size, walls, hit = cloud_pass(  # rays in the camera frame, turned by yaw
             depth, *rays, np.cos(pose[:, 2]), np.sin(pose[:, 2]), np.ascontiguousarray(pose[:, 0]),
             np.ascontiguousarray(pose[:, 1]), float(self.config.mount_height), pose.dtype.type(self.config.mount_x),
-            float(cfg.floor_z))
-        keep = self._off_walls(x, y, z)
-        if not keep.all():
-            valid[valid] = keep
-            d, x, y, z = d[keep], x[keep], y[keep], z[keep]
-        count, part = segments(depth, valid, cfg.edge_abs, cfg.edge_rel)
-        return Cloud(valid, d, x, y, z, part, np.bincount(part, minlength=count))
+            float(cfg.floor_z), self.walls.arrays, self.held.arrays, float(self.cfg.wall_cell),
+            float(self.cfg.wall_above), kind(cfg.edge_abs), kind(cfg.edge_rel))
+        self.walls.update(walls)
+        if hit:  # the map holds points of a new wall
+            self._drop_walled()
+        return Cloud(valid, d, x, y, z, part, size)
 
     def _off_walls(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """Rule 10: (k,) which of the points (k,) each lie off the walls, after the cells of
-        those higher than ``wall_above`` join the walls."""
+        """Rule 10 on points x, y, z (k,) (as :meth:`_cloud` applies it): which of them lie
+        off the walls, after the cells of those higher than ``wall_above`` join the walls."""
         if not np.isfinite(self.cfg.wall_above):
             return np.ones(len(x), bool)
-        cell = self._plan_cells(x, y)
-        tall = np.unique(cell[z > self.cfg.wall_above])
-        tall = tall[self.walls.get(tall) < 0]
-        if len(tall):
-            self.walls.add(tall, np.zeros(len(tall), np.int64))
-            if (self.held.get(tall) >= 0).any():  # the map holds points of that wall
-                self._drop_walled()
-        return self.walls.get(cell) < 0
+        keep, walls, hit = off_walls(*(np.ascontiguousarray(a, np.float64) for a in (x, y, z)), self.walls.arrays,
+                                     self.held.arrays, float(self.cfg.wall_cell), float(self.cfg.wall_above))
+        self.walls.update(walls)
+        if hit:
+            self._drop_walled()
+        return keep
 
     def _plan_cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(k,) the plan-view cell keys (``wall_cell``) of points at x, y (k,) (rule 10)."""

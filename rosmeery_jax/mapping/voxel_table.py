@@ -19,11 +19,17 @@ def cube_keys(xyz: tuple, size: float) -> np.ndarray:
 
 
 @njit(cache=True)
+def cube_key(x, y, z, size):
+    """The cube key of one point, for compiled code (:func:`cube_keys`' arithmetic)."""
+    return ((np.int64(np.floor(x / size)) + (1 << 20)) << 42) | \
+        ((np.int64(np.floor(y / size)) + (1 << 20)) << 21) | (np.int64(np.floor(z / size)) + (1 << 20))
+
+
+@njit(cache=True)
 def _cube_keys(x, y, z, size):
     out = np.empty(len(x), np.int64)
     for i in range(len(x)):
-        out[i] = ((np.int64(np.floor(x[i] / size)) + (1 << 20)) << 42) | \
-                 ((np.int64(np.floor(y[i] / size)) + (1 << 20)) << 21) | (np.int64(np.floor(z[i] / size)) + (1 << 20))
+        out[i] = cube_key(x[i], y[i], z[i], size)
     return out
 
 

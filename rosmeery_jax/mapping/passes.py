@@ -1,0 +1,315 @@
+"""The perceived mapper's compiled passes (numba): a frame's whole cloud, rule 7's growth
+and the claims of rules 3-4, each one call from Python in place of tens of numpy calls.
+They compose the kernels of :mod:`rosmeery_jax.mapping.kernels` and do the arithmetic of
+the numpy formulations they replace, in their order and precision, so the maps are
+bitwise those of before (tests hold each pass to its formulation).
+
+Tables travel as (keys, values, n) (:attr:`HashTable.arrays`) and come back filled.
+Shapes: F frames, H x W pixels, k points, S segments, V voxels, C cells, R instances.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+from numba.typed import List
+
+from rosmeery_jax.mapping.kernels import back_project, group_ids, grow_ranks, label_segments, lookup, put, room
+from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, _first_claims, cube_key
+
+_KEYS, _POINTS = types.int64[::1], types.float64[:, ::1]  # a box's keys, its points
+
+
+@njit(cache=True)
+def off_walls(x, y, z, walls, held, wall_cell, wall_above):
+    """Rule 10 on points x, y, z (k,): the ``wall_cell`` plan-view cells of those higher than
+    ``wall_above`` join ``walls``; then which points lie off the walls (k,), the walls table,
+    and whether a new wall cell holds map points (``held``: the caller drops them)."""
+    wk, wv, wn = walls
+    k = len(x)
+    cell = np.empty(k, np.int64)
+    tall = np.empty(k, np.int64)
+    t = 0
+    for i in range(k):
+        cell[i] = cube_key(x[i], y[i], 0.0, wall_cell)
+        if z[i] > wall_above and lookup(wk, wv, cell[i]) < 0:
+            tall[t] = cell[i]
+            t += 1
+    wk, wv = room(wk, wv, wn, t)
+    hit = False
+    for i in range(t):
+        if put(wk, wv, tall[i], 0):
+            wn += 1
+            hit = hit or lookup(held[0], held[1], tall[i]) >= 0
+    keep = np.empty(k, np.bool_)
+    for i in range(k):  # neighbouring pixels mostly share a cell: the table is read once for them
+        keep[i] = keep[i - 1] if i and cell[i] == cell[i - 1] else lookup(wk, wv, cell[i]) < 0
+    return keep, (wk, wv, wn), hit
+
+
+@njit(cache=True)
+def cloud_pass(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, floor_z, walls, held, wall_cell,
+               wall_above, edge_abs, edge_rel):
+    """Frames' depth (F, H, W) to their cloud: the pixels above the floor back-projected
+    (:func:`back_project`), those in a wall's plan-view cell dropped (:func:`off_walls`;
+    ``wall_above`` inf: none), then cut into depth segments (:func:`label_segments`).
+
+    Returns valid (F, H, W), per point (k,) depth, x, y, z, segment; size (S,); the walls
+    table; and whether a new wall cell holds map points."""
+    valid, d, x, y, z = back_project(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, floor_z)
+    hit = False
+    if np.isfinite(wall_above):
+        keep, walls, hit = off_walls(x, y, z, walls, held, wall_cell, wall_above)
+        m = 0
+        for i in range(len(keep)):  # the points kept move to the front, in order
+            if keep[i]:
+                d[m], x[m], y[m], z[m] = d[i], x[i], y[i], z[i]
+                m += 1
+        if m < len(keep):
+            flat, j = valid.reshape(-1), 0
+            for p in range(len(flat)):  # valid[valid] = keep
+                if flat[p]:
+                    flat[p] = keep[j]
+                    j += 1
+            d, x, y, z = d[:m], x[:m], y[:m], z[:m]
+    count, part = label_segments(depth, valid, edge_abs, edge_rel)
+    size = np.zeros(count, np.int64)
+    for p in part:
+        size[p] += 1
+    return valid, d, x, y, z, part, size, walls, hit
+
+
+@njit(cache=True)
+def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, extent, margin, share):
+    """Rule 7 on a cloud (points x, y, z, segment ``part`` (k,), ``segments`` S): each
+    segment's instance (:func:`grow_ranks`, over its distinct ``cell_size`` cells, the
+    instances holding them read from ``claimed`` and ``near`` through ``root`` (I + 1,), the
+    instances after merges) and the points that join it: in a cell beside it and within
+    ``margin`` of its ``extent`` (I, 2, 3) (inf: anywhere).
+
+    Returns the instances grown (R,), in rank order; the points taken (t,) (indices), their
+    ranks, voxel keys and cell keys (t,) each."""
+    k = len(x)
+    cell = np.empty(k, np.int64)
+    for i in range(k):
+        cell[i] = cube_key(x[i], y[i], z[i], cell_size)
+    cell_ix, n_cells = group_ids(cell)
+    held, beside = np.empty(n_cells, np.int64), np.empty(n_cells, np.int64)
+    first = np.full(n_cells, -1, np.int64)
+    for i in range(k):  # each cell looked up once, at its first point
+        if first[cell_ix[i]] < 0:
+            first[cell_ix[i]] = i
+            held[cell_ix[i]] = root[lookup(claimed[0], claimed[1], cell[i])]
+            beside[cell_ix[i]] = root[lookup(near[0], near[1], cell[i])]
+    rank, grown = grow_ranks(part, cell_ix, held, beside, segments, n_cells, share)
+    take = np.empty(k, np.int64)
+    t = 0
+    if len(grown):
+        anywhere = not np.isfinite(margin)
+        for i in range(k):
+            if rank[i] < 0:
+                continue
+            if not anywhere:
+                b = extent[grown[rank[i]]]
+                if not (x[i] >= b[0, 0] + -margin and y[i] >= b[0, 1] + -margin and z[i] >= b[0, 2] + -margin
+                        and x[i] <= b[1, 0] + margin and y[i] <= b[1, 1] + margin and z[i] <= b[1, 2] + margin):
+                    continue
+            take[t] = i
+            t += 1
+    take = take[:t]
+    keys = np.empty(t, np.int64)
+    for j in range(t):
+        keys[j] = cube_key(x[take[j]], y[take[j]], z[take[j]], voxel)
+    return grown, take, rank[take], keys, cell[take]
+
+
+@njit(cache=True)
+def _first_by_rank(keys, rank, ranks):
+    """The first entry of the lowest rank of each distinct key of ``keys`` (n,) (ranks below
+    ``ranks``): their indices, ordered by rank (stably). One pass over a small table of the
+    entries alone: the large tables are then read once per distinct key."""
+    first = _first_claims(keys, rank)
+    start = np.zeros(ranks + 1, np.int64)
+    for i in first:
+        start[rank[i] + 1] += 1
+    for r in range(ranks):
+        start[r + 1] += start[r]
+    order = np.empty(len(first), np.int64)
+    for i in first:
+        order[start[rank[i]]] = i
+        start[rank[i]] += 1
+    return order
+
+
+@njit(cache=True)
+def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
+    """Rules 3-4: instances ``insts`` (R,), one after the other, take the voxels ``keys``
+    (V,) of their points (each of instance ``insts[rank]``) that no instance holds in
+    ``owner``, and record their ``cells`` (C,) (of ``insts[cell_rank]``) in ``claimed``, and
+    a cell newly claimed and its 26 neighbours in ``near``, where none is recorded: each
+    voxel or cell goes to the first entry of the lowest rank that reaches it.
+
+    Returns the voxels taken (indices into ``keys``), ordered by rank, then key, and the
+    three tables."""
+    ok, ov, on = owner
+    first = _first_by_rank(keys, rank, len(insts))
+    new = np.empty(len(first), np.int64)
+    m = 0
+    ok, ov = room(ok, ov, on, len(first))
+    for i in first:
+        if put(ok, ov, keys[i], insts[rank[i]]):
+            on += 1
+            new[m] = i
+            m += 1
+    new = new[:m]
+    new = new[np.argsort(keys[new])]  # distinct keys
+    new = new[np.argsort(rank[new], kind="mergesort")]
+    ck, cv, cn = claimed
+    nk, nv, nn = near
+    first = _first_by_rank(cells, cell_rank, len(insts))
+    ck, cv = room(ck, cv, cn, len(first))
+    fresh = np.empty(len(first), np.int64)
+    f = 0
+    for i in first:
+        if put(ck, cv, cells[i], insts[cell_rank[i]]):  # a cell newly claimed: it and its neighbours are near it
+            fresh[f] = i
+            f += 1
+    cn += f
+    nk, nv = room(nk, nv, nn, len(NEIGHBOURS) * f)
+    for i in fresh[:f]:
+        for off in NEIGHBOURS:
+            nn += put(nk, nv, cells[i] + off, insts[cell_rank[i]])
+    return new, (ok, ov, on), (ck, cv, cn), (nk, nv, nn)
+
+
+@njit(cache=True)
+def _box_owner(boxes, valid):
+    """(k,) the box each valid pixel (valid (H, W), row-major) lies most inside (rule 1), -1
+    outside every box: :func:`~rosmeery_jax.mapping.depth_segments.box_owner`'s arithmetic."""
+    h, w = valid.shape
+    owner = np.full((h, w), -1, np.int64)
+    best = np.full((h, w), np.inf)
+    for i in range(len(boxes)):
+        x1, y1, x2, y2 = boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3]
+        r0, r1 = int(min(max(np.floor(y1), 0), h)), int(min(max(np.ceil(y2) + 1, 0), h))
+        c0, c1 = int(min(max(np.floor(x1), 0), w)), int(min(max(np.ceil(x2) + 1, 0), w))
+        cx, cy, hw, hh = (x1 + x2) / 2, (y1 + y2) / 2, max((x2 - x1) / 2, 1e-6), max((y2 - y1) / 2, 1e-6)
+        for r in range(r0, r1):
+            for c in range(c0, c1):
+                inside = max(abs((c + 0.5) - cx) / hw, abs((r + 0.5) - cy) / hh)
+                if inside <= 1 and inside < best[r, c]:
+                    owner[r, c], best[r, c] = i, inside
+    out = np.empty(valid.sum(), np.int64)
+    k = 0
+    for r in range(h):
+        for c in range(w):
+            if valid[r, c]:
+                out[k] = owner[r, c]
+                k += 1
+    return out
+
+
+@njit(cache=True)
+def _distinct(keys):
+    """The distinct ``keys`` ascending and the index of each one's first entry (np.unique's
+    with ``return_index``): grouped by a hash table, then only the distinct ones sorted."""
+    ids, n = group_ids(keys)
+    first = np.full(n, -1, np.int64)
+    for i in range(len(keys)):
+        if first[ids[i]] < 0:
+            first[ids[i]] = i
+    out = keys[first]
+    order = np.argsort(out)  # distinct: any sort gives the same order
+    return out[order], first[order]
+
+
+@njit(cache=True)
+def _keys_of(x, y, z, take, size):
+    out = np.empty(len(take), np.int64)
+    for j in range(len(take)):
+        out[j] = cube_key(x[take[j]], y[take[j]], z[take[j]], size)
+    return out
+
+
+@njit(cache=True)
+def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, min_share, front_share, behind,
+               part_share, part_behind):
+    """Rules 1-3 for every box (D, 4) of one frame's cloud (valid (H, W); per point (k,)
+    depth, x, y, z, segment ``part``; ``size`` (S,) each segment's points): each box's
+    points, as :func:`~rosmeery_jax.mapping.box_points.box_points` takes them, box by box.
+    ``behind`` and ``part_behind`` come in the depth's precision, as numpy adds them.
+
+    Returns per box, concatenated with bounds (D + 1,) each: its voxel keys ascending and
+    their first points (V, 3); its cells ascending; its core cells (those of the object's
+    own segment, or its cells when that segment is all it took)."""
+    owner = _box_owner(boxes, valid)
+    d_boxes = len(boxes)
+    mine_at = np.zeros(d_boxes + 1, np.int64)  # each box's points, ascending: a counting sort by owner
+    for o in owner:
+        if o >= 0:
+            mine_at[o + 1] += 1
+    for b in range(d_boxes):
+        mine_at[b + 1] += mine_at[b]
+    mine = np.empty(mine_at[-1], np.int64)
+    fill = mine_at[:-1].copy()
+    for i in range(len(owner)):
+        if owner[i] >= 0:
+            mine[fill[owner[i]]] = i
+            fill[owner[i]] += 1
+    keys_l, cells_l, core_l = List.empty_list(_KEYS), List.empty_list(_KEYS), List.empty_list(_KEYS)
+    pts_l = List.empty_list(_POINTS)
+    count = np.zeros(len(size), np.int64)
+    near = np.empty(len(size), depth.dtype)
+    for b in range(d_boxes):
+        pts = mine[mine_at[b]:mine_at[b + 1]]
+        n = len(pts)
+        for p in pts:
+            count[part[p]] += 1
+        near[:] = np.inf
+        for p in pts:  # each segment's nearest point in the box
+            near[part[p]] = min(near[part[p]], depth[p])
+        obj = -1  # the fit: the nearest segment holding min_share of the box
+        front = np.empty(1, near.dtype)  # the nearest segment holding front_share, in the depth's precision
+        front[0] = np.inf
+        for s in range(len(size)):
+            ins = count[s] > 0 and count[s] >= inside * size[s]
+            if ins and count[s] >= min_share * n and (obj < 0 or near[s] < near[obj]):
+                obj = s
+            if ins and count[s] >= min(front_share, min_share) * n:
+                front[0] = min(front[0], near[s])
+        take = pts[:0]
+        core = pts[:0]
+        whole = True
+        if obj >= 0 and not near[obj] > front[0] + behind:  # no thin thing in front of it
+            parts = np.zeros(len(size), np.bool_)
+            for s in range(len(size)):
+                parts[s] = (count[s] > 0 and count[s] >= inside * size[s] and count[s] >= part_share * n
+                            and near[s] >= near[obj] and near[s] <= near[obj] + part_behind)
+            parts[obj] = True
+            whole = parts.sum() <= 1
+            sel = np.empty(n, np.int64)
+            m, c = 0, 0
+            for p in pts:
+                if parts[part[p]]:
+                    sel[m] = p
+                    m += 1
+            take = sel[:m]
+            if not whole:
+                core = np.empty(n, np.int64)
+                for p in pts:
+                    if part[p] == obj:
+                        core[c] = p
+                        c += 1
+                core = core[:c]
+        for p in pts:
+            count[part[p]] = 0
+        keys, first = _distinct(_keys_of(x, y, z, take, voxel))
+        firsts = np.empty((len(first), 3))
+        for j in range(len(first)):
+            firsts[j, 0], firsts[j, 1], firsts[j, 2] = x[take[first[j]]], y[take[first[j]]], z[take[first[j]]]
+        cells = keys if cell == voxel else _distinct(_keys_of(x, y, z, take, cell))[0]
+        keys_l.append(keys)
+        pts_l.append(firsts)
+        cells_l.append(cells)
+        core_l.append(cells if whole else _distinct(_keys_of(x, y, z, core, cell))[0])
+    return keys_l, pts_l, cells_l, core_l
