@@ -313,3 +313,25 @@ def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, mi
         cells_l.append(cells)
         core_l.append(cells if whole else _distinct(_keys_of(x, y, z, core, cell))[0])
     return keys_l, pts_l, cells_l, core_l
+
+
+@njit(cache=True)
+def publish_pass(pts, walls, held, wall_cell):
+    """Rule 10 for points entering the map (pts (n, 3)): those off the walls' plan-view
+    ``wall_cell`` cells (m, 3), in order, and the ``held`` table with their cells added."""
+    hk, hv, hn = held
+    keep = np.empty(len(pts), np.int64)
+    new = np.empty(len(pts), np.int64)
+    m, t = 0, 0
+    for i in range(len(pts)):
+        cell = cube_key(pts[i, 0], pts[i, 1], 0.0, wall_cell)
+        if lookup(walls[0], walls[1], cell) < 0:
+            keep[m] = i
+            m += 1
+            if lookup(hk, hv, cell) < 0:
+                new[t] = cell
+                t += 1
+    hk, hv = room(hk, hv, hn, t)
+    for i in range(t):
+        hn += put(hk, hv, new[i], 0)
+    return pts[keep[:m]], (hk, hv, hn)

@@ -21,7 +21,7 @@ from rosmeery_jax.mapping.box_points import Boxed, Cloud
 from rosmeery_jax.mapping.config import PerceivedConfig
 from rosmeery_jax.mapping.depth_segments import depth_rays
 from rosmeery_jax.mapping.kernels import HashTable
-from rosmeery_jax.mapping.passes import boxes_pass, claim_pass, cloud_pass, grow_pass, off_walls
+from rosmeery_jax.mapping.passes import boxes_pass, claim_pass, cloud_pass, grow_pass, off_walls, publish_pass
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState, mapper_class
 from rosmeery_jax.mapping.voxel_table import Rows, cube_keys
 
@@ -74,6 +74,7 @@ class PerceivedMapper(Mapper):
         self._repeat = False  # whether the latest frame repeats the one before
         self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
         self._last_swept: tuple | None = None  # the latest depth frame kept
+        self._root: np.ndarray | None = None  # _roots(), while no instance is added or merged
 
     @property
     def instances(self) -> int:
@@ -85,6 +86,11 @@ class PerceivedMapper(Mapper):
         views, conf = np.array(self.views[inst], np.int64), np.array(self.conf[inst], np.float32)
         cfg = self.cfg  # an instance's confidence is that of a detection it took, so alone_conf implies a view
         return (views >= cfg.min_views) & (conf >= cfg.min_conf) | (conf >= cfg.alone_conf)
+
+    def _confirmed_one(self, inst: int) -> bool:
+        """Whether instance ``inst`` is confirmed (:meth:`_confirmed`, for one: no arrays)."""
+        views, conf, cfg = self.views[inst], self.conf[inst], self.cfg  # conf: a float32, compared as numpy does
+        return bool(views >= cfg.min_views and conf >= cfg.min_conf or conf >= cfg.alone_conf)
 
     def add(self, frame: Frame) -> None:
         self.fold(frame.pose, frame.depth, frame.boxes, frame.labels, frame.confidences)
@@ -178,11 +184,14 @@ class PerceivedMapper(Mapper):
             self._claim(grown, keys, pts, cells, rank, rank)
 
     def _roots(self) -> np.ndarray:
-        """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to -1."""
-        root = np.array(self.parent, np.int64)
-        while not np.array_equal(root, root[root]):
-            root = root[root]
-        return np.r_[root, -1]
+        """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to
+        -1. Kept until an instance is added or merged (callers only read it)."""
+        if self._root is None:
+            root = np.array(self.parent, np.int64)
+            while not np.array_equal(root, root[root]):
+                root = root[root]
+            self._root = np.r_[root, -1]
+        return self._root
 
     def _frame_voxels(self, pose: np.ndarray, depth: np.ndarray, boxes: np.ndarray) -> list[Boxed]:
         """Each box's points in this frame (rules 1-3), kept with the
@@ -261,6 +270,7 @@ class PerceivedMapper(Mapper):
         self.pending.append([])
         self.views.append(0)
         self.parent.append(len(self.parent))
+        self._root = None
         self.label.append(-1)
         self.conf.append(np.float32(0.0))
         self.box.append(np.array([[np.inf, np.inf], [-np.inf, -np.inf]]))
@@ -272,6 +282,7 @@ class PerceivedMapper(Mapper):
         """Instance j becomes part of ``into``: its points, views and (if more confident, and
         ``relabel``) label."""
         self.parent[j] = into
+        self._root = None
         self.views[into] += self.views[j]
         if relabel and self.conf[j] > self.conf[into]:
             self.label[into], self.conf[into] = self.label[j], self.conf[j]
@@ -285,19 +296,15 @@ class PerceivedMapper(Mapper):
     def _publish(self, inst: int) -> None:
         """A confirmed instance's pending points join the map's end (rule 6), but for those
         in a wall's cells (rule 10: the wall may have been found since they were seen)."""
-        if self.pending[inst] and self._confirmed(inst):
+        if self.pending[inst] and self._confirmed_one(inst):
             pts = np.concatenate(self.pending[inst])
             self.pending[inst] = []
-            cell = self._plan_cells(pts[:, 0], pts[:, 1])
-            off = self.walls.get(cell) < 0
-            pts, cell = pts[off], cell[off]
+            pts, held = publish_pass(pts, self.walls.arrays, self.held.arrays, float(self.cfg.wall_cell))
+            self.held.update(held)
             if not len(pts):
                 return
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst))
-            cell = np.unique(cell)
-            cell = cell[self.held.get(cell) < 0]
-            self.held.add(cell, np.zeros(len(cell), np.int64))
             self._extend(inst, np.stack([pts.min(0), pts.max(0)])[:, :2], len(pts))
 
     def _drop_walled(self) -> None:
