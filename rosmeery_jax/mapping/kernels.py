@@ -8,7 +8,6 @@ tests compare them), so the maps are bitwise those of before.
 - :func:`back_project`: depth frames' pixels above the floor to world points (the
   arithmetic of the numpy expressions, in their order; the yaw's cosine and sine come from
   numpy, whose cos and sin may round otherwise than the C library's);
-- :func:`within_boxes`: which points lie in their instances' grown boxes (rule 7);
 - :func:`grow_ranks`: rule 7's choice of the instance each segment grows, from the
   distinct (segment, cell) pairs of a cloud, without sorting its points;
 - :class:`HashTable`: int64 keys to int64 values, open addressing with linear probing,
@@ -115,19 +114,6 @@ def back_project(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, flo
                     z[m] = mount_height + rz[r, c] * di
                     m += 1
     return valid, d, x, y, z
-
-
-@njit(cache=True)
-def within_boxes(boxes, inst, at, x, y, z, margin):
-    """(k,) whether points ``at`` (k,) of x, y, z lie inside the boxes (I, 2, 3) of their
-    instances ``inst`` (k,) grown by ``margin`` on every side (lower corner + -margin,
-    upper corner + margin, as numpy adds the margins)."""
-    out = np.empty(len(at), np.bool_)
-    for j in range(len(at)):
-        b, p = boxes[inst[j]], at[j]
-        out[j] = (x[p] >= b[0, 0] + -margin and y[p] >= b[0, 1] + -margin and z[p] >= b[0, 2] + -margin
-                  and x[p] <= b[1, 0] + margin and y[p] <= b[1, 1] + margin and z[p] <= b[1, 2] + margin)
-    return out
 
 
 @njit(cache=True)

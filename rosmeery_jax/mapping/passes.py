@@ -1,21 +1,64 @@
-"""The perceived mapper's compiled passes (numba): a frame's whole cloud, rule 7's growth
-and the claims of rules 3-4, each one call from Python in place of tens of numpy calls.
-They compose the kernels of :mod:`rosmeery_jax.mapping.kernels` and do the arithmetic of
-the numpy formulations they replace, in their order and precision, so the maps are
-bitwise those of before (tests hold each pass to its formulation).
+"""The perceived mapper's compiled passes (numba): a frame's whole cloud, its boxes' points,
+rule 7's growth, the claims of rules 3-4 and a publish's wall filter, each one call from
+Python in place of tens of numpy calls. They compose the kernels of
+:mod:`rosmeery_jax.mapping.kernels` and do the arithmetic of the numpy formulations they
+replaced, in their order and precision, so the maps are bitwise those of before (the tests
+hold each pass to that formulation).
+
+Two rules of thumb kept them fast: a large table is read once per distinct key (a cloud's
+keys repeat, and a read of a large table is a cache miss), and no array is reassigned
+inside a hot loop (numba then counts references every turn).
 
 Tables travel as (keys, values, n) (:attr:`HashTable.arrays`) and come back filled.
-Shapes: F frames, H x W pixels, k points, S segments, V voxels, C cells, R instances.
+Shapes: F frames, H x W pixels, k points, S segments, V voxels, C cells, R instances, D boxes.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, types
 from numba.typed import List
 
 from rosmeery_jax.mapping.kernels import back_project, group_ids, grow_ranks, label_segments, lookup, put, room
-from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, _first_claims, cube_key
+from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, cube_key, first_of_lowest_rank
+from rosmeery_jax.raycast.sensors import camera_rays
+
+
+class Cloud(NamedTuple):
+    """F frames' depth pixels above the floor and off the walls: valid (F, H, W) which
+    pixels; per point (k,), in row-major order: depth, world x, y, z, and its depth segment
+    part; size (S,) each segment's points."""
+
+    valid: np.ndarray
+    depth: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    part: np.ndarray
+    size: np.ndarray
+
+
+class Boxed(NamedTuple):
+    """One box's points in a frame (rules 1-3): keys (V,) their voxels' keys, ascending; cells
+    (C,) their coarse cells' keys; points (V, 3) the first point in each voxel; core (K,) the
+    coarse cells of the object's own depth segment, by which rule 4 associates the box."""
+
+    keys: np.ndarray
+    cells: np.ndarray
+    points: np.ndarray
+    core: np.ndarray
+
+
+def depth_rays(camera, w: int, h: int) -> tuple:
+    """The camera's rays at w x h pixels scaled so that a point is ray * depth: x (forward),
+    y, z (H, W) each, in the camera's level frame."""
+    rays = camera_rays(camera, w, h)  # (H*W, 3) camera frame, unit
+    axis = np.array([np.cos(camera.pitch), 0.0, -np.sin(camera.pitch)])
+    rays = (rays / (rays @ axis)[:, None]).reshape(h, w, 3)
+    return tuple(np.ascontiguousarray(rays[..., i]) for i in range(3))
+
 
 _KEYS, _POINTS = types.int64[::1], types.float64[:, ::1]  # a box's keys, its points
 
@@ -128,7 +171,7 @@ def _first_by_rank(keys, rank, ranks):
     """The first entry of the lowest rank of each distinct key of ``keys`` (n,) (ranks below
     ``ranks``): their indices, ordered by rank (stably). One pass over a small table of the
     entries alone: the large tables are then read once per distinct key."""
-    first = _first_claims(keys, rank)
+    first = first_of_lowest_rank(keys, rank)
     start = np.zeros(ranks + 1, np.int64)
     for i in first:
         start[rank[i] + 1] += 1
@@ -185,7 +228,7 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
 @njit(cache=True)
 def _box_owner(boxes, valid):
     """(k,) the box each valid pixel (valid (H, W), row-major) lies most inside (rule 1), -1
-    outside every box: :func:`~rosmeery_jax.mapping.depth_segments.box_owner`'s arithmetic."""
+    outside every box; each box is measured over its own rows and columns only."""
     h, w = valid.shape
     owner = np.full((h, w), -1, np.int64)
     best = np.full((h, w), np.inf)
@@ -236,7 +279,10 @@ def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, mi
                part_share, part_behind):
     """Rules 1-3 for every box (D, 4) of one frame's cloud (valid (H, W); per point (k,)
     depth, x, y, z, segment ``part``; ``size`` (S,) each segment's points): each box's
-    points, as :func:`~rosmeery_jax.mapping.box_points.box_points` takes them, box by box.
+    points (rule 2): of the segments with at least ``inside`` of their points in the box, the
+    nearest holding ``min_share`` of the box's points, unless one holding ``front_share`` stands
+    ``behind`` nearer; with its parts, those holding ``part_share`` at most ``part_behind``
+    behind it; then binned into voxels and cells (rules 3-4).
     ``behind`` and ``part_behind`` come in the depth's precision, as numpy adds them.
 
     Returns per box, concatenated with bounds (D + 1,) each: its voxel keys ascending and

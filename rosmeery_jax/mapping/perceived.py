@@ -17,11 +17,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rosmeery_jax.mapping.box_points import Boxed, Cloud
 from rosmeery_jax.mapping.config import PerceivedConfig
-from rosmeery_jax.mapping.depth_segments import depth_rays
 from rosmeery_jax.mapping.kernels import HashTable
-from rosmeery_jax.mapping.passes import boxes_pass, claim_pass, cloud_pass, grow_pass, off_walls, publish_pass
+from rosmeery_jax.mapping.passes import (
+    Boxed,
+    Cloud,
+    boxes_pass,
+    claim_pass,
+    cloud_pass,
+    depth_rays,
+    grow_pass,
+    off_walls,
+    publish_pass,
+)
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState, mapper_class
 from rosmeery_jax.mapping.voxel_table import Rows, cube_keys
 

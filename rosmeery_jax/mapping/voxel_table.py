@@ -67,19 +67,10 @@ class Rows:
         return self._buf[:self._n]
 
 
-def first_claims(keys: np.ndarray, rank: np.ndarray) -> np.ndarray:
-    """Of entries with keys (K,) and ranks (K,), the first of the lowest rank for each key:
-    their indices, ordered by rank, then key. One pass over a hash table of the keys, then a
-    sort of the claims alone (most entries repeat a key)."""
-    if not len(keys):
-        return np.zeros(0, np.int64)
-    keys, rank = np.ascontiguousarray(keys, np.int64), np.ascontiguousarray(rank, np.int64)
-    first = _first_claims(keys, rank)
-    return first[np.lexsort((keys[first], rank[first]))]
-
-
 @njit(cache=True)
-def _first_claims(keys, rank):
+def first_of_lowest_rank(keys, rank):
+    """Of entries with int64 keys (K,) and ranks (K,), the first of the lowest rank for each
+    distinct key: their indices, one per key (in no set order). One pass over a hash table."""
     group, count = group_ids(keys)
     best = np.full(count, -1, np.int64)
     for i in range(len(keys)):
