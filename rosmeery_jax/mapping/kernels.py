@@ -142,10 +142,12 @@ def _number(keys, slot_key, slot_id, ids):
 @njit(cache=True)
 def group_ids(keys):
     """(ids (K,), G): each of int64 ``keys`` (K,) numbered by the first appearance of its
-    value, and the number of distinct values; one pass over a hash table, begun small (a
-    cloud's keys repeat: a table sized for every key costs more to clear than to use) and
-    begun again twice as large when it fills."""
+    value, and the number of distinct values; one pass over a hash table, begun with a
+    quarter as many slots as keys (a cloud's keys repeat: a table sized for every key costs
+    more to clear than to use) and begun again four times as large when it fills."""
     size = 1024
+    while 4 * size < len(keys):  # a quarter as many slots as keys: most repeat
+        size *= 2
     ids = np.empty(len(keys), np.int64)
     while True:
         count = _number(keys, np.empty(size, np.int64), np.full(size, -1, np.int64), ids)
