@@ -172,12 +172,15 @@ def test_the_boxes_pass_is_the_numpy_box_points(cfg):
         corner = rng.uniform(-2, 14, (int(rng.integers(0, 4)), 2))
         boxes = np.c_[corner, corner + rng.uniform(0, 10, corner.shape)].astype(np.float64)
         owner = _numpy_box_owner(boxes, depth.shape[1:])[valid[0]]
-        got = boxes_pass(boxes, valid[0], d, x, y, z, part, size, cfg.voxel, cfg.cell, cfg.inside, cfg.min_share,
-                         cfg.front_share, np.float32(cfg.behind), cfg.part_share, np.float32(cfg.part_behind))
-        assert all(len(g) == len(boxes) for g in got)
+        keys, points, key_at, cells, cell_at, core, core_at = boxes_pass(
+            boxes, valid[0], d, x, y, z, part, size, cfg.voxel, cfg.cell, cfg.inside, cfg.min_share,
+            cfg.front_share, np.float32(cfg.behind), cfg.part_share, np.float32(cfg.part_behind))
+        assert len(key_at) == len(cell_at) == len(core_at) == len(boxes) + 1
         for b in range(len(boxes)):
             want = _numpy_box_points(d, x, y, z, part, size, np.flatnonzero(owner == b), cfg)
-            for g, w in zip((got[0][b], got[2][b], got[1][b], got[3][b]), want):
+            got = (keys[key_at[b]:key_at[b + 1]], cells[cell_at[b]:cell_at[b + 1]], points[key_at[b]:key_at[b + 1]],
+                   core[core_at[b]:core_at[b + 1]])
+            for g, w in zip(got, want):
                 np.testing.assert_array_equal(g, w, err_msg=f"trial {trial}, box {b}")
 
 

@@ -23,7 +23,7 @@ EMPTY = np.iinfo(np.int64).min  # no key: cube keys are non-negative
 _MIX = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find(parent, i):
     root = i
     while parent[root] != root:
@@ -33,7 +33,7 @@ def _find(parent, i):
     return root
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _union(parent, a, b):
     ra, rb = _find(parent, a), _find(parent, b)
     if ra != rb:  # the smaller index stays the root: a segment's root is its first pixel
@@ -43,7 +43,7 @@ def _union(parent, a, b):
             parent[ra] = rb
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def label_segments(d, valid, edge_abs, edge_rel):
     """(count, labels (k,)): the ``valid`` pixels of frames ``d`` (F, h, w) cut where two
     4-neighbours lie further apart than ``edge_abs + edge_rel * depth`` (the nearer's), each
@@ -82,7 +82,7 @@ def label_segments(d, valid, edge_abs, edge_rel):
     return count, labels[:m]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def back_project(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, floor_z):
     """Frames' depth (F, H, W) (0: no return) along rays rx, ry, rz (H, W) from robots at
     px, py (F,) facing cos, sin (F,): the valid mask (F, H, W) (a return above ``floor_z``),
@@ -116,7 +116,7 @@ def back_project(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, flo
     return valid, d, x, y, z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _number(keys, slot_key, slot_id, ids):
     """Number ``keys`` by first appearance into ``ids`` with an empty table (slot_key,
     slot_id): their count, or -1 once the table is more than half full."""
@@ -139,7 +139,7 @@ def _number(keys, slot_key, slot_id, ids):
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def group_ids(keys):
     """(ids (K,), G): each of int64 ``keys`` (K,) numbered by the first appearance of its
     value, and the number of distinct values; one pass over a hash table, begun with a
@@ -156,7 +156,7 @@ def group_ids(keys):
         size *= 4
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def grow_ranks(part, cell, held, beside, segments, cells, share):
     """Rule 7 on one cloud: points' segments ``part`` (k,) and cells ``cell`` (k,) (indices
     into the cells' ``held`` (C,): the instance holding each, -1 none, and ``beside`` (C,):
@@ -212,7 +212,7 @@ def grow_ranks(part, cell, held, beside, segments, cells, share):
     return rank, grown[:r]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slot(keys, key, mask):
     h = np.uint64(key) * _MIX
     h ^= h >> np.uint64(29)
@@ -222,14 +222,14 @@ def _slot(keys, key, mask):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lookup(keys, values, key):
     """The value of ``key`` in a table's arrays (:class:`HashTable`), -1 if not held."""
     s = _slot(keys, key, len(keys) - 1)
     return values[s] if keys[s] == key else -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def room(keys, values, n, extra):
     """A table's arrays (keys, values) holding ``n`` keys with room for ``extra`` more: the
     same, or doubled until those would fill it to at most half. (Called before a loop that
@@ -248,7 +248,7 @@ def room(keys, values, n, extra):
     return keys, values
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def put(keys, values, key, value):
     """Record ``key`` -> ``value`` in a table's arrays that have room (:func:`room`), if the
     key is not held yet; whether it was new."""
@@ -259,13 +259,13 @@ def put(keys, values, key, value):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _get(keys, values, query, out):
     for j in range(len(query)):
         out[j] = lookup(keys, values, query[j])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add(keys, values, n, new, vals):
     keys, values = room(keys, values, n, len(new))
     for j in range(len(new)):

@@ -63,7 +63,7 @@ def depth_rays(camera, w: int, h: int) -> tuple:
 _KEYS, _POINTS = types.int64[::1], types.float64[:, ::1]  # a box's keys, its points
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def off_walls(x, y, z, walls, held, wall_cell, wall_above):
     """Rule 10 on points x, y, z (k,): the ``wall_cell`` plan-view cells of those higher than
     ``wall_above`` join ``walls``; then which points lie off the walls (k,), the walls table,
@@ -90,7 +90,7 @@ def off_walls(x, y, z, walls, held, wall_cell, wall_above):
     return keep, (wk, wv, wn), hit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cloud_pass(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, floor_z, walls, held, wall_cell,
                wall_above, edge_abs, edge_rel):
     """Frames' depth (F, H, W) to their cloud: the pixels above the floor back-projected
@@ -122,7 +122,7 @@ def cloud_pass(depth, rx, ry, rz, cos, sin, px, py, mount_height, mount_x, floor
     return valid, d, x, y, z, part, size, walls, hit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, extent, margin, share):
     """Rule 7 on a cloud (points x, y, z, segment ``part`` (k,), ``segments`` S): each
     segment's instance (:func:`grow_ranks`, over its distinct ``cell_size`` cells, the
@@ -166,7 +166,7 @@ def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, ex
     return grown, take, rank[take], keys, cell[take]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _first_by_rank(keys, rank, ranks):
     """The first entry of the lowest rank of each distinct key of ``keys`` (n,) (ranks below
     ``ranks``): their indices, ordered by rank (stably). One pass over a small table of the
@@ -184,7 +184,7 @@ def _first_by_rank(keys, rank, ranks):
     return order
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
     """Rules 3-4: instances ``insts`` (R,), one after the other, take the voxels ``keys``
     (V,) of their points (each of instance ``insts[rank]``) that no instance holds in
@@ -225,7 +225,7 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
     return new, (ok, ov, on), (ck, cv, cn), (nk, nv, nn)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _box_owner(boxes, valid):
     """(k,) the box each valid pixel (valid (H, W), row-major) lies most inside (rule 1), -1
     outside every box; each box is measured over its own rows and columns only."""
@@ -252,7 +252,7 @@ def _box_owner(boxes, valid):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _distinct(keys):
     """The distinct ``keys`` ascending and the index of each one's first entry (np.unique's
     with ``return_index``): grouped by a hash table, then only the distinct ones sorted."""
@@ -266,7 +266,7 @@ def _distinct(keys):
     return out[order], first[order]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _keys_of(x, y, z, take, size):
     out = np.empty(len(take), np.int64)
     for j in range(len(take)):
@@ -274,7 +274,7 @@ def _keys_of(x, y, z, take, size):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, min_share, front_share, behind,
                part_share, part_behind):
     """Rules 1-3 for every box (D, 4) of one frame's cloud (valid (H, W); per point (k,)
@@ -285,8 +285,8 @@ def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, mi
     behind it; then binned into voxels and cells (rules 3-4).
     ``behind`` and ``part_behind`` come in the depth's precision, as numpy adds them.
 
-    Returns per box, concatenated with bounds (D + 1,) each: its voxel keys ascending and
-    their first points (V, 3); its cells ascending; its core cells (those of the object's
+    Returns per box, concatenated, each with its bounds (D + 1,): its voxel keys ascending,
+    and their first points (V, 3); its cells ascending; its core cells (those of the object's
     own segment, or its cells when that segment is all it took)."""
     owner = _box_owner(boxes, valid)
     d_boxes = len(boxes)
@@ -358,10 +358,26 @@ def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, mi
         pts_l.append(firsts)
         cells_l.append(cells)
         core_l.append(cells if whole else _distinct(_keys_of(x, y, z, core, cell))[0])
-    return keys_l, pts_l, cells_l, core_l
+    keys, key_at = _joined(keys_l)
+    points = np.empty((len(keys), 3))
+    for b in range(d_boxes):
+        points[key_at[b]:key_at[b + 1]] = pts_l[b]
+    return keys, points, key_at, *_joined(cells_l), *_joined(core_l)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
+def _joined(arrays):
+    """Arrays (a typed list) end to end, and their bounds (len + 1,)."""
+    at = np.zeros(len(arrays) + 1, np.int64)
+    for i in range(len(arrays)):
+        at[i + 1] = at[i] + len(arrays[i])
+    out = np.empty(at[-1], np.int64)
+    for i in range(len(arrays)):
+        out[at[i]:at[i + 1]] = arrays[i]
+    return out, at
+
+
+@njit(cache=True, nogil=True)
 def publish_pass(pts, walls, held, wall_cell):
     """Rule 10 for points entering the map (pts (n, 3)): those off the walls' plan-view
     ``wall_cell`` cells (m, 3), in order, and the ``held`` table with their cells added."""

@@ -50,6 +50,7 @@ class PerceivedMapper(Mapper):
     protocol (:mod:`rosmeery_jax.mapping.protocol`)."""
 
     name = "perceived"
+    built_in = True
 
     def __init__(self, camera: Camera, categories: tuple[str, ...] = (), cfg: PerceivedConfig = PerceivedConfig()):
         super().__init__(camera, categories)
@@ -217,11 +218,13 @@ class PerceivedMapper(Mapper):
     def _box_points(self, cloud: Cloud, boxes: np.ndarray) -> list[Boxed]:
         """Each box's points (boxes (D, 4)) in a one-frame cloud (rules 1-3)."""
         cfg, kind = self.cfg, cloud.depth.dtype.type  # margins in the depth's precision, as numpy adds them
-        keys, points, cells, core = boxes_pass(
+        keys, points, key_at, cells, cell_at, core, core_at = boxes_pass(
             boxes, cloud.valid[0], cloud.depth, cloud.x, cloud.y, cloud.z, cloud.part, cloud.size, float(cfg.voxel),
             float(cfg.cell), float(cfg.inside), float(cfg.min_share), float(cfg.front_share), kind(cfg.behind),
             float(cfg.part_share), kind(cfg.part_behind))
-        return [Boxed(*b) for b in zip(keys, cells, points, core)]
+        return [Boxed(keys[a:b], cells[c:d], points[a:b], core[e:f])
+                for a, b, c, d, e, f in zip(key_at[:-1], key_at[1:], cell_at[:-1], cell_at[1:], core_at[:-1],
+                                            core_at[1:])]
 
     def _cloud(self, pose: np.ndarray, depth: np.ndarray, rays: tuple, cfg: PerceivedConfig) -> Cloud:
         """F frames' depth pixels above the floor and off the walls (rule 10), in the world

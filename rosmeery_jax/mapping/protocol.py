@@ -120,6 +120,9 @@ class Mapper(ABC):
     and implement :meth:`add` and :meth:`semantic_map`. One instance per robot."""
 
     name = "mapper"
+    # the built-in mappers: maps well formed, and arrays never changed once handed out, so a
+    # session takes them as they are (a plugin's are checked and copied: :func:`check_map`)
+    built_in = False
 
     def __init__(self, camera: Camera, categories: tuple[str, ...]):
         self.camera, self.categories = camera, categories
@@ -229,6 +232,13 @@ def check_map(spec: str, m, categories: int, source: tuple[str, str] | None = No
                     conf.astype(np.float32))
 
 
+def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether arrays a and b view the same memory the same way (a built-in mapper's points
+    handed out again: equal without reading them; points are finite)."""
+    return (a.shape == b.shape and a.strides == b.strides and a.dtype == b.dtype
+            and a.__array_interface__["data"][0] == b.__array_interface__["data"][0])
+
+
 class OnlineScorer:
     """Scores one robot's maps as they grow (module docstring): ``score(map) -> Score``.
 
@@ -258,7 +268,8 @@ class OnlineScorer:
         """Score map ``m``; ``ties`` (V,): its points' tied samples when the caller knows
         them (a map of ground-truth samples), else each new point is looked up."""
         old = len(self.points)
-        if not (len(m.points) >= old and np.array_equal(m.points[:old], self.points)):
+        if not (len(m.points) >= old and (_same_memory(m.points[:old], self.points)
+                                          or np.array_equal(m.points[:old], self.points))):
             self._clear()
             old = 0
         elif not np.array_equal(m.instance[:old], self.instance):  # instances merged: same ties, new pairs

@@ -18,14 +18,14 @@ def cube_keys(xyz: tuple, size: float) -> np.ndarray:
     return _cube_keys(x.ravel(), y.ravel(), z.ravel(), kind.type(size)).reshape(x.shape)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cube_key(x, y, z, size):
     """The cube key of one point, for compiled code (:func:`cube_keys`' arithmetic)."""
     return ((np.int64(np.floor(x / size)) + (1 << 20)) << 42) | \
         ((np.int64(np.floor(y / size)) + (1 << 20)) << 21) | (np.int64(np.floor(z / size)) + (1 << 20))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cube_keys(x, y, z, size):
     out = np.empty(len(x), np.int64)
     for i in range(len(x)):
@@ -67,7 +67,7 @@ class Rows:
         return self._buf[:self._n]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def first_of_lowest_rank(keys, rank):
     """Of entries with int64 keys (K,) and ranks (K,), the first of the lowest rank for each
     distinct key: their indices, one per key (in no set order). One pass over a hash table."""

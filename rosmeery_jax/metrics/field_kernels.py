@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def near(points, base, instance, origin, cell, dims, start, order, samples, sample_class, r2, seg_r2, taus2,
          point_d2, sample_d2, sample_point, samples_in, samples_sum, near_class):
     """For new map points (k, 3), numbered ``base``, ``base + 1``, ... (``instance`` the ids
@@ -64,7 +64,7 @@ def near(points, base, instance, origin, cell, dims, start, order, samples, samp
                             sample_point[s] = base + j
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _clip(xs, ys, n, axis, bound, keep_below):
     """Sutherland-Hodgman: the convex polygon (xs, ys)[:n] clipped to one half-plane
     (coordinate ``axis`` <= bound if keep_below, else >= bound). Returns new arrays, count."""
@@ -86,7 +86,7 @@ def _clip(xs, ys, n, axis, bound, keep_below):
     return ox, oy, m
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def box_iou(lo, hi, center, size, yaw):
     """3D IoU of the axis-aligned cuboid [lo, hi] (3,) and the cuboid of ``size`` (3,)
     centred at ``center`` (3,), turned by ``yaw`` about z (0 when either has no volume)."""
@@ -112,7 +112,7 @@ def box_iou(lo, hi, center, size, yaw):
     return inter / (va + vb - inter)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def in_box(p, center, size, yaw):
     """Whether point p (3,) lies inside the cuboid of ``size`` centred at ``center``, turned by ``yaw``."""
     dx, dy = p[0] - center[0], p[1] - center[1]
@@ -121,7 +121,7 @@ def in_box(p, center, size, yaw):
     return abs(u) <= size[0] / 2 and abs(v) <= size[1] / 2 and abs(p[2] - center[2]) <= size[2] / 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def class_ap(iou, conf, threshold):
     """ScanNet's AP of one class at one IoU threshold: ``iou`` (P, G) of the class's P
     predictions (in their order) with its G > 0 ground-truth instances, ``conf`` (P,).
@@ -188,7 +188,7 @@ def class_ap(iou, conf, threshold):
     return ap
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def box_ious(lo, hi, usable, center, size, yaw):
     """(N, K) :func:`box_iou` of K axis-aligned cuboids (lo, hi (K, 3); ``usable`` (K,) False:
     no cuboid, IoU 0) with N yaw-rotated ones (center, size (N, 3), yaw (N,))."""
@@ -203,7 +203,7 @@ def box_ious(lo, hi, usable, center, size, yaw):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def containment(centroid, lo, hi, same, center, size, yaw):
     """(K, N) weak: the K instances' centroids inside the N objects' boxes, where ``same``
     (K, N); strict: also the box's centre inside the instance's cuboid [lo, hi]."""
@@ -219,7 +219,7 @@ def containment(centroid, lo, hi, same, center, size, yaw):
     return weak, strict
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def class_aps(overlap, label, conf, category, classes, thresholds):
     """(C, T) :func:`class_ap` of each class at each threshold: ``overlap`` (K, N) of the K
     proposals (labels (K,), confidences (K,)) with the N objects (categories (N,))."""
