@@ -137,14 +137,24 @@ def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, ex
     for i in range(k):
         cell[i] = cube_key(x[i], y[i], z[i], cell_size)
     cell_ix, n_cells = group_ids(cell)
-    held, beside = np.empty(n_cells, np.int64), np.empty(n_cells, np.int64)
-    first = np.full(n_cells, -1, np.int64)
-    for i in range(k):  # each cell looked up once, at its first point
-        if first[cell_ix[i]] < 0:
-            first[cell_ix[i]] = i
+    held, beside = np.full(n_cells, -2, np.int64), np.full(n_cells, -2, np.int64)  # -2: not read
+    candidate = np.zeros(segments, np.bool_)  # segments holding a held cell: only they can grow
+    for i in range(k):  # each cell read once, at its first point
+        if held[cell_ix[i]] == -2:
             held[cell_ix[i]] = root[lookup(claimed[0], claimed[1], cell[i])]
-            beside[cell_ix[i]] = root[lookup(near[0], near[1], cell[i])]
-    rank, grown = grow_ranks(part, cell_ix, held, beside, segments, n_cells, share)
+        candidate[part[i]] |= held[cell_ix[i]] >= 0
+    at = np.empty(k, np.int64)  # the points of candidate segments
+    n = 0
+    for i in range(k):
+        if candidate[part[i]]:
+            at[n] = i
+            n += 1
+            if beside[cell_ix[i]] == -2:
+                beside[cell_ix[i]] = root[lookup(near[0], near[1], cell[i])]
+    at = at[:n]
+    ranked, grown = grow_ranks(part[at], cell_ix[at], held, beside, segments, n_cells, share)
+    rank = np.full(k, -1, np.int64)
+    rank[at] = ranked
     take = np.empty(k, np.int64)
     t = 0
     if len(grown):
