@@ -18,8 +18,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, types
-from numba.typed import List
+from numba import njit
 
 from rosmeery_jax.mapping.kernels import back_project, group_ids, grow_ranks, label_segments, lookup, put, room
 from rosmeery_jax.mapping.voxel_table import NEIGHBOURS, cube_key, first_of_lowest_rank
@@ -58,9 +57,6 @@ def depth_rays(camera, w: int, h: int) -> tuple:
     axis = np.array([np.cos(camera.pitch), 0.0, -np.sin(camera.pitch)])
     rays = (rays / (rays @ axis)[:, None]).reshape(h, w, 3)
     return tuple(np.ascontiguousarray(rays[..., i]) for i in range(3))
-
-
-_KEYS, _POINTS = types.int64[::1], types.float64[:, ::1]  # a box's keys, its points
 
 
 @njit(cache=True, nogil=True)
@@ -177,18 +173,15 @@ def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, ex
 
 
 @njit(cache=True, nogil=True)
-def _first_by_rank(keys, rank, ranks):
-    """The first entry of the lowest rank of each distinct key of ``keys`` (n,) (ranks below
-    ``ranks``): their indices, ordered by rank (stably). One pass over a small table of the
-    entries alone: the large tables are then read once per distinct key."""
-    first = first_of_lowest_rank(keys, rank)
+def _by_rank(at, rank, ranks):
+    """Indices ``at`` ordered by their ``rank`` (below ``ranks``), stably: a counting sort."""
     start = np.zeros(ranks + 1, np.int64)
-    for i in first:
+    for i in at:
         start[rank[i] + 1] += 1
     for r in range(ranks):
         start[r + 1] += start[r]
-    order = np.empty(len(first), np.int64)
-    for i in first:
+    order = np.empty(len(at), np.int64)
+    for i in at:
         order[start[rank[i]]] = i
         start[rank[i]] += 1
     return order
@@ -205,7 +198,7 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
     Returns the voxels taken (indices into ``keys``), ordered by rank, then key, and the
     three tables."""
     ok, ov, on = owner
-    first = _first_by_rank(keys, rank, len(insts))
+    first = _by_rank(first_of_lowest_rank(keys, rank), rank, len(insts))  # a large table read once per key
     new = np.empty(len(first), np.int64)
     m = 0
     ok, ov = room(ok, ov, on, len(first))
@@ -215,11 +208,10 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
             new[m] = i
             m += 1
     new = new[:m]
-    new = new[np.argsort(keys[new])]  # distinct keys
-    new = new[np.argsort(rank[new], kind="mergesort")]
+    new = _by_rank(new[np.argsort(keys[new])], rank, len(insts))  # by rank, then key (the keys are distinct)
     ck, cv, cn = claimed
     nk, nv, nn = near
-    first = _first_by_rank(cells, cell_rank, len(insts))
+    first = _by_rank(first_of_lowest_rank(cells, cell_rank), cell_rank, len(insts))
     ck, cv = room(ck, cv, cn, len(first))
     fresh = np.empty(len(first), np.int64)
     f = 0
@@ -285,18 +277,63 @@ def _keys_of(x, y, z, take, size):
 
 
 @njit(cache=True, nogil=True)
+def _object_points(pts, part, depth, size, count, near, inside, min_share, front_share, behind, part_share,
+                   part_behind):
+    """Rule 2 for one box, its points ``pts`` (n,) (indices, ascending): of the segments with
+    at least ``inside`` of their points in the box, the nearest holding ``min_share`` of the
+    box's points, unless one holding ``front_share`` stands ``behind`` nearer; with its
+    parts, those holding ``part_share`` at most ``part_behind`` behind it. Returns the points
+    taken, those of the object's own segment, and whether that segment is all it took.
+    ``count`` and ``near`` (S,) are scratch: zeros, and left so."""
+    n = len(pts)
+    for p in pts:
+        count[part[p]] += 1
+    near[:] = np.inf
+    for p in pts:  # each segment's nearest point in the box
+        near[part[p]] = min(near[part[p]], depth[p])
+    obj = -1  # the fit: the nearest segment holding min_share of the box
+    front = np.empty(1, near.dtype)  # the nearest segment holding front_share, in the depth's precision
+    front[0] = np.inf
+    for s in range(len(size)):
+        ins = count[s] > 0 and count[s] >= inside * size[s]
+        if ins and count[s] >= min_share * n and (obj < 0 or near[s] < near[obj]):
+            obj = s
+        if ins and count[s] >= min(front_share, min_share) * n:
+            front[0] = min(front[0], near[s])
+    take, core, whole = pts[:0], pts[:0], True
+    if obj >= 0 and not near[obj] > front[0] + behind:  # no thin thing in front of it
+        parts = np.zeros(len(size), np.bool_)
+        for s in range(len(size)):
+            parts[s] = (count[s] > 0 and count[s] >= inside * size[s] and count[s] >= part_share * n
+                        and near[s] >= near[obj] and near[s] <= near[obj] + part_behind)
+        parts[obj] = True
+        whole = parts.sum() <= 1
+        take, core = np.empty(n, np.int64), np.empty(n, np.int64)
+        m, c = 0, 0
+        for p in pts:
+            if parts[part[p]]:
+                take[m] = p
+                m += 1
+            if part[p] == obj:
+                core[c] = p
+                c += 1
+        take, core = take[:m], core[:c]
+    for p in pts:
+        count[part[p]] = 0
+    return take, core, whole
+
+
+@njit(cache=True, nogil=True)
 def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, min_share, front_share, behind,
                part_share, part_behind):
     """Rules 1-3 for every box (D, 4) of one frame's cloud (valid (H, W); per point (k,)
-    depth, x, y, z, segment ``part``; ``size`` (S,) each segment's points): each box's
-    points (rule 2): of the segments with at least ``inside`` of their points in the box, the
-    nearest holding ``min_share`` of the box's points, unless one holding ``front_share`` stands
-    ``behind`` nearer; with its parts, those holding ``part_share`` at most ``part_behind``
-    behind it; then binned into voxels and cells (rules 3-4).
-    ``behind`` and ``part_behind`` come in the depth's precision, as numpy adds them.
+    depth, x, y, z, segment ``part``; ``size`` (S,) each segment's points): the pixels each
+    box holds most (rule 1), its object's points among them (:func:`_object_points`, rule 2),
+    binned into voxels and cells (rules 3-4). ``behind`` and ``part_behind`` come in the
+    depth's precision, as numpy adds them.
 
-    Returns per box, concatenated, each with its bounds (D + 1,): its voxel keys ascending,
-    and their first points (V, 3); its cells ascending; its core cells (those of the object's
+    Returns per box, end to end, each with its bounds (D + 1,): its voxel keys ascending and
+    their first points (V, 3); its cells ascending; its core cells (those of the object's
     own segment, or its cells when that segment is all it took)."""
     owner = _box_owner(boxes, valid)
     d_boxes = len(boxes)
@@ -312,79 +349,27 @@ def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, mi
         if owner[i] >= 0:
             mine[fill[owner[i]]] = i
             fill[owner[i]] += 1
-    keys_l, cells_l, core_l = List.empty_list(_KEYS), List.empty_list(_KEYS), List.empty_list(_KEYS)
-    pts_l = List.empty_list(_POINTS)
-    count = np.zeros(len(size), np.int64)
-    near = np.empty(len(size), depth.dtype)
+    n = len(mine)  # a box gives at most a key, cell and core cell per point it holds
+    keys, points, cells, core = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64), np.empty(n, np.int64)
+    key_at, cell_at, core_at = np.zeros(d_boxes + 1, np.int64), np.zeros(d_boxes + 1, np.int64), \
+        np.zeros(d_boxes + 1, np.int64)
+    count, near = np.zeros(len(size), np.int64), np.empty(len(size), depth.dtype)
     for b in range(d_boxes):
-        pts = mine[mine_at[b]:mine_at[b + 1]]
-        n = len(pts)
-        for p in pts:
-            count[part[p]] += 1
-        near[:] = np.inf
-        for p in pts:  # each segment's nearest point in the box
-            near[part[p]] = min(near[part[p]], depth[p])
-        obj = -1  # the fit: the nearest segment holding min_share of the box
-        front = np.empty(1, near.dtype)  # the nearest segment holding front_share, in the depth's precision
-        front[0] = np.inf
-        for s in range(len(size)):
-            ins = count[s] > 0 and count[s] >= inside * size[s]
-            if ins and count[s] >= min_share * n and (obj < 0 or near[s] < near[obj]):
-                obj = s
-            if ins and count[s] >= min(front_share, min_share) * n:
-                front[0] = min(front[0], near[s])
-        take = pts[:0]
-        core = pts[:0]
-        whole = True
-        if obj >= 0 and not near[obj] > front[0] + behind:  # no thin thing in front of it
-            parts = np.zeros(len(size), np.bool_)
-            for s in range(len(size)):
-                parts[s] = (count[s] > 0 and count[s] >= inside * size[s] and count[s] >= part_share * n
-                            and near[s] >= near[obj] and near[s] <= near[obj] + part_behind)
-            parts[obj] = True
-            whole = parts.sum() <= 1
-            sel = np.empty(n, np.int64)
-            m, c = 0, 0
-            for p in pts:
-                if parts[part[p]]:
-                    sel[m] = p
-                    m += 1
-            take = sel[:m]
-            if not whole:
-                core = np.empty(n, np.int64)
-                for p in pts:
-                    if part[p] == obj:
-                        core[c] = p
-                        c += 1
-                core = core[:c]
-        for p in pts:
-            count[part[p]] = 0
-        keys, first = _distinct(_keys_of(x, y, z, take, voxel))
-        firsts = np.empty((len(first), 3))
+        take, own, whole = _object_points(mine[mine_at[b]:mine_at[b + 1]], part, depth, size, count, near, inside,
+                                          min_share, front_share, behind, part_share, part_behind)
+        k, first = _distinct(_keys_of(x, y, z, take, voxel))
+        key_at[b + 1] = key_at[b] + len(k)
+        keys[key_at[b]:key_at[b + 1]] = k
         for j in range(len(first)):
-            firsts[j, 0], firsts[j, 1], firsts[j, 2] = x[take[first[j]]], y[take[first[j]]], z[take[first[j]]]
-        cells = keys if cell == voxel else _distinct(_keys_of(x, y, z, take, cell))[0]
-        keys_l.append(keys)
-        pts_l.append(firsts)
-        cells_l.append(cells)
-        core_l.append(cells if whole else _distinct(_keys_of(x, y, z, core, cell))[0])
-    keys, key_at = _joined(keys_l)
-    points = np.empty((len(keys), 3))
-    for b in range(d_boxes):
-        points[key_at[b]:key_at[b + 1]] = pts_l[b]
-    return keys, points, key_at, *_joined(cells_l), *_joined(core_l)
-
-
-@njit(cache=True, nogil=True)
-def _joined(arrays):
-    """Arrays (a typed list) end to end, and their bounds (len + 1,)."""
-    at = np.zeros(len(arrays) + 1, np.int64)
-    for i in range(len(arrays)):
-        at[i + 1] = at[i] + len(arrays[i])
-    out = np.empty(at[-1], np.int64)
-    for i in range(len(arrays)):
-        out[at[i]:at[i + 1]] = arrays[i]
-    return out, at
+            q = key_at[b] + j
+            points[q, 0], points[q, 1], points[q, 2] = x[take[first[j]]], y[take[first[j]]], z[take[first[j]]]
+        c = k if cell == voxel else _distinct(_keys_of(x, y, z, take, cell))[0]
+        cell_at[b + 1] = cell_at[b] + len(c)
+        cells[cell_at[b]:cell_at[b + 1]] = c
+        o = c if whole else _distinct(_keys_of(x, y, z, own, cell))[0]
+        core_at[b + 1] = core_at[b] + len(o)
+        core[core_at[b]:core_at[b + 1]] = o
+    return keys[:key_at[-1]], points[:key_at[-1]], key_at, cells[:cell_at[-1]], cell_at, core[:core_at[-1]], core_at
 
 
 @njit(cache=True, nogil=True)

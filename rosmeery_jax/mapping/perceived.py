@@ -401,13 +401,6 @@ def mapper_for(spec: str) -> type:
     return PerceivedMapper if spec == "perceived" else mapper_class(spec)
 
 
-def _by_box(owner: np.ndarray, boxes: int) -> list[np.ndarray]:
-    """Each box's points (indices, ascending) from the box each point lies most inside (k,)."""
-    order = np.argsort(owner, kind="stable")
-    bounds = np.searchsorted(owner[order], np.arange(boxes + 1))
-    return [order[bounds[i]:bounds[i + 1]] for i in range(boxes)]
-
-
 def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The box (2, D) holding boxes a and b (2, D) (lower corner, upper corner)."""
     return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
