@@ -250,3 +250,23 @@ def test_the_grow_pass_is_the_numpy_growth():
                 np.testing.assert_array_equal(g, w, err_msg=f"trial {trial}")
         else:
             assert not len(got[0]) and not len(got[1])
+
+
+def test_the_compiled_cache_is_dropped_when_a_file_compiled_with_it_changes(tmp_path):
+    from rosmeery_jax.mapping.kernels import drop_stale_cache
+
+    names = ("a.py", "b.py")
+    for n in names:
+        (tmp_path / n).write_text("x = 1\n")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    old = [cache / "b.f-1.py311.nbi", cache / "b.f-1.py311.1.nbc"]
+    for f in [*old, cache / "b.cpython-311.pyc"]:
+        f.write_bytes(b"compiled")
+    assert drop_stale_cache(tmp_path, names) and not any(f.exists() for f in old)  # no record: dropped
+    for f in old:
+        f.write_bytes(b"compiled")
+    assert not drop_stale_cache(tmp_path, names) and all(f.exists() for f in old)  # unchanged: kept
+    (tmp_path / "a.py").write_text("x = 2\n")  # a kernel the cached code of b.py calls
+    assert drop_stale_cache(tmp_path, names) and not any(f.exists() for f in old)
+    assert (cache / "b.cpython-311.pyc").exists()  # Python's own cache is not numba's

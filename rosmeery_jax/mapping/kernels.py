@@ -16,8 +16,36 @@ tests compare them), so the maps are bitwise those of before.
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import numpy as np
 from numba import njit
+
+COMPILED_TOGETHER = ("kernels.py", "voxel_table.py", "passes.py")  # files whose njit code calls each other's
+
+
+def drop_stale_cache(folder: Path = Path(__file__).parent, names: tuple[str, ...] = COMPILED_TOGETHER) -> bool:
+    """Numba's disk cache checks only a function's own file, so a pass keeps the kernels of
+    another file it was compiled with: when any of ``names`` in ``folder`` changed since the
+    cache was written, the cache (``__pycache__/*.nbi``, ``*.nbc``) is dropped, to be
+    compiled afresh. Whether it was dropped; a cache that cannot be written is left alone."""
+    stamp = hashlib.sha256(b"".join((folder / n).read_bytes() for n in names)).hexdigest()
+    cache = folder / "__pycache__"
+    mark = cache / "numba-sources.sha256"
+    try:
+        if mark.is_file() and mark.read_text() == stamp:
+            return False
+        for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+            f.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        mark.write_text(stamp)
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_cache()
 
 EMPTY = np.iinfo(np.int64).min  # no key: cube keys are non-negative
 _MIX = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing
