@@ -211,8 +211,9 @@ def test_the_claim_pass_is_the_numpy_claim():
         tables = [_table(rng, 10) for _ in range(3)]
         want_tables = [_copy(t) for t in tables]
         want = _numpy_claim(insts, keys, rank, cells, cell_rank, *want_tables)
-        got, *arrays = claim_pass(insts, keys, rank, cells, cell_rank, *(t.arrays for t in tables))
+        got, at, *arrays = claim_pass(insts, keys, rank, cells, cell_rank, *(t.arrays for t in tables))
         np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(at, np.searchsorted(rank[got], np.arange(r + 1)))  # each rank's bounds
         probe = np.r_[keys, (cells[:, None] + NEIGHBOURS).ravel()]
         for t, a, w in zip(tables, arrays, want_tables):
             t.update(a)

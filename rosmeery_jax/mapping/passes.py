@@ -195,8 +195,8 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
     a cell newly claimed and its 26 neighbours in ``near``, where none is recorded: each
     voxel or cell goes to the first entry of the lowest rank that reaches it.
 
-    Returns the voxels taken (indices into ``keys``), ordered by rank, then key, and the
-    three tables."""
+    Returns the voxels taken (indices into ``keys``), ordered by rank, then key, with each
+    rank's bounds among them (R + 1,), and the three tables."""
     ok, ov, on = owner
     first = _by_rank(first_of_lowest_rank(keys, rank), rank, len(insts))  # a large table read once per key
     new = np.empty(len(first), np.int64)
@@ -209,6 +209,10 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
             m += 1
     new = new[:m]
     new = _by_rank(new[np.argsort(keys[new])], rank, len(insts))  # by rank, then key (the keys are distinct)
+    at = np.zeros(len(insts) + 1, np.int64)
+    for i in new:
+        at[rank[i] + 1] += 1
+    at = np.cumsum(at)
     ck, cv, cn = claimed
     nk, nv, nn = near
     first = _by_rank(first_of_lowest_rank(cells, cell_rank), cell_rank, len(insts))
@@ -224,7 +228,7 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
     for i in fresh[:f]:
         for off in NEIGHBOURS:
             nn += put(nk, nv, cells[i] + off, insts[cell_rank[i]])
-    return new, (ok, ov, on), (ck, cv, cn), (nk, nv, nn)
+    return new, at, (ok, ov, on), (ck, cv, cn), (nk, nv, nn)
 
 
 @njit(cache=True, nogil=True)

@@ -166,15 +166,15 @@ class PerceivedMapper(Mapper):
         first instance that reaches it, and its first point in that instance's points stays."""
         rank = np.ascontiguousarray(np.broadcast_to(rank, keys.shape), np.int64)
         cell_rank = np.ascontiguousarray(np.broadcast_to(cell_rank, cells.shape), np.int64)
-        new, *tables = claim_pass(np.ascontiguousarray(insts, np.int64), np.ascontiguousarray(keys, np.int64), rank,
-                                  np.ascontiguousarray(cells, np.int64), cell_rank, self.owner.arrays,
-                                  self.claimed.arrays, self.cells.arrays)
+        new, at, *tables = claim_pass(np.ascontiguousarray(insts, np.int64), np.ascontiguousarray(keys, np.int64),
+                                      rank, np.ascontiguousarray(cells, np.int64), cell_rank, self.owner.arrays,
+                                      self.claimed.arrays, self.cells.arrays)
         for table, arrays in zip((self.owner, self.claimed, self.cells), tables):
             table.update(arrays)
-        split = np.searchsorted(rank[new], np.arange(1, len(insts)))  # ordered by instance: one batch each
-        for inst, batch in zip(insts.tolist(), np.split(pts[new], split)):
-            if len(batch):
-                self.pending[inst].append(batch)
+        taken = pts[new]  # ordered by instance: one batch each
+        for inst, a, b in zip(insts.tolist(), at[:-1].tolist(), at[1:].tolist()):
+            if b > a:
+                self.pending[inst].append(taken[a:b])
             self._publish(inst)
 
     def _grow(self, cloud: Cloud) -> None:
