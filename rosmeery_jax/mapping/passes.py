@@ -174,17 +174,19 @@ def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, ex
 
 @njit(cache=True, nogil=True)
 def _by_rank(at, rank, ranks):
-    """Indices ``at`` ordered by their ``rank`` (below ``ranks``), stably: a counting sort."""
-    start = np.zeros(ranks + 1, np.int64)
+    """Indices ``at`` ordered by their ``rank`` (below ``ranks``), stably (a counting sort),
+    and each rank's bounds among them (ranks + 1,)."""
+    bounds = np.zeros(ranks + 1, np.int64)
     for i in at:
-        start[rank[i] + 1] += 1
+        bounds[rank[i] + 1] += 1
     for r in range(ranks):
-        start[r + 1] += start[r]
+        bounds[r + 1] += bounds[r]
+    fill = bounds[:-1].copy()
     order = np.empty(len(at), np.int64)
     for i in at:
-        order[start[rank[i]]] = i
-        start[rank[i]] += 1
-    return order
+        order[fill[rank[i]]] = i
+        fill[rank[i]] += 1
+    return order, bounds
 
 
 @njit(cache=True, nogil=True)
@@ -198,7 +200,7 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
     Returns the voxels taken (indices into ``keys``), ordered by rank, then key, with each
     rank's bounds among them (R + 1,), and the three tables."""
     ok, ov, on = owner
-    first = _by_rank(first_of_lowest_rank(keys, rank), rank, len(insts))  # a large table read once per key
+    first = _by_rank(first_of_lowest_rank(keys, rank), rank, len(insts))[0]  # a large table read once per key
     new = np.empty(len(first), np.int64)
     m = 0
     ok, ov = room(ok, ov, on, len(first))
@@ -208,14 +210,10 @@ def claim_pass(insts, keys, rank, cells, cell_rank, owner, claimed, near):
             new[m] = i
             m += 1
     new = new[:m]
-    new = _by_rank(new[np.argsort(keys[new])], rank, len(insts))  # by rank, then key (the keys are distinct)
-    at = np.zeros(len(insts) + 1, np.int64)
-    for i in new:
-        at[rank[i] + 1] += 1
-    at = np.cumsum(at)
+    new, at = _by_rank(new[np.argsort(keys[new])], rank, len(insts))  # by rank, then key (the keys are distinct)
     ck, cv, cn = claimed
     nk, nv, nn = near
-    first = _by_rank(first_of_lowest_rank(cells, cell_rank), cell_rank, len(insts))
+    first = _by_rank(first_of_lowest_rank(cells, cell_rank), cell_rank, len(insts))[0]
     ck, cv = room(ck, cv, cn, len(first))
     fresh = np.empty(len(first), np.int64)
     f = 0
@@ -341,18 +339,7 @@ def boxes_pass(boxes, valid, depth, x, y, z, part, size, voxel, cell, inside, mi
     own segment, or its cells when that segment is all it took)."""
     owner = _box_owner(boxes, valid)
     d_boxes = len(boxes)
-    mine_at = np.zeros(d_boxes + 1, np.int64)  # each box's points, ascending: a counting sort by owner
-    for o in owner:
-        if o >= 0:
-            mine_at[o + 1] += 1
-    for b in range(d_boxes):
-        mine_at[b + 1] += mine_at[b]
-    mine = np.empty(mine_at[-1], np.int64)
-    fill = mine_at[:-1].copy()
-    for i in range(len(owner)):
-        if owner[i] >= 0:
-            mine[fill[owner[i]]] = i
-            fill[owner[i]] += 1
+    mine, mine_at = _by_rank(np.flatnonzero(owner >= 0), owner, d_boxes)  # each box's points, ascending
     n = len(mine)  # a box gives at most a key, cell and core cell per point it holds
     keys, points, cells, core = np.empty(n, np.int64), np.empty((n, 3)), np.empty(n, np.int64), np.empty(n, np.int64)
     key_at, cell_at, core_at = np.zeros(d_boxes + 1, np.int64), np.zeros(d_boxes + 1, np.int64), \

@@ -88,17 +88,13 @@ class PerceivedMapper(Mapper):
     @property
     def instances(self) -> int:
         """Instances in the map (confirmed, and not merged into another)."""
-        return int((self._confirmed() & (self._roots()[:-1] == np.arange(len(self.parent)))).sum())
+        root = self._roots()
+        return sum(root[i] == i and self._confirmed(i) for i in range(len(self.parent)))
 
-    def _confirmed(self, inst: int | slice = slice(None)) -> np.ndarray:
-        """Which instances (all, or ``inst``) are confirmed (rule 6)."""
-        views, conf = np.array(self.views[inst], np.int64), np.array(self.conf[inst], np.float32)
-        cfg = self.cfg  # an instance's confidence is that of a detection it took, so alone_conf implies a view
-        return (views >= cfg.min_views) & (conf >= cfg.min_conf) | (conf >= cfg.alone_conf)
-
-    def _confirmed_one(self, inst: int) -> bool:
-        """Whether instance ``inst`` is confirmed (:meth:`_confirmed`, for one: no arrays)."""
+    def _confirmed(self, inst: int) -> bool:
+        """Whether instance ``inst`` is confirmed (rule 6)."""
         views, conf, cfg = self.views[inst], self.conf[inst], self.cfg  # conf: a float32, compared as numpy does
+        # an instance's confidence is that of a detection it took, so alone_conf implies a view
         return bool(views >= cfg.min_views and conf >= cfg.min_conf or conf >= cfg.alone_conf)
 
     def add(self, frame: Frame) -> None:
@@ -307,7 +303,7 @@ class PerceivedMapper(Mapper):
     def _publish(self, inst: int) -> None:
         """A confirmed instance's pending points join the map's end (rule 6), but for those
         in a wall's cells (rule 10: the wall may have been found since they were seen)."""
-        if self.pending[inst] and self._confirmed_one(inst):
+        if self.pending[inst] and self._confirmed(inst):
             pts = np.concatenate(self.pending[inst])
             self.pending[inst] = []
             pts, held = publish_pass(pts, self.walls.arrays, self.held.arrays, float(self.cfg.wall_cell))
