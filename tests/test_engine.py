@@ -4,6 +4,7 @@ depend on the batch, the padding or the chunking."""
 from __future__ import annotations
 
 import json
+import threading
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +16,7 @@ from conftest import optimized, room_xml
 from rosmeery_jax.apps.cli import compilation_cache, main
 from rosmeery_jax.env import make
 from rosmeery_jax.env.world_data import NEVER, Sizes, stack
+from rosmeery_jax.mapping.perceived import PerceivedMapper
 from rosmeery_jax.results import tables
 from rosmeery_jax.session import worker
 from rosmeery_jax.sim.knowledge import ObjectLog
@@ -210,6 +212,29 @@ def test_a_seed_is_the_same_run_whatever_the_first_seed(room, tmp_path, capsys):
     assert [p["first_seed"] for p in json.loads((joined / "config.json").read_text())["joined"]] == [0, 1]
     assert sorted(p.name for p in (joined / "plots").glob("*.png")) == sorted(
         p.name for p in (whole_dir / "plots").glob("*.png"))
+
+
+def test_the_envs_perceived_mappers_in_parallel_threads_give_the_files_of_one_thread(room, tmp_path, monkeypatch):
+    """The worker feeds each env's built-in perceived mapper in a thread of a pool (one per
+    core): with four threads, every file but the timing is the bytes of a one-thread pool,
+    and the mappers were fed from more than one thread, none of them the worker's own."""
+    fed_by: set = set()
+    add = PerceivedMapper.add
+    monkeypatch.setattr(PerceivedMapper, "add", lambda self, frame: fed_by.add(threading.get_ident()) or add(self, frame))
+    outs = {}
+    for n in (1, 4):
+        monkeypatch.setattr(worker, "cores", lambda n=n: n)
+        fed_by.clear()
+        _run(outs.setdefault(n, tmp_path / f"threads{n}"), room, "random,frontier", 3, "--detector", "oracle",
+             "--mapper", "oracle,perceived")
+        assert len(fed_by) == 1 if n == 1 else len(fed_by) > 1, (n, len(fed_by))
+        assert threading.get_ident() not in fed_by
+    files = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if p.is_file()  # noqa: E731
+                             and not p.name.endswith((".png", "timing.json", "config.json")))
+    assert files(outs[1]) == files(outs[4]) and sum(f.endswith("perceived.ply") for f in files(outs[1])) == 6
+    for name in files(outs[1]):
+        assert (outs[1] / name).read_bytes() == (outs[4] / name).read_bytes(), name
+    assert json.loads((outs[4] / "timing.json").read_text())["mapper_cpu_s"] > 0
 
 
 def test_padding_is_inert_and_worlds_stack():

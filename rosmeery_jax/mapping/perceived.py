@@ -50,7 +50,6 @@ class PerceivedMapper(Mapper):
     protocol (:mod:`rosmeery_jax.mapping.protocol`)."""
 
     name = "perceived"
-    built_in = True
 
     def __init__(self, camera: Camera, categories: tuple[str, ...] = (), cfg: PerceivedConfig = PerceivedConfig()):
         super().__init__(camera, categories)
@@ -394,7 +393,16 @@ class PerceivedMapper(Mapper):
 
 def mapper_for(spec: str) -> type:
     """A session's mapper entry's class: the built-in perceived mapper or a plugin."""
-    return PerceivedMapper if spec == "perceived" else mapper_class(spec)
+    return PerceivedMapper if built_in(spec) else mapper_class(spec)
+
+
+def built_in(spec: str) -> bool:
+    """Whether a session's mapper entry is the built-in perceived mapper, not a plugin (a
+    subclass of it included). A session trusts it: its maps are well formed and never
+    changed once handed out, so they are taken as they are (a plugin's are checked and
+    copied: :func:`~rosmeery_jax.mapping.protocol.check_map`), and the envs' mappers run
+    in parallel threads (a plugin's may share state: they run one after another)."""
+    return spec == "perceived"
 
 
 def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -120,9 +120,6 @@ class Mapper(ABC):
     and implement :meth:`add` and :meth:`semantic_map`. One instance per robot."""
 
     name = "mapper"
-    # the built-in mappers: maps well formed, and arrays never changed once handed out, so a
-    # session takes them as they are (a plugin's are checked and copied: :func:`check_map`)
-    built_in = False
 
     def __init__(self, camera: Camera, categories: tuple[str, ...]):
         self.camera, self.categories = camera, categories

@@ -216,8 +216,8 @@ def merge(out: Path) -> None:
     plots.plot_results(df, out / "plots")
 
 
-TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "score_s", "wait_s", "compile_s", "compiles", "xla_compiles",
-               "cache_hits", "sim_s")
+TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "mapper_cpu_s", "score_s", "wait_s", "compile_s",
+               "compiles", "xla_compiles", "cache_hits", "sim_s")
 
 
 def sum_timing(parts: list[dict], t_start: float) -> dict:

@@ -15,6 +15,7 @@ Shapes: B envs in a group, N objects (padded), F frames per chunk, D detections 
 
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env.decision import Frames
-from rosmeery_jax.mapping.perceived import mapper_for
+from rosmeery_jax.mapping.perceived import built_in, mapper_for
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, raised_by
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.session.batch import Group
@@ -37,6 +38,24 @@ from rosmeery_jax.sim.knowledge import ObjectLog
 
 MAX_DET = 32  # detections kept per frame (the most confident)
 LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
+
+
+class Chunk(NamedTuple):
+    """A chunk's frames on the host, as the mappers take them: its first frame's index; poses
+    (B, steps, 3); rgb (B, F, H, W, 3), depth (B, F, H, W); sweep (B, F, frame_steps, h, w)
+    (as rendered: max_range where no return) or None; dets (obj, label, conf (B, F, D), box (B, F, D, 4))."""
+
+    first_frame: int
+    poses: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray
+    sweep: np.ndarray | None
+    dets: tuple
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 class Finished(NamedTuple):
@@ -75,11 +94,13 @@ class Worker:
         self.attach, self.labels, self.data, self.blocks = attach, labels, data, blocks
         self.last_fields = None  # the label fields after the last frame so far (B, N) each
         self.camera = Camera.of(group.config.camera)
-        self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0, "score_s": 0.0}  # score_s: within mapper_s
+        # score_s and mapper_cpu_s: summed over the mapper threads; mapper_s: the wall time of feeding
+        self.timing = {"frames": 0, "detector_s": 0.0, "mapper_s": 0.0, "score_s": 0.0, "mapper_cpu_s": 0.0}
         self.mappers = [self._mappers(group.envs[w]) if real else None for w, real in zip(group.world, group.real)] \
             if plan.mappers else None
         self.chunks = plan.total // plan.per_call
         self.pool = ThreadPoolExecutor(max_workers=1)  # one worker: chunks are detected in order
+        self.mapper_pool = ThreadPoolExecutor(max_workers=max(cores() - 1, 1))  # one core is the simulation's
         self.started = time.perf_counter()
 
     def _mappers(self, env: RobotEnv) -> dict:
@@ -89,33 +110,36 @@ class Worker:
             cls = mapper_for(spec)
             out[spec] = Mapped(spec, cls(self.camera, env.world.taxonomy.names),
                                 OnlineScorer(env.world, TOLERANCE, self.plan.field))
-            self._score(out[spec], 0)
+            self.timing["score_s"] += self._score(out[spec], 0)
         return out
 
-    def _score(self, online: "Mapped", count: int) -> None:
-        """Ask the mapper for its map after ``count`` frames and score it, if planned."""
+    def _score(self, online: "Mapped", count: int) -> float:
+        """Ask the mapper for its map after ``count`` frames and score it, if planned; the
+        seconds the scoring took."""
         if count not in self.plan.score_at:
-            return
+            return 0.0
         with raised_by(online.spec, "semantic_map"):
             m = online.mapper.semantic_map()
-        if not online.mapper.built_in:
+        if not built_in(online.spec):
             m = check_map(online.spec, m, len(online.scorer.world.taxonomy.names))
         t0 = time.perf_counter()  # the scoring alone: a mapper may do work when asked for its map
         score = online.scorer.score(m)
         online.logs[count], online.fields[count] = score.log, score.field
-        self.timing["score_s"] += time.perf_counter() - t0
         if count == max(self.plan.score_at):
             online.final = m
+        return time.perf_counter() - t0
 
     def submit(self, c: int, logs, track, frames) -> Future:
         return self.pool.submit(self._finish, c, logs, track, frames)
 
     def close(self) -> None:
         self.pool.shutdown()
+        self.mapper_pool.shutdown()
 
     def abandon(self) -> None:
         """Drop the chunks not yet detected (Ctrl-C or an error), without waiting for them."""
         self.pool.shutdown(wait=False, cancel_futures=True)
+        self.mapper_pool.shutdown(wait=False, cancel_futures=True)
 
     def labelled(self, knowledge):
         """The final knowledge (B envs) with the detector's labels in place of the ground
@@ -156,35 +180,48 @@ class Worker:
 
     def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
         """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
-        detections to its mappers, scoring their maps at the planned counts. A frame is taken
-        at its period's last step and counts from the step after it, as labels do
+        detections to its mappers, scoring their maps at the planned counts. The built-in
+        mappers of the envs are fed in parallel, one thread per core (their passes release
+        the GIL; each env's mapper is its own, so its maps are those of one thread); plugin
+        mappers in this thread, env after env."""
+        sweep = None if frames.sweep is None else np.asarray(frames.sweep)
+        chunk = Chunk(first_frame, poses, np.asarray(frames.rgb), np.asarray(frames.depth), sweep, dets)
+        rows = [(r, m) for r, m in enumerate(self.mappers) if m is not None]
+        jobs = [self.mapper_pool.submit(self._feed_env, chunk, r, ours) for r, m in rows
+                if (ours := [o for o in m.values() if built_in(o.spec)])]
+        spent = [self._feed_env(chunk, r, plugins) for r, m in rows
+                 if (plugins := [o for o in m.values() if not built_in(o.spec)])]
+        spent += [job.result() for job in jobs]  # an error of a built-in mapper raises here
+        self.timing["score_s"] += sum(s for s, _ in spent)
+        self.timing["mapper_cpu_s"] += sum(c for _, c in spent)
+
+    def _feed_env(self, chunk: "Chunk", r: int, mappers: list) -> tuple[float, float]:
+        """Feed env row r's ``mappers`` (Mapped) its frames of ``chunk``. A frame is taken at
+        its period's last step and counts from the step after it, as labels do
         (``frames_before``): the map with k frames is scored just before frame k is added,
-        after the depth of the steps before it (for mappers that read it)."""
-        rgb, depth = np.asarray(frames.rgb), np.asarray(frames.depth)
-        sweep = None
-        if frames.sweep is not None:  # no return: 0, as in the detector frame's depth
-            sweep = np.asarray(frames.sweep)
-            sweep = np.where(sweep < self.group.config.camera.max_range, sweep, 0)
-        _, label, conf, box = dets
-        every, dt = self.plan.frame_steps, self.group.env.dt
-        for r, mappers in enumerate(self.mappers):
-            if mappers is None:
-                continue
-            sweepers = [m for m in mappers.values() if m.mapper.reads_depth()]
-            cameras = self.camera.pose(poses[r])  # (steps, 4, 4)
-            for f in range(depth.shape[1]):
-                index = first_frame + f
-                steps = np.s_[f * every:(f + 1) * every]
-                if sweepers:
-                    self._feed_depth(sweepers, index * every, poses[r, steps], cameras[steps], sweep[r, f])
-                last = (f + 1) * every - 1
-                frame = Frame(index, (index + 1) * every * dt, rgb[r, f], depth[r, f], poses[r, last], cameras[last],
-                              box[r, f], label[r, f], conf[r, f])
-                for online in mappers.values():
-                    if index:  # the empty map (0 frames) was scored when the mapper was built
-                        self._score(online, index)
-                    with raised_by(online.spec, f"add (frame {index})"):
-                        online.mapper.add(frame)
+        after the depth of the steps before it (for mappers that read it). Returns the
+        seconds spent scoring and the thread's CPU seconds."""
+        cpu = time.thread_time()
+        _, label, conf, box = chunk.dets
+        every, dt, poses, score_s = self.plan.frame_steps, self.group.env.dt, chunk.poses[r], 0.0
+        sweepers = [m for m in mappers if m.mapper.reads_depth()]
+        if sweepers:  # no return: 0, as in the detector frame's depth
+            sweep = np.where(chunk.sweep[r] < self.group.config.camera.max_range, chunk.sweep[r], 0)
+        cameras = self.camera.pose(poses)  # (steps, 4, 4)
+        for f in range(chunk.depth.shape[1]):
+            index = chunk.first_frame + f
+            steps = np.s_[f * every:(f + 1) * every]
+            if sweepers:
+                self._feed_depth(sweepers, index * every, poses[steps], cameras[steps], sweep[f])
+            last = (f + 1) * every - 1
+            frame = Frame(index, (index + 1) * every * dt, chunk.rgb[r, f], chunk.depth[r, f], poses[last],
+                          cameras[last], box[r, f], label[r, f], conf[r, f])
+            for online in mappers:
+                if index:  # the empty map (0 frames) was scored when the mapper was built
+                    score_s += self._score(online, index)
+                with raised_by(online.spec, f"add (frame {index})"):
+                    online.mapper.add(frame)
+        return score_s, time.thread_time() - cpu
 
     def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, cameras: np.ndarray, sweep: np.ndarray) -> None:
         """Send ``mappers`` (Mapped) the depth of one frame period's steps after step ``before``: poses
