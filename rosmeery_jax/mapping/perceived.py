@@ -77,7 +77,7 @@ class PerceivedMapper(Mapper):
         self._changed: set[int] = set()  # instances whose points changed since rule 9 last ran
         self.walls = HashTable()  # plan-view cell key -> 0 where a wall stands (rule 10)
         names = np.array(categories, dtype=object)
-        self._bare, self._placed = np.flatnonzero(np.isin(names, cfg.bare)), np.flatnonzero(np.isin(names, cfg.placed))
+        self._bare, self._placed = np.isin(names, cfg.bare), np.isin(names, cfg.placed)  # per category
         self._last: _Seen | None = None  # the latest frame
         self._repeat = False  # whether the latest frame repeats the one before
         self._swept: list[tuple] = []  # depth frames (pose, depth) since the latest detector frame (rule 8)
@@ -144,7 +144,7 @@ class PerceivedMapper(Mapper):
             inst = self._associate(boxed.core, int(k), taken)
             taken.add(inst)
             self._claim(np.array([inst]), boxed.keys, pts, boxed.cells)
-            self.extent.rows[inst] = _union(self.extent.rows[inst], np.stack([pts.min(0), pts.max(0)]))
+            _cover(self.extent.rows[inst], pts.min(0), pts.max(0))
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
             self.views[inst] += 1
@@ -159,8 +159,7 @@ class PerceivedMapper(Mapper):
         points (keys (V,), points (V, 3), each of instance ``insts[rank]``) and record their
         coarse ``cells`` (C,) (of ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the
         first instance that reaches it, and its first point in that instance's points stays."""
-        rank = np.ascontiguousarray(np.broadcast_to(rank, keys.shape), np.int64)
-        cell_rank = np.ascontiguousarray(np.broadcast_to(cell_rank, cells.shape), np.int64)
+        rank, cell_rank = _ranks(rank, len(keys)), _ranks(cell_rank, len(cells))
         new, at, *tables = claim_pass(np.ascontiguousarray(insts, np.int64), np.ascontiguousarray(keys, np.int64),
                                       rank, np.ascontiguousarray(cells, np.int64), cell_rank, self.owner.arrays,
                                       self.claimed.arrays, self.cells.arrays)
@@ -261,10 +260,13 @@ class PerceivedMapper(Mapper):
         frame, the one holding most among those of the detection's label, else among all;
         the others of that label merge into it."""
         held = self._roots()[self.cells.get(cells)]
-        ids, counts = np.unique(held[held >= 0], return_counts=True)
+        counts = np.bincount(held + 1)[1:]  # each instance's cells (instance -1: none)
+        ids = np.flatnonzero(counts)
+        counts = counts[ids]
         same = np.array([self.label[i] == label for i in ids.tolist()], bool)
         share = counts / len(cells)
-        keep = ((share >= self.cfg.overlap) | same & (share >= self.cfg.same_overlap)) & ~np.isin(ids, list(taken))
+        free = np.array([i not in taken for i in ids.tolist()], bool)
+        keep = ((share >= self.cfg.overlap) | same & (share >= self.cfg.same_overlap)) & free
         ids, counts, same = ids[keep], counts[keep], same[keep]
         if len(ids):
             pool = same if same.any() else np.ones(len(ids), bool)
@@ -295,8 +297,8 @@ class PerceivedMapper(Mapper):
         self.label[j], self.conf[j] = -1, np.float32(0.0)
         self.pending[into] += self.pending[j]
         self.pending[j] = []
-        self.extent.rows[into] = _union(self.extent.rows[into], self.extent.rows[j])
-        self._extend(into, self.box[j], self.count[j])
+        _cover(self.extent.rows[into], *self.extent.rows[j])
+        self._extend(into, *self.box[j], self.count[j])
         self._publish(into)
 
     def _publish(self, inst: int) -> None:
@@ -311,7 +313,7 @@ class PerceivedMapper(Mapper):
                 return
             self.points.append(pts)
             self.point_instance.append(np.full(len(pts), inst))
-            self._extend(inst, np.stack([pts.min(0), pts.max(0)])[:, :2], len(pts))
+            self._extend(inst, pts[:, :2].min(0), pts[:, :2].max(0), len(pts))
 
     def _drop_walled(self) -> None:
         """Rule 10: the map's points in cells found to be a wall's leave it (the points after
@@ -329,10 +331,11 @@ class PerceivedMapper(Mapper):
         for i in np.flatnonzero(roots[:-1] == np.arange(len(self.parent))).tolist():
             self.count[i], self.box[i] = int(count[i]), box[i]
 
-    def _extend(self, inst: int, box: np.ndarray, count: int) -> None:
-        """Instance ``inst``'s points in the map now include ``count`` more within plan-view ``box`` (2, 2)."""
+    def _extend(self, inst: int, lo: np.ndarray, hi: np.ndarray, count: int) -> None:
+        """Instance ``inst``'s points in the map now include ``count`` more, within the
+        plan-view box from ``lo`` to ``hi`` (2,)."""
         if count:
-            self.box[inst] = _union(self.box[inst], box)
+            _cover(self.box[inst], lo, hi)
             self.count[inst] += count
             self._changed.add(inst)
 
@@ -384,7 +387,7 @@ class PerceivedMapper(Mapper):
         count, label, touched = count[ids], label[ids], touched[ids]
         m = cfg.absorb_margin
         meet = ((box[:, None, 0] <= box[None, :, 1] + m) & (box[:, None, 1] >= box[None, :, 0] - m)).all(-1)
-        on_seat = np.isin(label, self._placed)[:, None] & np.isin(label, self._bare)[None]
+        on_seat = _member(self._placed, label)[:, None] & _member(self._bare, label)[None]
         kin = (label[:, None] == label[None]) | on_seat
         pair = (meet & kin & (count[:, None] < cfg.absorb_size * count[None])
                 & (touched[:, None] | touched[None]))
@@ -405,9 +408,24 @@ def built_in(spec: str) -> bool:
     return spec == "perceived"
 
 
-def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The box (2, D) holding boxes a and b (2, D) (lower corner, upper corner)."""
-    return np.stack([np.minimum(a[0], b[0]), np.maximum(a[1], b[1])])
+def _ranks(rank: np.ndarray | int, n: int) -> np.ndarray:
+    """(n,) int64 ranks: ``rank`` itself, or n copies of one."""
+    return np.full(n, rank, np.int64) if np.isscalar(rank) else np.ascontiguousarray(rank, np.int64)
+
+
+def _member(mask: np.ndarray, label: np.ndarray) -> np.ndarray:
+    """(K,) whether each of ``label`` (K,) (category indices, >= 0) is one of those ``mask``
+    (categories,) marks; a label beyond the categories is none of them."""
+    out = label < len(mask)
+    out[out] = mask[label[out]]
+    return out
+
+
+def _cover(box: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+    """Grow ``box`` (2, D) (lower corner, upper corner) in place to hold the box from ``lo``
+    to ``hi`` (D,)."""
+    np.minimum(box[0], lo, out=box[0])
+    np.maximum(box[1], hi, out=box[1])
 
 
 def _widened(box: np.ndarray, margin: float) -> np.ndarray:
