@@ -13,7 +13,7 @@ instances, F frames, N objects.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -143,7 +143,7 @@ class PerceivedMapper(Mapper):
                 continue
             inst = self._associate(boxed.core, int(k), taken)
             taken.add(inst)
-            self._claim(np.array([inst]), boxed.keys, pts, boxed.cells)
+            self._claim(np.array([inst]), boxed.keys, pts.__getitem__, boxed.cells)
             _cover(self.extent.rows[inst], pts.min(0), pts.max(0))
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
@@ -153,19 +153,20 @@ class PerceivedMapper(Mapper):
             self._grow(self._last.cloud)
         self._absorb()
 
-    def _claim(self, insts: np.ndarray, keys: np.ndarray, pts: np.ndarray, cells: np.ndarray,
+    def _claim(self, insts: np.ndarray, keys: np.ndarray, points: Callable, cells: np.ndarray,
                rank: np.ndarray | int = 0, cell_rank: np.ndarray | int = 0) -> None:
         """Instances ``insts`` (R,), one after the other, take the unclaimed voxels of their
-        points (keys (V,), points (V, 3), each of instance ``insts[rank]``) and record their
-        coarse ``cells`` (C,) (of ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the
-        first instance that reaches it, and its first point in that instance's points stays."""
+        points (keys (V,), each of instance ``insts[rank]``; ``points(taken)`` the points
+        (n, 3) of those taken, indices into keys) and record their coarse ``cells`` (C,) (of
+        ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the first instance that
+        reaches it, and its first point in that instance's points stays."""
         rank, cell_rank = _ranks(rank, len(keys)), _ranks(cell_rank, len(cells))
         new, at, *tables = claim_pass(np.ascontiguousarray(insts, np.int64), np.ascontiguousarray(keys, np.int64),
                                       rank, np.ascontiguousarray(cells, np.int64), cell_rank, self.owner.arrays,
                                       self.claimed.arrays, self.cells.arrays)
         for table, arrays in zip((self.owner, self.claimed, self.cells), tables):
             table.update(arrays)
-        taken = pts[new]  # ordered by instance: one batch each
+        taken = points(new)  # ordered by instance: one batch each
         for inst, a, b in zip(insts.tolist(), at[:-1].tolist(), at[1:].tolist()):
             if b > a:
                 self.pending[inst].append(taken[a:b])
@@ -182,9 +183,9 @@ class PerceivedMapper(Mapper):
             cloud.x, cloud.y, cloud.z, cloud.part, len(cloud.size), float(cfg.cell), float(cfg.voxel),
             self.claimed.arrays, self.cells.arrays, self._roots(), self.extent.rows, float(cfg.grow_margin),
             float(cfg.grow))
-        if len(grown):
-            pts = np.stack([cloud.x[take], cloud.y[take], cloud.z[take]], -1)
-            self._claim(grown, keys, pts, cells, rank, rank)
+        if len(grown):  # the points of the few voxels taken only: most are held already
+            self._claim(grown, keys, lambda new: np.stack([a[take[new]] for a in (cloud.x, cloud.y, cloud.z)], -1),
+                        cells, rank, rank)
 
     def _roots(self) -> np.ndarray:
         """(I + 1,) each instance's last instance after merges; index -1 (no instance) maps to
