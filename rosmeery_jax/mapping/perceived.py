@@ -143,7 +143,7 @@ class PerceivedMapper(Mapper):
                 continue
             inst = self._associate(boxed.core, int(k), taken)
             taken.add(inst)
-            self._claim(np.array([inst]), boxed.keys, pts.__getitem__, boxed.cells)
+            self._claim(np.array([inst]), boxed.keys, pts, boxed.cells)
             _cover(self.extent.rows[inst], pts.min(0), pts.max(0))
             if np.float32(c) > self.conf[inst]:  # the most confident so far; ties keep the older
                 self.label[inst], self.conf[inst] = int(k), np.float32(c)
@@ -153,11 +153,11 @@ class PerceivedMapper(Mapper):
             self._grow(self._last.cloud)
         self._absorb()
 
-    def _claim(self, insts: np.ndarray, keys: np.ndarray, points: Callable, cells: np.ndarray,
+    def _claim(self, insts: np.ndarray, keys: np.ndarray, points: np.ndarray | Callable, cells: np.ndarray,
                rank: np.ndarray | int = 0, cell_rank: np.ndarray | int = 0) -> None:
         """Instances ``insts`` (R,), one after the other, take the unclaimed voxels of their
-        points (keys (V,), each of instance ``insts[rank]``; ``points(taken)`` the points
-        (n, 3) of those taken, indices into keys) and record their coarse ``cells`` (C,) (of
+        points (keys (V,), each of instance ``insts[rank]``; ``points`` (V, 3), or a function
+        giving the points (n, 3) of the voxels taken (indices into keys)) and record their coarse ``cells`` (C,) (of
         ``insts[cell_rank]``) (rules 3-4): a voxel or cell goes to the first instance that
         reaches it, and its first point in that instance's points stays."""
         rank, cell_rank = _ranks(rank, len(keys)), _ranks(cell_rank, len(cells))
@@ -166,7 +166,7 @@ class PerceivedMapper(Mapper):
                                       self.claimed.arrays, self.cells.arrays)
         for table, arrays in zip((self.owner, self.claimed, self.cells), tables):
             table.update(arrays)
-        taken = points(new)  # ordered by instance: one batch each
+        taken = points(new) if callable(points) else points[new]  # ordered by instance: one batch each
         for inst, a, b in zip(insts.tolist(), at[:-1].tolist(), at[1:].tolist()):
             if b > a:
                 self.pending[inst].append(taken[a:b])
