@@ -146,9 +146,9 @@ def _print_summary(out: Path) -> None:
             print(f"detector: {t['frames']:,} frames in {t['detector_s']:.1f} s ({t['frames'] / t['detector_s']:,.0f} "
                   f"frames/s) in a worker thread; the simulation waited {t['wait_s']:.1f} s for it")
         if t.get("score_s"):  # a mapper's maps were scored (mapper_s also counts the empty feed)
-            print(f"mappers (fed and scored): {t['mapper_s']:.1f} s in the same worker thread, each env's built-in "
-                  f"mapper on a thread of its own ({t.get('mapper_cpu_s', 0):.1f} CPU-s in all), of which scoring "
-                  f"their maps {t['score_s']:.1f} s")
+            print(f"mappers (fed and scored): {t['mapper_s']:.1f} s in the same worker thread "
+                  f"({t.get('mapper_cpu_s', 0):.1f} CPU-s over the mappers' threads), of which scoring their maps "
+                  f"{t['score_s']:.1f} s")
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
 
 
