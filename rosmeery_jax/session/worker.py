@@ -40,7 +40,7 @@ MAX_DET = 32  # detections kept per frame (the most confident)
 LABEL_FIELDS = ("conf_true", "conf_any", "label", "declared", "correct")
 
 
-class Chunk(NamedTuple):
+class HostFrames(NamedTuple):
     """A chunk's frames on the host, as the mappers take them: its first frame's index; poses
     (B, steps, 3); rgb (B, F, H, W, 3), depth (B, F, H, W); sweep (B, F, frame_steps, h, w)
     (as rendered: max_range where no return) or None; dets (obj, label, conf (B, F, D), box (B, F, D, 4))."""
@@ -185,7 +185,7 @@ class Worker:
         the GIL; each env's mapper is its own, so its maps are those of one thread); plugin
         mappers in this thread, env after env."""
         sweep = None if frames.sweep is None else np.asarray(frames.sweep)
-        chunk = Chunk(first_frame, poses, np.asarray(frames.rgb), np.asarray(frames.depth), sweep, dets)
+        chunk = HostFrames(first_frame, poses, np.asarray(frames.rgb), np.asarray(frames.depth), sweep, dets)
         rows = [(r, m) for r, m in enumerate(self.mappers) if m is not None]
         jobs = [self.mapper_pool.submit(self._feed_env, chunk, r, ours) for r, m in rows
                 if (ours := [o for o in m.values() if built_in(o.spec)])]
@@ -195,7 +195,7 @@ class Worker:
         self.timing["score_s"] += sum(s for s, _ in spent)
         self.timing["mapper_cpu_s"] += sum(c for _, c in spent)
 
-    def _feed_env(self, chunk: "Chunk", r: int, mappers: list) -> tuple[float, float]:
+    def _feed_env(self, chunk: "HostFrames", r: int, mappers: list) -> tuple[float, float]:
         """Feed env row r's ``mappers`` (Mapped) its frames of ``chunk``. A frame is taken at
         its period's last step and counts from the step after it, as labels do
         (``frames_before``): the map with k frames is scored just before frame k is added,
