@@ -180,10 +180,10 @@ class Worker:
 
     def _feed(self, first_frame: int, poses: np.ndarray, frames: Frames, dets) -> None:
         """Feed each env's frames of this chunk (poses (B, steps, 3), frames (B, F, ...)) and
-        detections to its mappers, scoring their maps at the planned counts. The built-in
-        mappers of the envs are fed in parallel, one thread per core (their passes release
-        the GIL; each env's mapper is its own, so its maps are those of one thread); plugin
-        mappers in this thread, env after env."""
+        detections to its mappers, scoring their maps at the planned counts. The envs'
+        built-in mappers are fed on a pool of threads, one per core but the simulation's
+        (their passes release the GIL; each env's mapper is its own, so its maps are those
+        of one thread); plugin mappers in this thread, env after env (they may share state)."""
         sweep = None if frames.sweep is None else np.asarray(frames.sweep)
         chunk = HostFrames(first_frame, poses, np.asarray(frames.rgb), np.asarray(frames.depth), sweep, dets)
         rows = [(r, m) for r, m in enumerate(self.mappers) if m is not None]
