@@ -15,7 +15,6 @@ Shapes: B envs in a group, N objects (padded), F frames per chunk, D detections 
 
 from __future__ import annotations
 
-import os
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.core.xla import cores
 from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env.decision import Frames
@@ -51,11 +51,6 @@ class HostFrames(NamedTuple):
     depth: np.ndarray
     sweep: np.ndarray | None
     dets: tuple
-
-
-def cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 class Finished(NamedTuple):
