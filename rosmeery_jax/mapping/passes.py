@@ -166,10 +166,7 @@ def grow_pass(x, y, z, part, segments, cell_size, voxel, claimed, near, root, ex
             take[t] = i
             t += 1
     take = take[:t]
-    keys = np.empty(t, np.int64)
-    for j in range(t):
-        keys[j] = cube_key(x[take[j]], y[take[j]], z[take[j]], voxel)
-    return grown, take, rank[take], keys, cell[take]
+    return grown, take, rank[take], _keys_of(x, y, z, take, voxel), cell[take]
 
 
 @njit(cache=True, nogil=True)
@@ -272,6 +269,7 @@ def _distinct(keys):
 
 @njit(cache=True, nogil=True)
 def _keys_of(x, y, z, take, size):
+    """(t,) the cube keys (``size``) of points ``take`` (t,) (indices into x, y, z)."""
     out = np.empty(len(take), np.int64)
     for j in range(len(take)):
         out[j] = cube_key(x[take[j]], y[take[j]], z[take[j]], size)

@@ -233,9 +233,7 @@ class PerceivedMapper(Mapper):
             np.ascontiguousarray(pose[:, 1]), float(self.config.mount_height), pose.dtype.type(self.config.mount_x),
             float(cfg.floor_z), self.walls.arrays, self.held.arrays, float(self.cfg.wall_cell),
             float(self.cfg.wall_above), kind(cfg.edge_abs), kind(cfg.edge_rel))
-        self.walls.update(walls)
-        if hit:  # the map holds points of a new wall
-            self._drop_walled()
+        self._found_walls(walls, hit)
         return Cloud(valid, d, x, y, z, part, size)
 
     def _off_walls(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -245,10 +243,15 @@ class PerceivedMapper(Mapper):
             return np.ones(len(x), bool)
         keep, walls, hit = off_walls(*(np.ascontiguousarray(a, np.float64) for a in (x, y, z)), self.walls.arrays,
                                      self.held.arrays, float(self.cfg.wall_cell), float(self.cfg.wall_above))
+        self._found_walls(walls, hit)
+        return keep
+
+    def _found_walls(self, walls: tuple, hit: bool) -> None:
+        """Rule 10: take back the walls table a pass filled (:attr:`HashTable.arrays`); if a
+        new wall cell holds map points (``hit``), they leave the map."""
         self.walls.update(walls)
         if hit:
             self._drop_walled()
-        return keep
 
     def _plan_cells(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(k,) the plan-view cell keys (``wall_cell``) of points at x, y (k,) (rule 10)."""

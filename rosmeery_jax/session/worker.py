@@ -53,6 +53,14 @@ class HostFrames(NamedTuple):
     dets: tuple
 
 
+class Spent(NamedTuple):
+    """What feeding one env's mappers a chunk cost: seconds scoring their maps, and the
+    feeding thread's CPU seconds (scoring included)."""
+
+    score_s: float
+    cpu_s: float
+
+
 class Finished(NamedTuple):
     """Chunk c on the host: logs (B, n, N) with the label fields rebuilt, track (B, steps, ...),
     detections (obj, label, conf (B, F, D), box (B, F, D, 4)) or None."""
@@ -187,15 +195,14 @@ class Worker:
         spent = [self._feed_env(chunk, r, plugins) for r, m in rows
                  if (plugins := [o for o in m.values() if not built_in(o.spec)])]
         spent += [job.result() for job in jobs]  # an error of a built-in mapper raises here
-        self.timing["score_s"] += sum(s for s, _ in spent)
-        self.timing["mapper_cpu_s"] += sum(c for _, c in spent)
+        self.timing["score_s"] += sum(s.score_s for s in spent)
+        self.timing["mapper_cpu_s"] += sum(s.cpu_s for s in spent)
 
-    def _feed_env(self, chunk: "HostFrames", r: int, mappers: list) -> tuple[float, float]:
+    def _feed_env(self, chunk: "HostFrames", r: int, mappers: list) -> Spent:
         """Feed env row r's ``mappers`` (Mapped) its frames of ``chunk``. A frame is taken at
         its period's last step and counts from the step after it, as labels do
         (``frames_before``): the map with k frames is scored just before frame k is added,
-        after the depth of the steps before it (for mappers that read it). Returns the
-        seconds spent scoring and the thread's CPU seconds."""
+        after the depth of the steps before it (for mappers that read it)."""
         cpu = time.thread_time()
         _, label, conf, box = chunk.dets
         every, dt, poses, score_s = self.plan.frame_steps, self.group.env.dt, chunk.poses[r], 0.0
@@ -216,7 +223,7 @@ class Worker:
                     score_s += self._score(online, index)
                 with raised_by(online.spec, f"add (frame {index})"):
                     online.mapper.add(frame)
-        return score_s, time.thread_time() - cpu
+        return Spent(score_s, time.thread_time() - cpu)
 
     def _feed_depth(self, mappers: list, before: int, poses: np.ndarray, cameras: np.ndarray, sweep: np.ndarray) -> None:
         """Send ``mappers`` (Mapped) the depth of one frame period's steps after step ``before``: poses
