@@ -227,3 +227,38 @@ def test_a_sqlite3_bag_holds_the_same_messages(tmp_path):
     assert len(msgs["/odom"]) == 3 and "/detections" not in msgs
     depth = msgs["/camera/depth/image_raw"][0][2]
     assert depth.encoding == "16UC1" and np.frombuffer(depth.data.tobytes(), "<u2").tolist() == [1234] * 12
+
+
+def test_the_tf_chain_map_odom_base_is_the_true_pose_at_every_stamp_with_drift(tmp_path):
+    """Odometry that drifts in position and heading (as dead reckoning does): at every stamp
+    map -> odom composed with odom -> base_link is the true pose (/ground_truth/odom), and
+    odom -> base_link is the odometry (/odom)."""
+    from rosmeery_jax.apps.ros_bags import BagStreams
+    from rosmeery_jax.raycast.sensors import CameraConfig, LaserConfig, laser_dirs
+
+    rng = np.random.default_rng(3)
+    t = np.arange(60) * 0.1
+    true = np.stack([2.0 + np.cos(t), 1.0 + np.sin(2 * t), np.angle(np.exp(1j * (0.5 + 1.3 * t)))], 1)
+    drift = np.cumsum(rng.normal(0, [0.02, 0.02, 0.03], (60, 3)), 0)  # up to tens of cm and degrees
+    odom = true + drift
+    bag = tmp_path / "bag"
+    streams = BagStreams(bag, "mcap")
+    streams.static(CameraConfig(), LaserConfig())
+    for k in range(60):
+        streams.step(t[k], odom[k], true[k], 0.5, 0.1, np.full(90, 2.0), LaserConfig(), laser_dirs(LaserConfig()))
+    streams.close()
+    msgs = _messages(bag)
+    assert len(msgs["/tf"]) == 60 and np.abs(drift[:, :2]).max() > 0.1
+    for k, ((_, _, tf), (_, _, gt), (_, _, od)) in enumerate(zip(msgs["/tf"], msgs["/ground_truth/odom"],
+                                                                  msgs["/odom"])):
+        map_odom, odom_base = (_matrix(x) for x in tf.transforms)
+        chain = map_odom @ odom_base
+        yaw = np.arctan2(chain[1, 0], chain[0, 0])
+        np.testing.assert_allclose(chain[:2, 3], true[k, :2], atol=1e-9)
+        assert abs(np.angle(np.exp(1j * (yaw - true[k, 2])))) < 1e-9
+        p, q = gt.pose.pose.position, gt.pose.pose.orientation
+        np.testing.assert_allclose([p.x, p.y], chain[:2, 3], atol=1e-9)
+        np.testing.assert_allclose(odom_base[:2, 3], odom[k, :2], atol=1e-9)
+        assert od.pose.pose.position.x == pytest.approx(odom[k, 0])
+        gt_yaw = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_euler("zyx")[0]
+        assert abs(np.angle(np.exp(1j * (gt_yaw - yaw)))) < 1e-9

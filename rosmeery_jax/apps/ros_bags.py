@@ -66,6 +66,19 @@ def typestore():
     return store
 
 
+def map_to_odom(true_pose, odom_pose) -> np.ndarray:
+    """The planar transform (x, y, yaw) map -> odom that makes map -> odom -> base_link the
+    true pose: T_map_odom = T_map_base inverse(T_odom_base) (REP 105). The identity while
+    the odometry is exact; with drift, the rotation by the heading error about odom's
+    origin, then the shift that carries the odometry's position onto the true one."""
+    true_pose, odom_pose = np.asarray(true_pose, np.float64), np.asarray(odom_pose, np.float64)
+    yaw = np.angle(np.exp(1j * (true_pose[2] - odom_pose[2])))
+    c, s = np.cos(yaw), np.sin(yaw)
+    x = true_pose[0] - (c * odom_pose[0] - s * odom_pose[1])
+    y = true_pose[1] - (s * odom_pose[0] + c * odom_pose[1])
+    return np.array([x, y, yaw])
+
+
 def stamp_ns(t: float) -> int:
     return int(round(t * 1e9))
 
@@ -149,13 +162,13 @@ class BagStreams:
                 angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=float(w))), covariance=cov))
 
     def step(self, t: float, odom_pose, true_pose, v: float, w: float, ranges, laser, angles) -> None:
-        """One control step: /clock, /tf (map -> odom the odometry's correction, identity
-        while odometry is exact; odom -> base_link), /odom, /ground_truth/odom, /scan."""
+        """One control step: /clock, /tf (map -> odom the odometry's correction,
+        :func:`map_to_odom`; odom -> base_link the odometry), /odom, /ground_truth/odom, /scan."""
         T = self.t
         ns = stamp_ns(t)
         self._write("/clock", t, T["rosgraph_msgs/msg/Clock"](clock=T["builtin_interfaces/msg/Time"](
             sec=ns // 10**9, nanosec=ns % 10**9)))
-        correction = np.asarray(true_pose, np.float64) - np.asarray(odom_pose, np.float64)  # exact odometry: zero
+        correction = map_to_odom(true_pose, odom_pose)
         q_odom = Rotation.from_euler("z", float(odom_pose[2])).as_quat()
         tfs = [self._transform(t, FRAMES["map"], FRAMES["odom"], (correction[0], correction[1], 0.0),
                                Rotation.from_euler("z", float(correction[2])).as_quat()),
