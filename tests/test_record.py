@@ -103,3 +103,25 @@ def test_bad_options_are_one_line_and_write_nothing(tmp_path, capsys, extra, fie
 def test_a_non_empty_folder_is_refused_without_resume(rec, capsys):
     assert main([*ARGS, "--seed", "1", "--out", str(rec)]) == 2
     assert "--resume" in capsys.readouterr().err
+
+
+def test_a_replay_is_recorded_with_the_settings_its_header_names(tmp_path):
+    """The replay file's ``env`` (here 45 laser beams and a lower camera) drives the streams
+    as it drives the session: the laser and the camera poses written are the replay's."""
+    from rosmeery_jax.policies.teleop_file import world_hash
+    from rosmeery_jax.world import load_world
+
+    w = load_world("small_office")
+    header = {"format": "rosmeery-teleop", "version": 1, "world": "small_office", "world_sha256": world_hash(w),
+              "seed": 0, "dt": 0.1, "start_pose": [float(v) for v in w.spawn],
+              "env": {"laser__beams": 45, "camera__mount_height": 0.4}, "detector": "off"}
+    steps = "".join(json.dumps({"k": k, "t": k / 10, "cmd": [0.3, 0.1], "pose": [0, 0, 0]}) + "\n"
+                    for k in range(1, 11))
+    replay = tmp_path / "drive.jsonl"
+    replay.write_text(json.dumps(header) + "\n" + steps)
+    out = tmp_path / "rec"
+    assert main(["record", "--world", "small_office", "--policy", f"replay:{replay}", "--duration", "1",
+                 "--width", "32", "--height", "24", "--rate", "5", "--quiet", "--out", str(out)]) == 0
+    scan = _lines(out / "seed0" / "scan.txt")
+    assert {len(row) - 1 for row in scan} == {45}
+    assert {float(row[3]) for row in _lines(out / "seed0" / "groundtruth.txt")} == {0.4}

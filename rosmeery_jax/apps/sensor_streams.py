@@ -50,8 +50,10 @@ from rosmeery_jax.detector.detections import DETECTORS, make_detector
 from rosmeery_jax.env import make
 from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
-from rosmeery_jax.session.schedule import control_dt, env_overrides
+from rosmeery_jax.session.batch import run_overrides
+from rosmeery_jax.session.schedule import control_dt
 from rosmeery_jax.sim import noise
+from rosmeery_jax.world import load_world
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
 FRAME_BATCH = 8  # frames rendered per jitted call (bounds the memory of a 640 x 480 cast)
@@ -130,7 +132,7 @@ def record(world: str, policy: str, seeds: int | list[int], duration: float, out
         return folders
     results = Session(session, progress=progress).run(resume=(out / "session" / "config.json").exists())
     trajectory = pd.read_csv(results / "trajectories.csv")
-    env = _env(world, session)
+    env = _env(world, policy, session)
     for k, folder in todo:
         poses = trajectory[trajectory.seed == k].sort_values("time_s")
         odom = poses[["est_x", "est_y", "est_yaw"] if "est_x" in poses else ["x", "y", "yaw"]].to_numpy(np.float32)
@@ -159,9 +161,10 @@ def _check_settings(out: Path, settings: dict) -> None:
     require_same(saved, old, settings, list(settings))
 
 
-def _env(world: str, session):
-    """The env the session drove (same camera, laser, robot and noise settings)."""
-    return make(world, **{"labels": "observed", **env_overrides(session)})
+def _env(world: str, policy: str, session):
+    """The env the session drove (same camera, laser, robot and noise settings, and those
+    the policy sets: a replay's recorded env)."""
+    return make(world, **run_overrides(session, load_world(world).name, policy))
 
 
 def camera_intrinsics(camera: CameraConfig, width: int, height: int) -> dict:

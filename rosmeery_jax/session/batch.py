@@ -101,6 +101,14 @@ class _Rows:
         self.real += [False] * BLOCK
 
 
+def run_overrides(cfg, world: str, spec: str) -> dict:
+    """The EnvConfig overrides of the runs of policy ``spec`` in the world named ``world``:
+    the labels the detector implies, the session's noise, localisation and env table, then
+    what the policy needs (a replay's recorded settings, velocity commands)."""
+    return {"labels": "detections" if cfg.detector != "off" else "observed", **env_overrides(cfg),
+            **policy_class(spec).env_overrides(spec, world)}
+
+
 def build_groups(pairs: list[tuple[str, str]], cfg) -> list[Group]:
     """The groups of (world spec, policy spec) pairs of the session ``cfg`` (a
     SessionConfig); runs with no entries are left out. ``cfg.devices`` 0 uses every device
@@ -110,10 +118,7 @@ def build_groups(pairs: list[tuple[str, str]], cfg) -> list[Group]:
     total_steps = decisions(cfg) * decide_every
     by_config: dict[EnvConfig, list] = {}
     for world, spec in pairs:
-        name = load_world(world).name
-        overrides = {"labels": "detections" if cfg.detector != "off" else "observed", **env_overrides(cfg),
-                     **policy_class(spec).env_overrides(spec, name)}
-        config = EnvConfig().with_overrides("config", **overrides)
+        config = EnvConfig().with_overrides("config", **run_overrides(cfg, load_world(world).name, spec))
         by_config.setdefault(config, []).append((world, spec))
     groups = [_group(config, members, seeds, decide_every, total_steps, devices) for config, members in by_config.items()]
     return [g for g in groups if g.runs]
