@@ -262,3 +262,127 @@ def test_the_tf_chain_map_odom_base_is_the_true_pose_at_every_stamp_with_drift(t
         assert od.pose.pose.position.x == pytest.approx(odom[k, 0])
         gt_yaw = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_euler("zyx")[0]
         assert abs(np.angle(np.exp(1j * (gt_yaw - yaw)))) < 1e-9
+
+
+_KINDS = {"f8": 8, "f4": 7, "i4": 5, "u1": 2}
+
+
+def _raw_cloud(rows: np.ndarray, stamp_s: float = 1.0, **header):
+    """A PointCloud2 of the structured array ``rows`` (its field names and types), with any
+    header field (width, point_step, fields, is_bigendian, ...) overridden by ``header``."""
+    T = STORE.types
+    fields = [T["sensor_msgs/msg/PointField"](name=n, offset=rows.dtype.fields[n][1],
+                                              datatype=_KINDS[rows.dtype.fields[n][0].str[1:]], count=1)
+              for n in rows.dtype.names]
+    sec = int(stamp_s)
+    values = dict(height=1, width=len(rows), fields=fields, is_bigendian=False, point_step=rows.dtype.itemsize,
+                  row_step=rows.dtype.itemsize * len(rows), data=np.frombuffer(rows.tobytes(), np.uint8),
+                  is_dense=False)
+    values.update(header)
+    return T["sensor_msgs/msg/PointCloud2"](header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+        sec=sec, nanosec=int(round((stamp_s - sec) * 1e9))), frame_id="map"), **values)
+
+
+def _rows(n: int = 50, **columns) -> np.ndarray:
+    """n points on the Small Office's first object's samples, instance 0, label and
+    confidence columns as given (name: (dtype, values))."""
+    pts = np.asarray(load_world("small_office").truth.samples.points, np.float64)[:n]
+    dtype = [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("instance", "<i4")]
+    dtype += [(k, v[0]) for k, v in columns.items()]
+    rows = np.zeros(n, dtype)
+    rows["x"], rows["y"], rows["z"] = pts.T
+    for k, (_, values) in columns.items():
+        rows[k] = values
+    return rows
+
+
+def _damaged(bag: Path) -> None:
+    """The first of the bag's two clouds no longer a Message record (its opcode zeroed), as a
+    flipped byte leaves it: rosbags' reader then skips it without a word."""
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    payload = STORE.serialize_cdr(_raw_cloud(_rows()), "sensor_msgs/msg/PointCloud2")
+    start = data.find(bytes(payload)) - 31  # MCAP Message: opcode, length, channel, sequence, two times
+    assert start > 0 and data[start] == 0x05
+    data[start] = 0
+    mcap.write_bytes(bytes(data))
+
+
+SIX_X = np.zeros(50, [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("x2", "<f8"), ("instance", "<i4")])
+
+
+@pytest.mark.parametrize("case, field", [
+    ("confidence 5", "field confidence"), ("confidence -1", "field confidence"),
+    ("confidence NaN", "field confidence"), ("big-endian flag over little-endian data", "field"),
+    ("label 99", "field label"), ("label -5", "field label"), ("label NaN", "field label"),
+    ("instance 3e9", "field instance"), ("x twice", "field x"), ("width 100 of 14479 points", "data"),
+    ("offset past point_step", "field z"), ("labels topic of another type", "/semantic_map/labels"),
+    ("damaged", "damaged"), ("infinite x", "field x, y, z"),
+])
+def test_a_cloud_is_held_to_the_reader_contract_of_a_ply_map(tmp_path, capsys, case, field):
+    """What a PLY map refuses, a bag refuses: one line naming the bag, the topic, the cloud's
+    stamp and the field; nothing written."""
+    bag = tmp_path / "bag"
+    rows = _rows(confidence=("<f8", 0.9), label=("<f8", 3.0))
+    if case.startswith("confidence"):
+        rows["confidence"][7] = {"5": 5.0, "-1": -1.0, "NaN": np.nan}[case.split()[1]]
+    if case.startswith("label "):
+        rows["label"][7] = {"99": 99.0, "-5": -5.0, "NaN": np.nan}[case.split()[1]]
+    if case == "infinite x":
+        rows["x"][7] = np.inf
+    header = {}
+    if case == "big-endian flag over little-endian data":
+        header["is_bigendian"] = True
+    if case == "instance 3e9":
+        rows = _rows(instance64=("<f8", 3e9))
+        rows = rows[["x", "y", "z", "instance64"]]
+        rows.dtype.names = ("x", "y", "z", "instance")
+        rows = np.ascontiguousarray(rows)
+    if case == "x twice":
+        msg = _raw_cloud(SIX_X)
+        msg.fields[3].name = "x"
+    elif case == "width 100 of 14479 points":
+        msg = _raw_cloud(np.resize(rows, 14479), width=100, row_step=100 * rows.dtype.itemsize)
+    elif case == "offset past point_step":
+        msg = _raw_cloud(rows)
+        msg.fields[2].offset = rows.dtype.itemsize - 4
+    else:
+        msg = _raw_cloud(rows, **header)
+    clouds = [(1.0, msg)]
+    if case == "damaged":
+        clouds = [(1.0, _raw_cloud(_rows())), (2.0, _raw_cloud(_rows(), 2.0))]
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection("/semantic_map", "sensor_msgs/msg/PointCloud2", typestore=STORE)
+        if case == "labels topic of another type":
+            s = w.add_connection("/semantic_map/labels", "std_msgs/msg/Int32", typestore=STORE)
+            w.write(s, 0, STORE.serialize_cdr(STORE.types["std_msgs/msg/Int32"](data=3), "std_msgs/msg/Int32"))
+        for t, m in clouds:
+            w.write(c, int(t * 1e9), STORE.serialize_cdr(m, "sensor_msgs/msg/PointCloud2"))
+    if case == "damaged":
+        _damaged(bag)
+    out = tmp_path / "out"
+    labels = ["--labels-topic", "/semantic_map/labels"] if "labels topic" in case else []
+    assert main(["evaluate", "--world", "small_office", "--bag", str(bag), *labels, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bag) in err[0] and field in err[0], err
+    assert "/semantic_map" in err[0] and "truncat" not in err[0]
+    if case not in ("damaged", "labels topic of another type"):
+        assert "@ 1.000 s" in err[0], err
+    assert not out.exists()
+
+
+def test_an_empty_or_all_nan_cloud_is_an_empty_map_scored_zero(tmp_path):
+    """A mapper's first map is often empty: it scores 0 (no NaN), beside a later real one."""
+    empty = _rows(0)
+    nan = _rows(20)
+    nan["x"] = np.nan
+    full = _rows(200)
+    bag = tmp_path / "bag"
+    _map_bag(bag, [(1.0, _raw_cloud(empty, 1.0)), (2.0, _raw_cloud(nan, 2.0)), (3.0, _raw_cloud(full, 3.0))])
+    assert main(["evaluate", "--world", "small_office", "--bag", str(bag), "--metrics", "ori,cori,opi,field",
+                 "--out", str(tmp_path / "o")]) == 0
+    import pandas as pd
+    m = pd.read_csv(tmp_path / "o" / "metrics.csv")
+    assert not m.value.isna().any()
+    ori = m[m.metric == "ori"].sort_values("time_s").value.tolist()
+    assert ori[:2] == [0.0, 0.0] and ori[2] > 0

@@ -381,11 +381,31 @@ def test_two_maps_at_one_time_and_an_empty_map(tmp_path, capsys):
     a, b = _map(tmp_path / "m", "a"), _map(tmp_path / "m", "b")
     assert main(["evaluate", "--world", "small_office", "--map", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
     _one_line(capsys, "two maps have this time")
-    empty = _map(tmp_path / "e")
+    empty = _map(tmp_path / "e", meta={"frame": {"world": "small_office", "time_s": 5.0}})
     empty.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
                       b"property float z\nproperty int instance\nend_header\n")  # as a mapper that saw nothing writes
-    assert main(["evaluate", "--world", "small_office", "--map", str(empty), "--out", str(tmp_path / "o")]) == 2
-    _one_line(capsys, "no points")
+    assert main(["evaluate", "--world", "small_office", "--map", str(empty), "--metrics", "ori,cori,opi,field",
+                 "--out", str(tmp_path / "o")]) == 0  # an empty map: scored 0, as an empty cloud in a bag
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["ori"] == summary["cori"] == summary["opi"] == 0.0
+    assert not pd.read_csv(tmp_path / "o" / "metrics.csv").value.isna().any()
+
+
+def test_a_map_json_naming_an_object_with_no_points_is_refused(tmp_path, capsys):
+    """A JSON object whose id no point holds: the JSON and the PLY are of different maps."""
+    ply = _map(tmp_path / "m", meta={"frame": {"world": "small_office", "time_s": 5.0},
+                                      "objects": [{"id": 0, "label": "chair"}, {"id": 41, "label": "chair"}]})
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(tmp_path / "o")]) == 2
+    _one_line(capsys, "map.json", "objects", "41 has no points")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("confidence", [True, False, "0.5"])
+def test_a_map_json_confidence_must_be_a_number(tmp_path, capsys, confidence):
+    ply = _map(tmp_path / "m", meta={"frame": {"world": "small_office", "time_s": 5.0},
+                                      "objects": [{"id": 0, "label": "chair", "confidence": confidence}]})
+    assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(tmp_path / "o")]) == 2
+    _one_line(capsys, "map.json", "objects[0].confidence")
 
 
 def test_replayed_poses_outside_the_world_or_before_zero(tmp_path, capsys):

@@ -243,53 +243,29 @@ _POINT_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8
 
 def read_maps(bag: Path, topic: str, labels_topic: str | None, world: str, taxonomy) -> list:
     """The PointCloud2 maps of ``topic`` in ``bag`` (module docstring) as SemanticMaps of
-    ``world``, each at its header stamp; one InputError naming the bag, topic and field."""
+    ``world``, each at its header stamp. A cloud is held to the reader contract of a PLY map
+    (:func:`~rosmeery_jax.metrics.map_score.read_columns`), its layout to its header; points
+    with a NaN coordinate are dropped (ROS's mark of an invalid point), so an empty or all-NaN
+    cloud is an empty map. One InputError naming the bag, topic, stamp and field."""
     from rosmeery_jax.metrics.map_score import SemanticMap  # noqa: PLC0415 (evaluate's type)
 
     rosbag2, _ = rosbags()
     store = typestore()
     bag = Path(bag)
-    where = f"{bag} {topic}"
     try:
         reader = rosbag2.Reader(bag)
         reader.open()
     except Exception as err:  # rosbags raises several kinds on a missing, truncated or foreign bag
         raise InputError(bag, "bag", f"not a readable ROS 2 bag ({type(err).__name__}: {err})") from None
     try:
-        conns = [c for c in reader.connections if c.topic == topic]
-        if not conns:
-            raise InputError(bag, "topic", f"{topic!r} is not in the bag (topics: "
-                             f"{', '.join(sorted({c.topic for c in reader.connections}))})")
-        if conns[0].msgtype != "sensor_msgs/msg/PointCloud2":
-            raise InputError(bag, topic, f"is {conns[0].msgtype}, not sensor_msgs/msg/PointCloud2")
-        label_conns = [c for c in reader.connections if labels_topic and c.topic == labels_topic]
-        if labels_topic and not label_conns:
-            raise InputError(bag, "labels topic", f"{labels_topic!r} is not in the bag")
-        maps, labels, last = [], [], -1.0
-        try:
-            for conn, ns, raw in reader.messages(connections=conns + label_conns):
-                msg = store.deserialize_cdr(raw, conn.msgtype)
-                t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 if conn.topic == topic else ns * 1e-9
-                if conn.topic != topic:
-                    labels.append((t, _label_message(bag, labels_topic, msg.data, taxonomy)))
-                    continue
-                if t < last:
-                    raise InputError(bag, f"{topic} header.stamp", f"{t:.9f} s comes after {last:.9f} s: stamps "
-                                     "must not go back")
-                last = t
-                maps.append((t, _cloud(where, msg)))
-        except InputError:
-            raise
-        except Exception as err:
-            raise InputError(bag, topic, f"cannot be read to its end ({type(err).__name__}: {err}): a truncated "
-                             "bag?") from None
+        conns, label_conns = _connections(bag, reader, topic, labels_topic)
+        maps, labels = _read_messages(bag, reader, store, topic, labels_topic, conns + label_conns, taxonomy)
     finally:
         reader.close()
     if not maps:
         raise InputError(bag, topic, "holds no messages")
     out = []
-    for t, (points, instance, point_label, point_conf) in maps:
-        lab, conf = _instance_labels(instance, point_label, point_conf, taxonomy)
+    for t, (points, instance, lab, conf) in maps:
         for lt, (side_lab, side_conf) in labels:  # the side channel's latest message at or before the map
             if lt <= t + 1e-9:
                 lab, conf = {**lab, **side_lab}, {**conf, **side_conf}
@@ -298,56 +274,108 @@ def read_maps(bag: Path, topic: str, labels_topic: str | None, world: str, taxon
     return out
 
 
-def _cloud(where: str, msg) -> tuple:
-    """points (P, 3), instance (P,), label (P,) or None, confidence (P,) or None of one cloud."""
-    fields = {f.name: f for f in msg.fields}
-    for axis in "xyz":
-        if axis not in fields:
-            raise InputError(where, f"field {axis}", "missing: a map needs x, y and z")
+def _connections(bag: Path, reader, topic: str, labels_topic: str | None) -> tuple[list, list]:
+    """The map topic's and the labels topic's connections, their types checked."""
+    conns = [c for c in reader.connections if c.topic == topic]
+    if not conns:
+        raise InputError(bag, "topic", f"{topic!r} is not in the bag (topics: "
+                         f"{', '.join(sorted({c.topic for c in reader.connections}))})")
+    if conns[0].msgtype != "sensor_msgs/msg/PointCloud2":
+        raise InputError(bag, topic, f"is {conns[0].msgtype}, not sensor_msgs/msg/PointCloud2")
+    label_conns = [c for c in reader.connections if labels_topic and c.topic == labels_topic]
+    if labels_topic and not label_conns:
+        raise InputError(bag, "labels topic", f"{labels_topic!r} is not in the bag")
+    if label_conns and label_conns[0].msgtype != "std_msgs/msg/String":
+        raise InputError(bag, labels_topic, f"is {label_conns[0].msgtype}, not std_msgs/msg/String (a map's JSON "
+                         "objects)")
+    return conns, label_conns
+
+
+def _read_messages(bag: Path, reader, store, topic: str, labels_topic, conns: list, taxonomy) -> tuple[list, list]:
+    """[(stamp, map columns)] of the map topic and [(stamp, (labels, confidences))] of the
+    labels topic, every message the bag's index counts read (a damaged bag is refused)."""
+    maps, labels, last = [], [], -1.0
+    read = dict.fromkeys((c.id for c in conns), 0)
+    try:
+        for conn, ns, raw in reader.messages(connections=conns):
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            read[conn.id] += 1
+            if conn.topic != topic:
+                labels.append((ns * 1e-9, _label_message(bag, labels_topic, msg.data, taxonomy)))
+                continue
+            t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            if t < last:
+                raise InputError(bag, f"{topic} header.stamp", f"{t:.9f} s comes after {last:.9f} s: stamps "
+                                 "must not go back")
+            last = t
+            maps.append((t, _cloud(f"{bag} {topic} @ {t:.3f} s", msg, taxonomy)))
+    except InputError:
+        raise
+    except Exception as err:  # the reader's or the decoder's, on bytes that are not what the index says
+        raise InputError(bag, topic, f"a message cannot be read ({type(err).__name__}: {err}): the bag is "
+                         "truncated or damaged") from None
+    for c in conns:
+        if c.msgcount and read[c.id] != c.msgcount:
+            raise InputError(bag, c.topic, f"{read[c.id]} of the {c.msgcount} messages the bag's index counts "
+                             "could be read: the bag is damaged")
+    return maps, labels
+
+
+def _cloud(where: str, msg, taxonomy) -> tuple:
+    """points (P, 3), instance (P,), {id: label}, {id: confidence} of one PointCloud2."""
+    from rosmeery_jax.metrics.map_score import PointColumns, read_columns  # noqa: PLC0415 (evaluate's contract)
+
+    fields = _fields(where, msg)
     name = next((n for n in INSTANCE_FIELDS if n in fields), None)
     if name is None:
         raise InputError(where, "fields", f"no instance field ({', '.join(INSTANCE_FIELDS)}); it has "
                          f"{', '.join(fields) or 'none'}")
-    n = msg.width * msg.height
-    data = np.asarray(msg.data, np.uint8)
-    if msg.point_step * n > len(data):
-        raise InputError(where, "data", f"{len(data)} bytes for {n} points of {msg.point_step}")
+    rows = _rows(where, msg)
     endian = ">" if msg.is_bigendian else "<"
 
     def column(key: str) -> np.ndarray:
         f = fields[key]
-        if f.datatype not in _POINT_TYPES:
-            raise InputError(where, f"field {key}", f"datatype {f.datatype} is not a PointField type")
         dtype = np.dtype(endian + _POINT_TYPES[f.datatype])
-        rows = data[:n * msg.point_step].reshape(n, msg.point_step)
         return rows[:, f.offset:f.offset + dtype.itemsize].copy().view(dtype)[:, 0].astype(np.float64)
 
-    points = np.stack([column(a) for a in "xyz"], 1)
-    ok = np.isfinite(points).all(1)  # ROS clouds mark invalid points with NaN
-    inst = column(name)[ok]
-    if not (np.isfinite(inst) & (inst == np.round(inst))).all():
-        raise InputError(where, f"field {name}", "holds values that are not whole numbers")
-    label = column("label")[ok].astype(np.int64) if "label" in fields else None
-    conf = column("confidence")[ok] if "confidence" in fields else None
-    return points[ok], inst.astype(np.int64), label, conf
+    xyz = np.stack([column(a) for a in "xyz"], 1).reshape(-1, 3)
+    ok = ~np.isnan(xyz).any(1)  # ROS marks invalid points with NaN; infinities are refused below
+    optional = {k: column(k)[ok] if k in fields else None for k in ("label", "confidence")}
+    return read_columns(where, "field", PointColumns(xyz[ok], column(name)[ok], name, **optional), taxonomy)
 
 
-def _instance_labels(instance, point_label, point_conf, taxonomy) -> tuple[dict, dict]:
-    """Per instance id: its points' most common label (a category name, None for -1) and
-    highest confidence (1 without a confidence field), by evaluate's one-sort vote."""
-    from rosmeery_jax.metrics.map_score import most_common  # noqa: PLC0415 (evaluate's vote)
+def _fields(where: str, msg) -> dict:
+    """{name: PointField}: each name once, of a PointField datatype, one value, inside a point."""
+    fields = {}
+    for f in msg.fields:
+        if f.name in fields:
+            raise InputError(where, f"field {f.name}", "appears twice: which one holds the values?")
+        if f.datatype not in _POINT_TYPES:
+            raise InputError(where, f"field {f.name}", f"datatype {f.datatype} is not a PointField type (1-8)")
+        size = np.dtype(_POINT_TYPES[f.datatype]).itemsize
+        if f.count != 1 and f.name in ("x", "y", "z", "label", "confidence", *INSTANCE_FIELDS):
+            raise InputError(where, f"field {f.name}", f"count {f.count}: one value per point is read")
+        if f.offset + size > msg.point_step:
+            raise InputError(where, f"field {f.name}", f"offset {f.offset} + {size} bytes lies past point_step "
+                             f"{msg.point_step}")
+        fields[f.name] = f
+    for axis in "xyz":
+        if axis not in fields:
+            raise InputError(where, f"field {axis}", "missing: a map needs x, y and z")
+    return fields
 
-    ids, inst = np.unique(instance, return_inverse=True)
-    k = most_common(inst, point_label, len(ids)) if point_label is not None else np.full(len(ids), -1)
-    best = np.ones(len(ids))
-    if point_conf is not None:
-        best = np.full(len(ids), -np.inf)
-        np.maximum.at(best, inst, point_conf)
-    names = taxonomy.names
-    labels = {i: names[c] if 0 <= c < len(names) else None for i, c in zip(ids.tolist(), k.tolist())}
-    return labels, dict(zip(ids.tolist(), best.tolist()))
 
-
+def _rows(where: str, msg) -> np.ndarray:
+    """(width x height, point_step) bytes of the cloud: its data exactly what its header
+    says (width x height points of point_step bytes, rows of row_step)."""
+    n, step = msg.width * msg.height, msg.point_step
+    data = np.asarray(msg.data, np.uint8)
+    if msg.row_step != msg.width * step:
+        raise InputError(where, "row_step", f"{msg.row_step} is not width x point_step ({msg.width} x {step})")
+    if len(data) != n * step:
+        raise InputError(where, "data", f"{len(data)} bytes where width x height x point_step is {msg.width} x "
+                         f"{msg.height} x {step} = {n * step}")
+    return data.reshape(n, step) if step else np.zeros((n, 0), np.uint8)
 def _label_message(bag: Path, topic: str, text: str, taxonomy) -> tuple[dict, dict]:
     """A side-channel message: {"objects": [{"id", "label", "confidence"}]}, read as a map's JSON."""
     from rosmeery_jax.metrics.map_score import object_labels  # noqa: PLC0415 (evaluate's reader)

@@ -90,13 +90,16 @@ def read_map(ply: str | Path, taxonomy) -> SemanticMap:
     field = next((f for f in INSTANCE_FIELDS if f in names), None)
     if field is None:
         raise InputError(ply, "vertex", f"needs an instance id field ({' or '.join(INSTANCE_FIELDS)})")
-    points = np.stack([vertex[a].astype(np.float64) for a in "xyz"], -1)
-    bad = ~np.isfinite(points).all(1)
-    if bad.any():
-        raise InputError(ply, "vertex x, y, z", f"{int(bad.sum())} points are not finite numbers (first: row {int(np.argmax(bad))})")
-    instance = _whole_numbers(ply, vertex, field)
-    labels, conf = _point_labels(ply, vertex, instance, taxonomy)
+    columns = PointColumns(np.stack([vertex[a].astype(np.float64) for a in "xyz"], -1).reshape(-1, 3),
+                           vertex[field].astype(np.float64), field,
+                           vertex["label"].astype(np.float64) if "label" in names else None,
+                           vertex["confidence"].astype(np.float64) if "confidence" in names else None)
+    points, instance, labels, conf = read_columns(ply, "vertex", columns, taxonomy)
     world, time_s, extra_labels, extra_conf = _read_meta(meta_path, taxonomy)
+    pointless = sorted(set(extra_labels) - set(labels))
+    if pointless:
+        raise InputError(meta_path, "objects", f"id {pointless[0]} has no points in {ply.name} (its instance ids: "
+                         f"{_some(sorted(labels))}): the JSON and the PLY are of different maps?")
     labels.update(extra_labels)
     conf.update(extra_conf)
     return SemanticMap(ply, points, instance, labels, conf, world, time_s)
@@ -121,8 +124,6 @@ def _vertices(ply: Path) -> np.ndarray:
     missing = [a for a in "xyz" if a not in (vertex.dtype.names or ())]
     if missing:
         raise InputError(ply, f"vertex {missing[0]}", "missing")
-    if len(vertex) == 0:
-        raise InputError(ply, "vertex", "the map has no points")
     return vertex
 
 
@@ -172,42 +173,76 @@ def _columns(ply: Path, columns: dict) -> np.ndarray:
         raise InputError(ply, "vertex", f"not a point cloud's vertex table ({err})") from None
 
 
-def _whole_numbers(ply: Path, vertex, name: str) -> np.ndarray:
-    """A per-point id field (instance, label) as int64 (P,): whole numbers an int32 holds,
-    in an integer or a float property (larger ids would overflow the scoring's pair keys)."""
-    values = vertex[name].astype(np.float64)  # exact for every integer that passes
+class PointColumns(NamedTuple):
+    """A map's per-point columns as read, before any check (every way a map comes in, PLY
+    or a ROS PointCloud2, fills one): xyz (P, 3), instance (P,) under the field name
+    ``instance_field``, label (P,) or None, confidence (P,) or None, all float64."""
+
+    xyz: np.ndarray
+    instance: np.ndarray
+    instance_field: str
+    label: np.ndarray | None
+    confidence: np.ndarray | None
+
+
+def read_columns(source, element: str, cols: PointColumns, taxonomy) -> tuple[np.ndarray, np.ndarray, dict, dict]:
+    """The one reader contract of a map's points: x, y, z finite; instance ids and labels
+    whole numbers an int32 holds; labels taxonomy indices or -1; confidences in [0, 1].
+    Returns points (P, 3), instance (P,) int64, and per instance id its points' most common
+    label (a category name, None: unlabelled) and highest confidence (1 without the column).
+    An empty map is valid (a mapper's first map often is). One InputError naming ``source``
+    and ``element``'s field otherwise."""
+    bad = ~np.isfinite(cols.xyz).all(1)
+    if bad.any():
+        raise InputError(source, f"{element} x, y, z", f"{int(bad.sum())} points are not finite numbers (first: row "
+                         f"{int(np.argmax(bad))})")
+    instance = _whole_numbers(source, element, cols.instance_field, cols.instance)
+    label = None if cols.label is None else _whole_numbers(source, element, "label", cols.label)
+    if label is not None:
+        bad = (label < -1) | (label >= len(taxonomy.names))
+        if bad.any():
+            raise InputError(source, f"{element} label", f"{label[np.argmax(bad)]} (row {int(np.argmax(bad))}) is not "
+                             f"a category index of the taxonomy (0..{len(taxonomy.names) - 1}, -1 none)")
+    if cols.confidence is not None:
+        bad = ~((cols.confidence >= 0.0) & (cols.confidence <= 1.0))  # NaN too
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise InputError(source, f"{element} confidence", f"{cols.confidence[row]} (row {row}) is not a number "
+                             "in [0, 1]")
+    labels, conf = _instance_labels(instance, label, cols.confidence, taxonomy)
+    return cols.xyz, instance, labels, conf
+
+
+def _whole_numbers(source, element: str, name: str, values: np.ndarray) -> np.ndarray:
+    """A per-point id column (instance, label) as int64 (P,): whole numbers an int32 holds,
+    from an integer or a float field (larger ids would overflow the scoring's pair keys)."""
     bad = ~(np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2.0 ** 31))
     if bad.any():
         row = int(np.argmax(bad))
-        raise InputError(ply, f"vertex {name}", f"{vertex[name][row]} (row {row}) is not a whole number between "
+        raise InputError(source, f"{element} {name}", f"{values[row]} (row {row}) is not a whole number between "
                          f"-{2 ** 31 - 1} and {2 ** 31 - 1}")
     return values.astype(np.int64)
 
 
-def _point_labels(ply: Path, vertex, instance: np.ndarray, taxonomy) -> tuple[dict, dict]:
-    """Per instance: its points' most common label (taxonomy index) and highest confidence."""
-    labels, conf = {}, {}
-    names = vertex.dtype.names
-    point_label = _whole_numbers(ply, vertex, "label") if "label" in names else None
-    if "confidence" in names:
-        point_conf = vertex["confidence"].astype(np.float64)
-        bad = ~((point_conf >= 0.0) & (point_conf <= 1.0))  # NaN too
-        if bad.any():
-            row = int(np.argmax(bad))
-            raise InputError(ply, "vertex confidence", f"{point_conf[row]} (row {row}) is not a number in [0, 1]")
+def _instance_labels(instance: np.ndarray, label, confidence, taxonomy) -> tuple[dict, dict]:
+    """Per instance id: its points' most common label (a category name, None for -1) and
+    highest confidence (1 without a confidence column)."""
+    if not len(instance):
+        return {}, {}
     ids, inst = np.unique(instance, return_inverse=True)
-    k = most_common(inst, point_label, len(ids)) if point_label is not None else np.full(len(ids), -1)
-    bad = (k < -1) | (k >= len(taxonomy.names))
-    if bad.any():
-        raise InputError(ply, "vertex label", f"{k[np.argmax(bad)]} is not a category index of the taxonomy "
-                         f"(0..{len(taxonomy.names) - 1}, -1 none)")
-    best = np.full(len(ids), -np.inf)
-    if "confidence" in names:
-        np.maximum.at(best, inst, point_conf)
-    for i, ki, ci in zip(ids.tolist(), k.tolist(), best.tolist()):
-        labels[i] = taxonomy.names[ki] if ki >= 0 else None
-        conf[i] = ci if "confidence" in names else 1.0
-    return labels, conf
+    k = most_common(inst, label, len(ids)) if label is not None else np.full(len(ids), -1)
+    best = np.ones(len(ids))
+    if confidence is not None:
+        best = np.full(len(ids), -np.inf)
+        np.maximum.at(best, inst, confidence)
+    names = taxonomy.names
+    return ({i: names[c] if c >= 0 else None for i, c in zip(ids.tolist(), k.tolist())},
+            dict(zip(ids.tolist(), best.tolist())))
+
+
+def _some(ids: list) -> str:
+    """A few of ``ids`` for a message."""
+    return ", ".join(map(str, ids[:5])) + (", ..." if len(ids) > 5 else "") if ids else "none"
 
 
 def most_common(group: np.ndarray, value: np.ndarray, groups: int) -> np.ndarray:
@@ -256,7 +291,7 @@ def object_labels(source, objects, taxonomy, where: str = "objects") -> tuple[di
         if label is not None and label not in taxonomy:
             raise InputError(source, f"{where}[{j}].label", f"{label!r} is not a category of the taxonomy")
         c = obj.get("confidence", 1.0)
-        if not isinstance(c, (int, float)) or not 0.0 <= c <= 1.0:
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not 0.0 <= c <= 1.0:
             raise InputError(source, f"{where}[{j}].confidence", f"{c!r} is not a number in [0, 1]")
         labels[obj["id"]], conf[obj["id"]] = label, float(c)
     return labels, conf
