@@ -121,3 +121,24 @@ def test_a_folder_of_a_version_without_records_is_read_as_before(parts, tmp_path
     (old / "manifest.json").write_text("{}")  # a record that is there is read
     assert main(["plot", str(old)]) == 2
     one_line_error(capsys, f"{old}/manifest.json: file: unreadable")
+
+
+def test_an_emptied_record_is_damage_not_a_switch(parts, tmp_path, capsys):
+    """A run's record replaced by {"files": {}} beside a changed trajectory row: join refuses
+    the part naming the record, and --resume simulates the run again (a record that names
+    fewer files than the run wrote is damage); an emptied merged record stops plot."""
+    a, b = parts
+    part = _copy(b, tmp_path, "part")
+    record = part / "runs" / f"{RUN}.manifest.json"
+    record.write_text('{"files": {}}')
+    traj = part / "runs" / f"{RUN}.trajectory.csv"
+    traj.write_text(traj.read_text().replace(",0.", ",9.", 1))
+    assert main(["join", str(a), str(part), "--out", str(tmp_path / "joined")]) == 2
+    one_line_error(capsys, f"{record}: files: does not list", "resume")
+    assert not (tmp_path / "joined").exists()
+    assert main([*ARGS, "--first-seed", "2", "--out", str(part), "--resume"]) == 0
+    assert f"{record}: files: does not list" in capsys.readouterr().err
+    assert traj.read_bytes() == (b / "runs" / f"{RUN}.trajectory.csv").read_bytes()
+    (part / "manifest.json").write_text('{"files": {}}')
+    assert main(["plot", str(part)]) == 2
+    one_line_error(capsys, f"{part}/manifest.json: files: does not list metrics.csv")

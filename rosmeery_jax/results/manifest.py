@@ -40,9 +40,10 @@ def write(manifest: Path, root: Path, files: list[Path]) -> Path:
     return write_atomic(manifest, json.dumps({"files": listed}, indent=1))
 
 
-def damage(manifest: Path, root: Path) -> InputError | None:
+def damage(manifest: Path, root: Path, expected: list[Path] = ()) -> InputError | None:
     """The first damage to the files ``manifest`` lists (a missing, changed or unreadable
-    file, or the manifest itself), as an InputError naming the file and row; None if none."""
+    file, or the manifest itself, or one that lists fewer files than ``expected``: what the
+    run wrote), as an InputError naming the file and row; None if none."""
     try:
         files = json.loads(manifest.read_text(encoding="utf-8"))["files"]
         items = list(files.items())
@@ -52,6 +53,10 @@ def damage(manifest: Path, root: Path) -> InputError | None:
         return InputError(str(manifest), "file", "not found: no record of the files written")
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError):
         return InputError(str(manifest), "file", "unreadable: the record of the files written is damaged")
+    unlisted = sorted({p.relative_to(root).as_posix() for p in expected} - set(files))
+    if unlisted:
+        return InputError(str(manifest), "files", f"does not list {unlisted[0]} ({len(unlisted)} of the files written "
+                          "not listed): the record of the files written is damaged")
     for rel, want in items:
         path = root / rel
         if not path.is_file():

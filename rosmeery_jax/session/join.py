@@ -28,7 +28,7 @@ from rosmeery_jax.core.files import RECORD, output_folder, require_new, require_
 from rosmeery_jax.results import manifest
 from rosmeery_jax.session.config import RESULT_FIELDS
 from rosmeery_jax.session.folder import saved_settings
-from rosmeery_jax.session.outputs import finished, merge, rates, run_manifest, seal_run
+from rosmeery_jax.session.outputs import finished, merge, rates, run_damage, seal_run
 
 SPLIT = ("seeds", "first_seed", "out")  # the settings the parts may differ in (and their versions)
 RATES = ("env_steps_per_s", "sim_env_steps_per_s")  # in timing files: from the sums, not summed
@@ -92,7 +92,7 @@ def _read(folder: Path) -> SweepPart:
         raise InputError(str(folder / "runs"), "runs", f"{len(done)} of the session's {runs} runs finished: resume "
                          "it first")
     for name in done:
-        err = manifest.damage(run_manifest(folder, name), folder)
+        err = run_damage(folder, name)
         if err is not None:
             raise InputError(err.source, err.where, f"{err.problem}: resume {folder} to simulate the run again")
     return SweepPart(folder, record, range(first, first + count))

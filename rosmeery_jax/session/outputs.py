@@ -166,6 +166,13 @@ def run_manifest(out: Path, name: str) -> Path:
     return out / "runs" / f"{name}{manifest.RUN_SUFFIX}"
 
 
+def run_damage(out: Path, name: str):
+    """The first damage to run ``name``'s files (:func:`rosmeery_jax.results.manifest.damage`):
+    its record must list its metrics table and every table and map of the run there is."""
+    expected = {*run_files(out, name), out / "runs" / f"{name}.metrics.csv"}
+    return manifest.damage(run_manifest(out, name), out, sorted(expected))
+
+
 def seal_run(out: Path, name: str) -> None:
     """Record run ``name``'s files, last: the record marks the run done."""
     manifest.write(run_manifest(out, name), out, run_files(out, name))
@@ -195,8 +202,13 @@ def check_folder(out: Path) -> None:
         kept = False
     if not kept and not (out / manifest.MANIFEST).exists():
         return
-    for record in [out / manifest.MANIFEST] + [run_manifest(out, name) for name in finished(out)]:
-        manifest.check(record, out)
+    merged = [out / f for f in MERGED if (out / f).exists()]
+    for err in [manifest.damage(out / manifest.MANIFEST, out, merged)] + [run_damage(out, n) for n in finished(out)]:
+        if err is not None:
+            raise err
+
+
+MERGED = ("metrics.csv", "objects.csv", "trajectories.csv", "navigation.csv")  # the tables of every run
 
 
 def merge(out: Path) -> None:
@@ -205,9 +217,8 @@ def merge(out: Path) -> None:
     if not runs:
         return
     df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
-    written = [tables.write_csv(df, out / "metrics.csv")]
-    for suffix, merged in ((".objects.csv", "objects.csv"), (".trajectory.csv", "trajectories.csv"),
-                           (".navigation.csv", "navigation.csv")):
+    written = [tables.write_csv(df, out / MERGED[0])]
+    for suffix, merged in zip((".objects.csv", ".trajectory.csv", ".navigation.csv"), MERGED[1:]):
         parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
         parts = [pd.read_csv(p) for p in parts if p.exists()]
         if parts:

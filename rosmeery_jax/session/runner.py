@@ -36,7 +36,8 @@ from rosmeery_jax.session import batch, cluster, engine
 from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.folder import check_out, versions
-from rosmeery_jax.session.outputs import RunResult, finished, merge, run_manifest, run_name, sum_timing, write_run
+from rosmeery_jax.session.outputs import (RunResult, finished, merge, run_damage, run_manifest, run_name, sum_timing,
+                                          write_run)
 from rosmeery_jax.session.schedule import Plan
 
 
@@ -172,7 +173,7 @@ def _done(out: Path, world: str, policy: str) -> bool:
     record = run_manifest(out, name)
     if not record.exists() and not (out / "runs" / f"{name}.metrics.csv").exists():
         return False  # never finished: nothing to say
-    err = manifest.damage(record, out)
+    err = run_damage(out, name)
     if err is None:
         return True
     print(f"rosmeery: {err}: simulating {name} again", file=sys.stderr)
