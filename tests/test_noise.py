@@ -52,6 +52,28 @@ def test_depth_drops_edges_and_grazing_returns_and_keeps_holes():
     assert (flat == 2.0).all()
 
 
+@pytest.mark.parametrize("dropout", [0.0, 0.5, 1.0])
+def test_edge_pixels_drop_with_the_edge_probability_not_as_grazing_returns(dropout):
+    """A box face at 2 m before a wall at 4 m, both facing the camera: only the edge test may
+    drop the pixels at the jump (the grazing test judges each pixel's own surface), so they
+    drop with probability ``edge_dropout``; flat pixels never drop."""
+    z = np.full((240, 320), 4.0, np.float32)
+    z[60:180, 80:240] = 2.0
+    cfg = NoiseConfig(edge_jump=0.1, edge_dropout=dropout, max_incidence=math.radians(80))
+    out = np.asarray(noise.depth(KEY, jnp.asarray(z), cfg, 277.0))
+    edge = np.zeros_like(z, bool)
+    for axis in (0, 1):
+        jump = np.abs(np.diff(z, axis=axis)) > 0.1
+        lo = [slice(None), slice(None)]
+        hi = [slice(None), slice(None)]
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        edge[tuple(lo)] |= jump
+        edge[tuple(hi)] |= jump
+    assert edge.sum() == 2 * (120 + 160) + 2 * (120 + 160) - 4  # a ring each side of the jump (inner corners once)
+    assert (out[~edge] == z[~edge]).all()
+    assert (out[edge] == 0).mean() == pytest.approx(dropout, abs=0.05)
+
+
 def test_laser_rgb_and_actuation_noise_have_their_statistics():
     r = jnp.full(200_000, 5.0)
     out = np.asarray(noise.ranges(KEY, r, NoiseConfig(laser_sigma=0.01, laser_dropout=0.05), 0.2, 15.0))

@@ -7,7 +7,8 @@ the exact rendering, seeded per robot and step, pure JAX inside the step.
   focal f_q pixels and baseline B measures disparity f_q B / z in steps of ``disparity_step``
   pixels); no return at depth edges (a jump of more than ``edge_jump`` m to a 4-neighbour,
   with probability ``edge_dropout``) and at grazing incidence (above ``max_incidence``,
-  judged from the depth gradient);
+  judged from the depth change per pixel on the pixel's own surface: the smaller of the
+  one-sided differences on each axis, so that an edge is not taken for a grazing surface);
 - laser: Gaussian range noise and dropouts (a dropped beam reads max_range, no return);
 - RGB: Gaussian pixel noise (8-bit units), clipped;
 - actuation: the executed velocity differs from the command, the velocity motion model of
@@ -127,10 +128,27 @@ def depth(k: jax.Array, z: jax.Array, cfg: NoiseConfig, focal: float) -> jax.Arr
             jump |= (jnp.abs(z - n) > cfg.edge_jump) & (n > 0)  # between two returns
         drop |= jump & (jax.random.uniform(ke, z.shape) < cfg.edge_dropout)
     if cfg.max_incidence:
-        gy, gx = jnp.gradient(z)
-        slope = jnp.hypot(gx, gy) * focal / jnp.maximum(z, 1e-3)  # depth change per pixel footprint: tan(incidence)
-        drop |= slope > math.tan(cfg.max_incidence)
+        slope = jnp.hypot(_surface_step(z, valid, 0), _surface_step(z, valid, 1)) * focal / jnp.maximum(z, 1e-3)
+        drop |= slope > math.tan(cfg.max_incidence)  # depth change per pixel footprint: tan(incidence)
     return jnp.where(drop, 0.0, noisy).astype(jnp.float32)
+
+
+def _surface_step(z: jax.Array, valid: jax.Array, axis: int) -> jax.Array:
+    """(H, W) depth change per pixel along ``axis`` on the surface a pixel sees: the smaller
+    of its two one-sided differences to returning neighbours (a slope limiter), so a jump to
+    another surface beside it (an edge, judged by the edge test alone) is not taken for a
+    steep slope; 0 where neither neighbour returns."""
+    pad = [(0, 0), (0, 0)]
+    pad[axis] = (1, 1)
+    zp, vp = jnp.pad(z, pad), jnp.pad(valid, pad)  # beyond the border: no neighbour
+    n = z.shape[axis]
+    sides = []
+    for start in (0, 2):
+        nz = jax.lax.slice_in_dim(zp, start, start + n, axis=axis)
+        nv = jax.lax.slice_in_dim(vp, start, start + n, axis=axis)
+        sides.append(jnp.where(nv, jnp.abs(z - nz), jnp.inf))
+    step = jnp.minimum(*sides)
+    return jnp.where(jnp.isfinite(step), step, 0.0)
 
 
 def ranges(k: jax.Array, r: jax.Array, cfg: NoiseConfig, min_range: float, max_range: float) -> jax.Array:
