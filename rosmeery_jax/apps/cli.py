@@ -111,8 +111,9 @@ def _logged(what: dict, rrd) -> None:
 
 def _cmd_view(args) -> int:
     d = Path(args.dir)
-    check_folder(d)
     out = Path(args.out) if args.out else d / "session.rrd"
+    rerun_view.check_out(out, "--out")  # before any work
+    check_folder(d)
     split = (lambda text: [x.strip() for x in text.split(",") if x.strip()] if text else None)  # noqa: E731
     positive(args, "max_points")
     try:

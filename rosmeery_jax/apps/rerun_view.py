@@ -9,12 +9,17 @@ of ``metrics.csv`` as a time series. Which runs are logged is chosen by world, p
 seed; every map is thinned to at most ``max_points`` points, so the size stays bounded.
 
 Entity paths: ``world/<world>/objects``, ``world/<world>/samples``,
-``world/<world>/<policy>/seed<k>/path|robot|map/<mapper>``,
-``metrics/<world>/<policy>/<mapper>/<metric>/seed<k>``.
+``world/<world>/<policy>/seed<k>/path|robot|map/<mapper>|camera``,
+``metrics/<metric>/<world>/<policy>/<mapper>/seed<k>``.
+
+The recording carries its default blueprint (``rerun.blueprint``): a large 3D view of the
+worlds, maps and paths beside one time-series panel per metric holding every world,
+policy, mapper and seed, each over the whole run.
 """
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -40,10 +45,23 @@ def rerun():
 
 
 def check_out(out: str | Path, where: str = "--rerun") -> None:
-    """Before any work: rerun-sdk importable and ``out`` a .rrd file name."""
+    """Before any work: rerun-sdk importable, ``out`` a .rrd file name that is not there yet
+    (a recording is never replaced), in a folder that exists and takes a new file."""
     rerun()
-    if Path(out).suffix != ".rrd":
+    out = Path(out)
+    if out.suffix != ".rrd":
         raise InputError("command line", where, f"{out} must end in .rrd")
+    if out.is_dir():
+        raise InputError(str(out), where, "is a folder: name a new .rrd file")
+    if out.exists() or out.is_symlink():
+        raise InputError(str(out), where, "exists: a recording is never replaced; choose another name")
+    folder = out.parent
+    if not folder.is_dir():
+        raise InputError(str(out), where, f"its folder {folder} does not exist")
+    try:  # a file made and removed: the one test of writing that holds for root and read-only mounts alike
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as err:
+        raise InputError(str(out), where, f"its folder {folder} takes no new file ({err.strerror})") from None
 
 
 def view(folder: str | Path, out: str | Path, worlds=None, policies=None, seeds=None,
@@ -65,7 +83,7 @@ def view(folder: str | Path, out: str | Path, worlds=None, policies=None, seeds=
             df = df[df[key].isin(wanted)]
     check_out(out, "--out")
     rec = rr.RecordingStream("rosmeery")
-    rec.save(out)
+    rec.save(out, default_blueprint=blueprint(sorted(set(df.metric))))
     traj = _trajectories(folder)
     logged = {"worlds": 0, "runs": 0, "maps": 0, "curves": 0, "frames": 0}
     try:
@@ -91,6 +109,21 @@ def view(folder: str | Path, out: str | Path, worlds=None, policies=None, seeds=
         rec.flush()
         del rec
     return {**logged, "bytes": out.stat().st_size}
+
+
+def blueprint(metrics: list[str]):
+    """The layout a recording opens with: the 3D world with its maps and the robots' paths
+    (three fifths of the width), and one time-series panel per metric, every curve in it,
+    over the whole run (not the last seconds)."""
+    import rerun.blueprint as rrb  # noqa: PLC0415 (with rerun, found above)
+
+    whole = rrb.VisibleTimeRange(TIMELINE, start=rrb.TimeRangeBoundary.infinite(),
+                                 end=rrb.TimeRangeBoundary.infinite())
+    panels = [rrb.TimeSeriesView(origin=f"metrics/{m}", name=m, time_ranges=[whole]) for m in metrics]
+    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="world", name="worlds, maps and paths",
+                                                          time_ranges=[whole]),
+                                        rrb.Vertical(*panels), column_shares=[3, 2]),
+                         collapse_panels=True)
 
 
 def _trajectories(folder: Path) -> pd.DataFrame | None:
@@ -163,29 +196,75 @@ def _given_maps(rr, rec, world, base: str, maps: list, max_points: int) -> int:
 
 
 def _frames(rr, rec, seq: Path, base: str, most: int = 300) -> int:
-    """A TUM sequence's camera (pinhole at its ground-truth pose) with its colour and depth
-    images, at most ``most`` frames evenly spread."""
+    """A recorded sequence's camera (pinhole at its ground-truth pose) with its colour and
+    depth images (a TUM folder's or a bag's), at most ``most`` frames evenly spread."""
     import json  # noqa: PLC0415
 
     import cv2  # noqa: PLC0415
 
     cam = json.loads((seq / "camera.json").read_text())
-    if not (seq / "rgb.txt").exists():
-        return 0  # a bag recording: its frames are in the bag
-    rows = [line.split() for line in (seq / "groundtruth.txt").read_text().splitlines() if not line.startswith("#")]
-    poses = {r[0]: np.array(r[1:], float) for r in rows}
-    frames = [line.split() for line in (seq / "rgb.txt").read_text().splitlines() if not line.startswith("#")]
+    if (seq / "rgb.txt").exists():
+        rows = [line.split() for line in (seq / "groundtruth.txt").read_text().splitlines()
+                if not line.startswith("#")]
+        poses = {r[0]: np.array(r[1:], float) for r in rows}
+        frames = [line.split() for line in (seq / "rgb.txt").read_text().splitlines() if not line.startswith("#")]
+        frames = [(float(stamp), poses[stamp], lambda n=name: cv2.imread(str(seq / n))[..., ::-1],
+                   lambda s=stamp: cv2.imread(str(seq / "depth" / f"{s}.png"), cv2.IMREAD_UNCHANGED) /
+                   cam["depth_scale"]) for stamp, name in frames]
+    else:  # a bag recording: its images and its ground truth from the bag
+        frames = _bag_frames(seq / "bag", cam, most)
     frames = [frames[i] for i in _thin(len(frames), most)]
     k = [[cam["fx"], 0, cam["cx"]], [0, cam["fy"], cam["cy"]], [0, 0, 1]]
     rec.log(f"{base}/camera", rr.Pinhole(image_from_camera=k, resolution=[cam["width"], cam["height"]]), static=True)
-    for stamp, name in frames:
-        rec.set_time(TIMELINE, duration=float(stamp))
-        p = poses[stamp]
+    for t, p, rgb, depth in frames:
+        rec.set_time(TIMELINE, duration=t)
         rec.log(f"{base}/camera", rr.Transform3D(translation=p[:3], quaternion=p[3:]))
-        rec.log(f"{base}/camera/rgb", rr.Image(cv2.imread(str(seq / name))[..., ::-1]))
-        depth = cv2.imread(str(seq / "depth" / f"{stamp}.png"), cv2.IMREAD_UNCHANGED)
-        rec.log(f"{base}/camera/depth", rr.DepthImage(depth, meter=cam["depth_scale"]))
+        rec.log(f"{base}/camera/rgb", rr.Image(rgb()))
+        rec.log(f"{base}/camera/depth", rr.DepthImage(np.nan_to_num(depth()).astype(np.float32), meter=1.0))
     return len(frames)
+
+
+def _bag_frames(bag: Path, cam: dict, most: int) -> list:
+    """[(time, optical pose (7,), rgb (), depth ())] of at most ``most`` of a recorded bag's
+    colour frames, evenly spread: its images, and its ground truth (``/ground_truth/odom``)
+    carried to the optical frame by the mounting ``camera.json`` gives."""
+    from dataclasses import replace  # noqa: PLC0415
+
+    from rosmeery_jax.apps import ros_bags  # noqa: PLC0415 (the ros extra, only for a bag)
+    from rosmeery_jax.apps.sensor_streams import optical_poses  # noqa: PLC0415
+    from rosmeery_jax.raycast.sensors import CameraConfig  # noqa: PLC0415
+
+    rosbag2, _ = ros_bags.rosbags()
+    store = ros_bags.typestore()
+    mount = cam["base_to_camera"]
+    camera = replace(CameraConfig(), mount_x=mount["x"], mount_height=mount["z"], pitch=mount["pitch_rad"])
+    topics = ("/camera/color/image_raw", "/camera/depth/image_raw", "/ground_truth/odom")
+    with rosbag2.Reader(bag) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        count = sum(c.msgcount for c in conns if c.topic == topics[0])
+        keep = set(_thin(count, most).tolist())
+        seen, images, poses = -1, {}, {}
+        for conn, ns, raw in reader.messages(connections=conns):
+            if conn.topic == topics[0]:
+                seen += 1
+            if conn.topic == topics[2]:
+                m = store.deserialize_cdr(raw, conn.msgtype).pose.pose
+                q = m.orientation
+                poses[ns] = (m.position.x, m.position.y, 2 * np.arctan2(q.z, q.w))
+            elif seen in keep:
+                images.setdefault(ns, {})[conn.topic] = store.deserialize_cdr(raw, conn.msgtype)
+    out = []
+    for ns, msgs in sorted(images.items()):
+        if len(msgs) < 2 or ns not in poses:
+            continue
+        rgb, depth = msgs[topics[0]], msgs[topics[1]]
+        pose = optical_poses(camera, np.asarray([poses[ns]], np.float32))[0]
+        shape = (rgb.height, rgb.width)
+        d = np.frombuffer(depth.data.tobytes(), "<f4" if depth.encoding == "32FC1" else "<u2").reshape(shape)
+        scale = 1.0 if depth.encoding == "32FC1" else 1e-3
+        out.append((ns * 1e-9, pose, lambda m=rgb, s=shape: np.frombuffer(m.data.tobytes(), np.uint8).reshape(*s, 3),
+                    lambda d=d, k=scale: d.astype(np.float32) * k))
+    return out
 
 
 def _curves(rr, rec, run: pd.DataFrame, world: str, policy: str, seed: int) -> int:
@@ -193,7 +272,7 @@ def _curves(rr, rec, run: pd.DataFrame, world: str, policy: str, seed: int) -> i
     count = 0
     for (mapper, metric), c in run.groupby(["mapper", "metric"]):
         c = c.sort_values("time_s")
-        rec.send_columns(f"metrics/{world}/{policy}/{mapper}/{metric}/seed{seed}",
+        rec.send_columns(f"metrics/{metric}/{world}/{policy}/{mapper}/seed{seed}",
                          indexes=[rr.TimeColumn(TIMELINE, duration=c.time_s.to_numpy())],
                          columns=rr.Scalars.columns(scalars=c.value.to_numpy(np.float64)))
         count += 1
