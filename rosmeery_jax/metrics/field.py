@@ -356,7 +356,8 @@ def objects(tally: Tally, truth: FieldTruth) -> dict[str, float]:
     """Precision, recall and F1 of labelled instances against objects of their label, one to
     one: at surface IoU >= 0.25 and >= 0.5, and by centroid containment (weak: the
     instance's centroid in the object's box; strict: also the box's centre in the
-    instance's cuboid)."""
+    instance's cuboid; an instance of fewer than MIN_BOX_POINTS points has no cuboid and
+    matches neither)."""
     k = _proposals(tally)
     n = len(truth.ps_G)
     same = tally.label[k][:, None] == truth.category[None, :]
@@ -367,6 +368,8 @@ def objects(tally: Tally, truth: FieldTruth) -> dict[str, float]:
         out.update({f"precision{round(100 * th)}": p, f"recall{round(100 * th)}": r, f"f1_{round(100 * th)}": f})
     weak, strict = fk.containment(tally.centroid[k], tally.lo[k], tally.hi[k], same, truth.center, truth.size,
                                   truth.yaw)
+    boxed = (tally.count[k] >= MIN_BOX_POINTS)[:, None]  # no cuboid under MIN_BOX_POINTS: not a proposal here
+    weak, strict = weak & boxed, strict & boxed
     closeness = -np.linalg.norm(tally.centroid[k][:, None, :] - truth.center[None, :, :], axis=-1) if len(k) else \
         np.zeros((0, n))
     for name, cand in (("_weak", weak), ("_strict", strict)):
@@ -386,7 +389,7 @@ def geometry(tally: Tally, truth: FieldTruth) -> dict[str, float]:
         comp = tally.samples_in[k] / tally.samples
         out[f"accuracy_{name}"], out[f"completeness_{name}"] = float(acc), float(comp)
         out[f"fscore_{name}"] = float(2 * acc * comp / (acc + comp)) if acc + comp > 0 else 0.0
-        way = [total / n if n else tau for total, n in ((tally.points_sum[k], tally.points_in[k]),
+        way = [max(0.0, total / n) if n else tau for total, n in ((tally.points_sum[k], tally.points_in[k]),
                                                         (tally.samples_sum[k], tally.samples_in[k]))]
         out[f"chamfer_{name}"] = float(way[0] + way[1])
     return out
