@@ -635,3 +635,24 @@ def test_plot_results_draws_a_figure_per_world_and_metric_and_refuses_a_table_it
     with pytest.raises(TypeError, match=r"plot_results: a results table \(load_results\(folder\)\), not str"):
         plot_results(str(tmp_path), tmp_path / "q")  # a folder for its table (an AttributeError)
     assert not (tmp_path / "q").exists()
+
+
+@pytest.mark.parametrize("wanted", ["field", "ori,field"])
+def test_replay_scores_the_field_metrics_of_the_map_it_grows(replay_dir, tmp_path, wanted):
+    """`replay --metrics field` (alone or beside ori) writes every metric asked for, and the
+    last row equals `evaluate` of the replay's exported map."""
+    out = tmp_path / "o"
+    assert main(["replay", "--world", "small_office", "--poses", str(replay_dir.parent / "p.csv"), "--out", str(out),
+                 "--metrics", wanted]) == 0
+    df = pd.read_csv(out / "metrics.csv")
+    want = set(metrics.resolve(wanted.split(",")))
+    assert set(df.metric) == want and not df.value.isna().any()
+    comp = df[df.metric == "completeness_5cm"].sort_values("time_s").value.to_numpy()
+    assert comp[0] <= comp[-1] and comp[-1] > 0
+    ev = tmp_path / "ev"
+    assert main(["evaluate", "--world", "small_office", "--map", str(out / "semantic_map.ply"), "--metrics", "field",
+                 "--out", str(ev)]) == 0
+    summary = json.loads((ev / "summary.json").read_text())
+    last = df[df.time_s == df.time_s.max()].set_index("metric").value
+    for name in ("omq", "ap50", "completeness_5cm", "miou"):
+        assert last[name] == pytest.approx(summary[name], abs=1e-6), name

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
 import pandas as pd
 
 from rosmeery_jax import metrics
@@ -29,14 +30,14 @@ from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.env import make
-from rosmeery_jax.metrics import map_score
+from rosmeery_jax.metrics import field, map_score
 from rosmeery_jax.metrics.align import to_world
 from rosmeery_jax.metrics.map_file import write_semantic_map
 from rosmeery_jax.metrics.trajectory import read_poses, replay
 from rosmeery_jax.results import plots, statistics, tables, time_use
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
-from rosmeery_jax.session.outputs import check_folder
+from rosmeery_jax.session.outputs import check_folder, oracle_field
 from rosmeery_jax.world import load_world
 
 
@@ -69,6 +70,10 @@ def _cmd_replay(args) -> int:
     env = make(args.world)
     run = replay(env, times, poses)
     curves = metrics.compute(run.logs, env.sk.truth, names)
+    wanted = field.wanted(names)
+    if wanted:  # the map metrics of the knowledge's map as it grew, sample by sample
+        curves.update(oracle_field(env.world, run.stamps, np.arange(len(times)), run.logs, wanted))
+    curves = {n: curves[n] for n in names}
     tags = dict(policy="replay", detector="off", seed=0)
     final = jax.tree.map(lambda a: a[-1], run.logs)
     with output_folder(out):

@@ -112,17 +112,21 @@ def _listed(runs: list[str], most: int = 6) -> str:
 
 
 class Replay(NamedTuple):
-    """times (T,); logs: ObjectLog with (T, N) fields; knowledge: the final Knowledge."""
+    """times (T,); logs: ObjectLog with (T, N) fields; knowledge: the final Knowledge;
+    stamps (S,) int32: the pose index at which each surface sample was first observed, -1
+    never (what the field map metrics of the built-in knowledge's map are scored from)."""
 
     times: np.ndarray
     logs: object
     knowledge: object
+    stamps: np.ndarray
 
 
 def replay(env, times: np.ndarray, poses: np.ndarray) -> Replay:
     """Run the observer over poses (T, 3) with ``env``'s camera and knowledge settings."""
-    k, logs = _observer(env)(env.sk.init(), jnp.asarray(poses, jnp.float32))
-    return Replay(np.asarray(times, float), jax.tree.map(np.asarray, logs), jax.tree.map(np.asarray, k))
+    (k, stamps), logs = _observer(env)(env.sk.init(), jnp.asarray(poses, jnp.float32))
+    return Replay(np.asarray(times, float), jax.tree.map(np.asarray, logs), jax.tree.map(np.asarray, k),
+                  np.asarray(stamps))
 
 
 @functools.lru_cache(maxsize=16)
@@ -130,13 +134,20 @@ def _observer(env):
     """The jitted scan for one env (compiled once per trajectory length)."""
     cam = env.config.camera
 
-    def observe(k, pose):
+    def observe(carry, step):
+        k, stamps = carry
+        pose, t = step
         depth, _ = depth_seg(env.rays, cam, pose)
         k = env.sk.observe(k, pose, depth)
         labelled = env.sk.label_observed(k) if env.config.labels == "observed" else k
-        return labelled, env.sk.log(labelled)
+        stamps = jnp.where((jnp.asarray(k.seen, jnp.float32) > 0.5) & (stamps < 0), t, stamps)
+        return (labelled, stamps), env.sk.log(labelled)
 
-    return xla.jit(lambda init, poses: jax.lax.scan(observe, init, poses))
+    def run(init, poses):
+        stamps = jnp.full(jnp.shape(init.seen), -1, jnp.int32)
+        return jax.lax.scan(observe, (init, stamps), (poses, jnp.arange(len(poses), dtype=jnp.int32)))
+
+    return xla.jit(run)
 
 
 def curves(env, result: Replay, names=metrics.DEFAULT_METRICS) -> dict[str, np.ndarray]:
