@@ -3,6 +3,8 @@ and `rosmeery diff` names the run, seed, chunk and part."""
 
 from __future__ import annotations
 
+import json
+
 import re
 
 import jax.numpy as jnp
@@ -135,3 +137,17 @@ def test_a_malformed_run_file_is_one_line_naming_it(tmp_path, digest_text, path_
     a, b = _folder(tmp_path / "a", *good), _folder(tmp_path / "b", digest_text, path_text)
     with pytest.raises(InputError, match=re.escape(needle)):
         digest.compare(a, b)
+
+
+def test_diff_says_first_which_settings_differ(tmp_path):
+    """Two folders of other noise and localisation part for that reason: diff says so first."""
+    folders = []
+    for name, noise, loc in (("a", "off", "ground_truth"), ("b", "realistic", "scan_matching")):
+        f = _folder(tmp_path / name, path_text="seed,time_s,x,y,yaw\n0,0.0,1.0,1.0,0.0\n")
+        (f / "config.json").write_text(json.dumps({"session": {"noise": noise, "localisation": loc, "seeds": 1,
+                                                               "out": str(f), "duration": 5.0}}))
+        folders.append(f)
+    lines = digest.compare(*folders)
+    assert lines[0] == (f"settings differ ({folders[0]} / {folders[1]}): localisation 'ground_truth' / "
+                        "'scan_matching'; noise 'off' / 'realistic'")
+    assert lines[1].startswith("w__random seed 0: the same path")

@@ -113,13 +113,15 @@ def test_noisy_runs_are_reproducible_per_seed_whatever_their_batch(tmp_path):
     pd.testing.assert_frame_equal(m2[m2.seed == 1].reset_index(drop=True), m1.reset_index(drop=True))
 
 
-@pytest.mark.parametrize("extra, field", [
-    (["--noise", "foggy"], "noise"),
-    (["--noise", "realistic", "--config", "{cfg}"], "noise.laser_sigma"),
+@pytest.mark.parametrize("extra, field, toml", [
+    (["--noise", "foggy"], "noise", ""),
+    (["--noise", "realistic", "--config", "{cfg}"], "noise.laser_sigma", "[env.noise]\nlaser_sigma = -0.01\n"),
+    (["--config", "{cfg}"], "noise.laser_sigma", "[env]\nnoise__laser_sigma = 0.02\n[env.noise]\nlaser_sigma = 0.05\n"),
 ])
-def test_bad_noise_is_one_line_naming_the_field(tmp_path, capsys, extra, field):
+def test_bad_noise_is_one_line_naming_the_field(tmp_path, capsys, extra, field, toml):
+    """An unknown preset, a negative parameter, one parameter spelt twice (which wins?)."""
     cfg = tmp_path / "c.toml"
-    cfg.write_text("[env.noise]\nlaser_sigma = -0.01\n")
+    cfg.write_text(toml)
     args = ["run", "--worlds", "small_office", "--policies", "random", "--detector", "off", "--duration", "2",
             "--quiet", "--out", str(tmp_path / "out"), *[a.replace("{cfg}", str(cfg)) for a in extra]]
     assert main(args) == 2

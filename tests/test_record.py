@@ -91,6 +91,7 @@ def test_resume_re_records_a_missing_seed_identically(rec, tmp_path):
 @pytest.mark.parametrize("extra, field", [(["--rate", "3"], "--rate"), (["--width", "8"], "--width"),
                                           (["--seed", "-1"], "--seeds"), (["--duration", "0.05"], "duration"),
                                           (["--seeds", "0"], "--seeds: 0: name at least one"),  # recorded seed 0
+                                          (["--depth-encoding", "16UC1"], "--depth-encoding"),  # TUM: ignored
                                           (["--seeds", "1000000000"], "seeds: 1000000000 seeds x")])  # listed the
 # seeds until killed for memory
 def test_bad_options_are_one_line_and_write_nothing(tmp_path, capsys, extra, field):

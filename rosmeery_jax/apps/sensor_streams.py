@@ -96,6 +96,9 @@ def check(cfg: RecordConfig, out: Path, resume: bool, dt: float) -> None:
         raise InputError("command line", "--detector", f"{cfg.detector!r} is not one of {', '.join(DETECTORS)}")
     if cfg.format != "tum":
         rosbags()  # the optional package, before anything runs
+    elif cfg.depth_encoding != RecordConfig.depth_encoding:
+        raise InputError("command line", "--depth-encoding", f"{cfg.depth_encoding} is a bag's encoding: a TUM "
+                         "folder's depth is 16-bit PNG at 5000 per metre (--format mcap or sqlite3 for a bag)")
     elif cfg.detector != "off":
         raise InputError("command line", "--detector", "detections are written to ROS 2 bags only (--format mcap "
                          "or sqlite3)")

@@ -19,25 +19,31 @@ from typing import Any
 from rosmeery_jax.core.errors import InputError
 
 
-def flatten(values: dict, prefix: str = "") -> dict[str, Any]:
-    """``{"a": {"b": 1}}`` -> ``{"a__b": 1}``; dotted keys become ``__`` paths."""
-    return {path: value for path, _, value in _leaves(values, prefix)}
+def flatten(values: dict, prefix: str = "", source: str = "config") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` -> ``{"a__b": 1}``; dotted keys become ``__`` paths. One setting
+    spelt twice (``a__b`` and ``a.b``, or a key and a table) is an InputError: which should win?"""
+    return {path: value for path, _, value in _leaves(values, prefix, source=source)}
 
 
-def _leaves(values: dict, prefix: str = "", label: str = ""):
-    """(path, label, value) per leaf: the path joins field names with ``__``; the label is
-    the key as the user wrote it, a nested table's keys joined to it by ``.`` (messages)."""
+def _leaves(values: dict, prefix: str = "", label: str = "", source: str = "config", seen: dict | None = None):
+    """(path, label, value) per leaf, each path once: the path joins field names with ``__``;
+    the label is the key as the user wrote it, a nested table's keys joined to it by ``.``
+    (messages)."""
+    seen = {} if seen is None else seen
     for key, value in values.items():
         path, name = prefix + str(key).replace(".", "__"), label + str(key)
         if isinstance(value, dict):
-            yield from _leaves(value, path + "__", name + ".")
-        else:
-            yield path, name, value
+            yield from _leaves(value, path + "__", name + ".", source, seen)
+            continue
+        if path in seen:
+            raise InputError(source, name, f"sets what {seen[path]} sets already: give each setting once")
+        seen[path] = name
+        yield path, name, value
 
 
 def apply(config, overrides: dict[str, Any], source: str = "config"):
     """A copy of the dataclass ``config`` with every override set (see module docstring)."""
-    for key, label, value in _leaves(overrides):
+    for key, label, value in _leaves(overrides, source=source):
         config = _set(config, key.split("__"), value, label, source)
     return config
 

@@ -81,7 +81,7 @@ class EnvConfig:
         """The config a file's ``[env]`` table (nested or ``__`` keys) sets on ``base`` (the
         defaults); an error names the key as the file spells it (``env.robot.max_speed``)."""
         try:
-            return (base or cls()).with_overrides(source, **overrides_.flatten(values))
+            return (base or cls()).with_overrides(source, **overrides_.flatten(values, source=source))
         except InputError as err:
             raise overrides_.in_table(err, table) from None
 

@@ -143,18 +143,23 @@ class RobotEnv:
         else:  # the robot's estimate follows its odometry; the truth, the physics
             estimate = localisation.odometry(noise.key(state.key, state.t, noise.ODOMETRY), state.truth, pose,
                                              state.pose, self.config.noise)
+            moving = localisation.moved(state.pose, estimate)
             state = state._replace(physics=physics, pose=estimate, truth=pose, nav=nav, t=state.t + 1)
+            return self._sense(state, moving)
         return self._sense(state)
 
-    def _sense(self, state: State) -> State:
+    def _sense(self, state: State, moving: jax.Array | bool = False) -> State:
+        """The sensors at the new pose; ``moving``: the odometry reported motion this step
+        (only then does the scan matcher refine the estimate)."""
         ranges, labels = self.scan(state.true_pose)
         if self.config.noise.laser:  # the robot's own map and what policies read come from the noisy laser
             las = self.config.laser
             ranges = noise.ranges(noise.key(state.key, state.t, noise.LASER), ranges, self.config.noise,
                                   las.min_range, las.max_range)
         if self.config.localisation == "scan_matching":  # the prediction refined on the map so far
-            state = state._replace(pose=localisation.match(state.logodds, self.grid, state.pose, self.beam_angles,
-                                                           ranges, self.config.laser.max_range))
+            matched = localisation.match(state.logodds, self.grid, state.pose, self.beam_angles, ranges,
+                                         self.config.laser.max_range, self.config.mapping.clamp)
+            state = state._replace(pose=jnp.where(moving, matched, state.pose))
         logodds = self.update_map(state.logodds, state.pose, ranges, labels)  # in the robot's own frame
         depth, seg = self.look(state.true_pose)
         knowledge = self.sk.observe(state.knowledge, state.true_pose, depth)  # what was in view: the truth

@@ -16,6 +16,7 @@ the trajectories differ, and by how much.
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
 import jax
@@ -56,7 +57,7 @@ def compare(a: str | Path, b: str | Path) -> list[str]:
     in_a, in_b = _finished(a), _finished(b)
     check_folder(a)  # damaged files are named, not compared
     check_folder(b)
-    lines = []
+    lines = _settings(a, b)
     for run in sorted(in_a | in_b):
         if run not in in_a or run not in in_b:
             lines.append(f"{run}: only in {a if run in in_a else b}")
@@ -64,6 +65,24 @@ def compare(a: str | Path, b: str | Path) -> list[str]:
         digest = [f / "runs" / f"{run}.digest.csv" for f in (a, b)]
         lines += _by_digest(run, a, b) if all(p.is_file() for p in digest) else _by_path(run, a, b)
     return lines
+
+
+NOT_SETTINGS = ("out", "seeds", "first_seed", "worlds", "policies", "devices", "digest")  # where, which runs, how
+
+
+def _settings(a: Path, b: Path) -> list[str]:
+    """One line naming the session settings that differ between the folders (noise,
+    localisation, env, detector, mappers, ...): runs of different settings part for that
+    reason, not by chance."""
+    cfg = []
+    for folder in (a, b):
+        try:
+            cfg.append(json.loads((folder / "config.json").read_text(encoding="utf-8"))["session"])
+        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+            return []  # a folder without its record: nothing to say of its settings
+    keys = sorted((set(cfg[0]) | set(cfg[1])) - set(NOT_SETTINGS))
+    differ = [f"{k} {cfg[0].get(k)!r} / {cfg[1].get(k)!r}" for k in keys if cfg[0].get(k) != cfg[1].get(k)]
+    return [f"settings differ ({a} / {b}): " + "; ".join(differ)] if differ else []
 
 
 def _one_side(run: str, seeds_a, seeds_b, a: Path, b: Path) -> list[str]:
