@@ -1,10 +1,12 @@
 """Fuzz every user-facing loader with N generated inputs each and print the counts.
 
-    .venv/bin/python scripts/fuzz.py [--n 1000]
+    .venv/bin/python scripts/fuzz.py [--n 1000] [--only bags,rerun]
 
 For each loader (worlds, session configs, recordings, pose CSVs, maps as PLY and JSON,
 transforms, procedural world names, policy files, results folders' run, config and digest
-files as resume, join, plot and diff read them, plugin modules, weight files): inputs
+files as resume, join, plot and diff read them, plugin modules, weight files, map bags in
+both storages as `evaluate --bag` reads them, results tables as `view` writes a Rerun
+recording of them): inputs
 tried, valid results, clear one-line errors, and tracebacks (must be 0). The strategies are
 the suite's (tests/fuzz_inputs.py); the suite runs a few hundred, this runs thousands.
 """
@@ -69,6 +71,7 @@ def run(name: str, loader, strategy, filename: str, n: int, folder: Path) -> dic
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1000, help="inputs per loader")
+    ap.add_argument("--only", default="", help="comma-separated words: the loaders whose names hold one")
     args = ap.parse_args()
     loaders = [("worlds (MJCF)", fz.load_world_file, texts(fz.SEED_WORLD), "world.xml"),
                ("session configs (TOML)", fz.load_session_config, texts(fz.SEED_CONFIG), "session.toml"),
@@ -90,11 +93,29 @@ def main() -> int:
                 texts(fz.results_seed(f"runs/{fz.RUN}.digest.csv")), "digest.csv"),
                ("plugin modules", fz.load_plugin_module, texts(fz.SEED_PLUGIN), "plugin.py")]
     try:
+        import rosbags  # noqa: F401
+
+        for storage in ("mcap", "sqlite3"):
+            seed = fz.bag_seed(storage)
+            name = fz.bag_storage_name(seed)
+            loaders.append((f"map bags ({storage})", fz.bag_loader(storage), binary(seed[name]), name))
+    except ImportError:
+        print("map bags skipped: rosbags not installed (pip install '.[ros]')", file=sys.stderr)
+    try:
+        import rerun  # noqa: F401
+
+        for table in ("metrics.csv", "trajectories.csv"):
+            loaders.append((f"rerun views ({table})", fz.rrd_loader(table), texts(fz.rrd_seed(table)), table))
+    except ImportError:
+        print("rerun views skipped: rerun-sdk not installed (pip install '.[view]')", file=sys.stderr)
+    try:
         import torch  # noqa: F401
 
         loaders.append(("weight files (.pt)", fz.load_weights, weight_bytes(), "weights.pt"))
     except ImportError:
         print("weight files skipped: torch not installed (pip install '.[detector]')", file=sys.stderr)
+    words = [w for w in args.only.split(",") if w]
+    loaders = [entry for entry in loaders if not words or any(w in entry[0] for w in words)]
     print(f"{'loader':<26}{'tried':>7}{'valid':>7}{'errors':>8}{'tracebacks':>12}{'s':>7}")
     bad = 0
     with tempfile.TemporaryDirectory() as tmp:

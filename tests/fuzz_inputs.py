@@ -353,3 +353,125 @@ def load_plugin_module(path: Path):
         raise InputError(path, "", str(err).replace(fresh.name, path.name)) from None
     finally:
         fresh.unlink()
+
+
+# --- ROS 2 bags of maps, both storages: what `rosmeery evaluate --bag` reads ---------------
+
+BAG_TOPIC, BAG_LABELS = "/semantic_map", "/semantic_map/labels"
+
+
+def bag_seed(storage: str) -> dict[str, bytes]:
+    """{file name: bytes} of a valid bag folder (``storage`` mcap or sqlite3) of two map
+    clouds on the Small Office's first objects' samples (x, y, z, instance, label,
+    confidence) and a labels message, as a ROS mapper's would be recorded."""
+    import tempfile
+
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from rosmeery_jax.world import load_world
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    truth = load_world("small_office").truth
+    pts = np.asarray(truth.samples.points, np.float64)[:60]
+    rows = np.zeros(60, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("instance", "<i4"), ("label", "<i4"),
+                         ("confidence", "<f4")])
+    rows["x"], rows["y"], rows["z"] = pts.T
+    rows["instance"] = np.asarray(truth.samples.object)[:60]
+    rows["label"], rows["confidence"] = -1, 0.8
+    kinds = {"<f4": 7, "<i4": 5}
+    fields = [T["sensor_msgs/msg/PointField"](name=n, offset=rows.dtype.fields[n][1],
+                                              datatype=kinds[rows.dtype.fields[n][0].str], count=1)
+              for n in rows.dtype.names]
+
+    def cloud(part, t):
+        return T["sensor_msgs/msg/PointCloud2"](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=t, nanosec=0), frame_id="map"),
+            height=1, width=len(part), fields=fields, is_bigendian=False, point_step=rows.dtype.itemsize,
+            row_step=rows.dtype.itemsize * len(part), data=np.frombuffer(part.tobytes(), np.uint8), is_dense=True)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        bag = Path(tmp) / "bag"
+        plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+        with Writer(bag, version=9, storage_plugin=plugin) as w:
+            c = w.add_connection(BAG_TOPIC, "sensor_msgs/msg/PointCloud2", typestore=store)
+            s = w.add_connection(BAG_LABELS, "std_msgs/msg/String", typestore=store)
+            labels = {"objects": [{"id": 0, "label": str(truth.categories[0]), "confidence": 0.9}]}
+            w.write(s, 0, store.serialize_cdr(T["std_msgs/msg/String"](data=json.dumps(labels)), "std_msgs/msg/String"))
+            for t, part in ((1, rows[:30]), (2, rows)):
+                w.write(c, t * 10**9, store.serialize_cdr(cloud(part, t), "sensor_msgs/msg/PointCloud2"))
+        return {p.name: p.read_bytes() for p in bag.iterdir()}
+
+
+def bag_storage_name(seed: dict[str, bytes]) -> str:
+    return next(n for n in seed if n != "metadata.yaml")
+
+
+def bag_loader(storage: str):
+    """A loader for a bag's storage file (.mcap or .db3): the mutated bytes put into a bag
+    folder named after the file, its maps read and scored as `rosmeery evaluate --bag` does."""
+    import shutil
+
+    seed = bag_seed(storage)
+
+    def load(path: Path):
+        from rosmeery_jax.apps.ros_bags import read_maps
+        from rosmeery_jax.metrics import map_score
+        from rosmeery_jax.world import load_world
+
+        bag = path.parent / f"{path.name}.bag"
+        shutil.rmtree(bag, ignore_errors=True)
+        bag.mkdir()
+        for name, data in seed.items():
+            (bag / name).write_bytes(path.read_bytes() if name != "metadata.yaml" else data)
+        world = load_world("small_office")
+        maps = read_maps(bag, BAG_TOPIC, BAG_LABELS, world.name, world.taxonomy)
+        return map_score.evaluate(world, maps)
+
+    load.__name__ = f"load_bag_{storage}"
+    return load
+
+
+# --- Rerun recordings: what `rosmeery view` reads to write one -----------------------------
+
+def rrd_loader(file: str):
+    """A loader for one table of a results folder (``metrics.csv`` or ``trajectories.csv``),
+    the damage recorded as the folder's own so the tables' own checks read it, then the
+    folder written as a Rerun recording (a new .rrd each time)."""
+    import shutil
+
+    def load(path: Path):
+        from rosmeery_jax.apps import rerun_view
+        from rosmeery_jax.core.errors import InputError
+        from rosmeery_jax.results import manifest
+        from rosmeery_jax.session.outputs import check_folder
+
+        part = path.parent / "viewed"
+        shutil.rmtree(part, ignore_errors=True)
+        results_part(part, first=0)
+        shutil.copy(part / "runs" / f"{RUN}.trajectory.csv", part / "trajectories.csv")
+        (part / file).write_bytes(path.read_bytes())
+        manifest.write(part / manifest.MANIFEST, part, [part / "metrics.csv", part / "trajectories.csv"])
+        rrd = path.parent / "out.rrd"
+        rrd.unlink(missing_ok=True)
+        try:
+            check_folder(part)
+            return rerun_view.view(part, rrd)
+        except InputError as err:  # it names the table it read: the mutated one
+            if file in str(err):
+                raise InputError(path, "", str(err)) from None
+            raise
+
+    load.__name__ = f"load_rrd_{file.replace('.', '_')}"
+    return load
+
+
+def rrd_seed(file: str) -> str:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        part = results_part(Path(tmp) / "p")
+        return (part / ("runs" if file == "trajectories.csv" else "") /
+                (f"{RUN}.trajectory.csv" if file == "trajectories.csv" else file)).read_text()

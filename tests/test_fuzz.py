@@ -122,3 +122,39 @@ def test_mutated_plugin_modules(tmp_path):
         fz.check_one(fz.load_plugin_module, _write(tmp_path, "plugin.py", text))
 
     one()
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_corrupted_map_bags(tmp_path, storage):
+    """A bag of map clouds with bytes cut out and junk spliced into its storage file: read
+    and scored, or one line naming the bag."""
+    pytest.importorskip("rosbags")
+    seed = fz.bag_seed(storage)
+    good = seed[fz.bag_storage_name(seed)]
+    loader = fz.bag_loader(storage)
+    name = fz.bag_storage_name(seed)
+    assert fz.check_one(loader, _write(tmp_path, name, good)) == "ok"
+
+    @fuzz(30)
+    @given(st.binary(max_size=64), st.integers(0, len(good) - 1), st.integers(0, 64))
+    def one(junk, where, cut):
+        fz.check_one(loader, _write(tmp_path, name, good[:where] + junk + good[where + cut:]))
+
+    one()
+
+
+@pytest.mark.parametrize("file", ["metrics.csv", "trajectories.csv"])
+def test_mutated_tables_viewed_in_rerun(tmp_path, file):
+    """A results table, damaged and recorded as the folder's own: `rosmeery view` writes a
+    recording or gives one line naming the table."""
+    pytest.importorskip("rerun")
+    text = fz.rrd_seed(file)
+    loader = fz.rrd_loader(file)
+    assert fz.check_one(loader, _write(tmp_path, file, text)) == "ok"
+
+    @fuzz(25)
+    @given(st.one_of(fz.edits().map(lambda e: fz.mutate(text, e)), fz.number_swaps(text)))
+    def one(mutated):
+        fz.check_one(loader, _write(tmp_path, file, mutated))
+
+    one()

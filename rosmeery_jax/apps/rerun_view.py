@@ -88,7 +88,7 @@ def view(folder: str | Path, out: str | Path, worlds=None, policies=None, seeds=
     logged = {"worlds": 0, "runs": 0, "maps": 0, "curves": 0, "frames": 0}
     try:
         for world_name, part in df.groupby("world"):
-            world = load_world(world_name)
+            world = _world_of(folder, world_name)
             _world(rr, rec, world, max_points)
             logged["worlds"] += 1
             for (policy, seed), run in part.groupby(["policy", "seed"]):
@@ -127,8 +127,22 @@ def blueprint(metrics: list[str]):
 
 
 def _trajectories(folder: Path) -> pd.DataFrame | None:
+    """The folder's paths, their numbers checked (one InputError naming the file, row and column)."""
     path = folder / "trajectories.csv"
-    return tables.read_table(path, ["world", "policy", "seed", "time_s", "x", "y", "yaw"]) if path.exists() else None
+    if not path.exists():
+        return None
+    df = tables.read_table(path, ["world", "policy", "seed", "time_s", "x", "y", "yaw"])
+    for c in ("seed", "time_s", "x", "y", "yaw"):
+        df[c] = tables.numbers(df, path, c, seeds=c == "seed")
+    return df
+
+
+def _world_of(folder: Path, name: str):
+    """The world a results table names, or one InputError naming the table."""
+    try:
+        return load_world(name)
+    except InputError as err:
+        raise InputError(folder / "metrics.csv", "world", f"{name!r}: {err.problem}") from None
 
 
 def _world(rr, rec, world, max_points: int) -> None:
