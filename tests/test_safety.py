@@ -389,6 +389,11 @@ def test_two_maps_at_one_time_and_an_empty_map(tmp_path, capsys):
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["ori"] == summary["cori"] == summary["opi"] == 0.0
     assert not pd.read_csv(tmp_path / "o" / "metrics.csv").value.isna().any()
+    empty.write_text("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n"
+                     "property int instance\nend_header\n")  # the same in ASCII
+    assert main(["evaluate", "--world", "small_office", "--map", str(empty), "--metrics", "ori,field",
+                 "--out", str(tmp_path / "o2")]) == 0
+    assert json.loads((tmp_path / "o2" / "summary.json").read_text())["ori"] == 0.0
 
 
 def test_a_map_json_naming_an_object_with_no_points_is_refused(tmp_path, capsys):

@@ -384,8 +384,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    "extra; rosmeery view)")
     p.add_argument("--noise", metavar="PRESET", help="sensor and actuation noise: off (default: the exact "
                    "sensors) or realistic (docs/robot.md; each parameter as env noise__NAME in the config)")
-    p.add_argument("--localisation", choices=("ground_truth", "dead_reckoning", "scan_matching"),
-                   help="the robot's pose: told (ground_truth, the default) or its own estimate (docs/robot.md)")
+    p.add_argument("--localisation", metavar="MODE", help="the robot's pose: told (ground_truth, the default) or its "
+                   "own estimate, dead_reckoning or scan_matching (docs/robot.md)")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")
@@ -431,9 +431,9 @@ def _record_parser(sub, d: SessionConfig) -> None:
     p.add_argument("--noise", default=rec.noise, metavar="PRESET", help="sensor and actuation noise: off (default) "
                    "or realistic (docs/robot.md): the robot drives with it, and the images and laser written carry "
                    "it; the ground truth stays true")
-    p.add_argument("--localisation", default=rec.localisation, choices=("ground_truth", "dead_reckoning",
-                                                                          "scan_matching"),
-                   help="the odometry written: the true pose (default) or the robot's own estimate (docs/robot.md)")
+    p.add_argument("--localisation", default=rec.localisation, metavar="MODE",
+                   help="the odometry written: the true pose (ground_truth, default) or the robot's own estimate, "
+                   "dead_reckoning or scan_matching (docs/robot.md)")
     p.add_argument("--resume", action="store_true", help="record only the seeds missing in --out")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_record)

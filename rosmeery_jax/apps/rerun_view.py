@@ -34,6 +34,8 @@ from rosmeery_jax.world import load_world
 HINT = "rerun-sdk is missing: pip install 'rosmeery-jax[view]' (or pip install rerun-sdk)"
 TIMELINE = "sim_time"
 MAX_POINTS = 50_000  # per map and per world's samples
+MAX_TIME_S = 1e9  # s: a recording's times (Rerun's timeline counts nanoseconds in int64: about 9.2e9 s)
+MAX_COORDINATE = 1e6  # m: a path's positions (float32 in Rerun; a world is metres across)
 
 
 def rerun():
@@ -74,6 +76,7 @@ def view(folder: str | Path, out: str | Path, worlds=None, policies=None, seeds=
     rr = rerun()
     folder, out = Path(folder), Path(out)
     df = tables.load(folder)
+    _within(df, folder / "metrics.csv", "time_s", MAX_TIME_S)
     for key, wanted in (("world", worlds), ("policy", policies), ("seed", seeds)):
         if wanted:
             missing = [w for w in wanted if w not in set(df[key])]
@@ -134,7 +137,20 @@ def _trajectories(folder: Path) -> pd.DataFrame | None:
     df = tables.read_table(path, ["world", "policy", "seed", "time_s", "x", "y", "yaw"])
     for c in ("seed", "time_s", "x", "y", "yaw"):
         df[c] = tables.numbers(df, path, c, seeds=c == "seed")
+    for c, most in (("time_s", MAX_TIME_S), ("x", MAX_COORDINATE), ("y", MAX_COORDINATE)):
+        _within(df, path, c, most)
     return df
+
+
+def _within(df: pd.DataFrame, path: Path, column: str, most: float) -> None:
+    """Every value of ``column`` in [-most, most] (times: [0, most]), or one InputError naming
+    the row: Rerun keeps times in nanoseconds and positions in float32, and beyond these it
+    drops what it cannot hold with a warning only."""
+    low = 0.0 if column == "time_s" else -most
+    bad = np.flatnonzero((df[column] < low) | (df[column] > most))
+    if len(bad):
+        raise InputError(str(path), f"row {bad[0] + 2}, column {column}", f"{df[column].iloc[bad[0]]} is outside "
+                         f"[{low:g}, {most:g}]")
 
 
 def _world_of(folder: Path, name: str):

@@ -52,7 +52,7 @@ from rosmeery_jax.raycast.sensors import CameraConfig, laser, laser_dirs, rgbd
 from rosmeery_jax.session import Session, SessionConfig
 from rosmeery_jax.session.batch import run_overrides
 from rosmeery_jax.session.schedule import control_dt
-from rosmeery_jax.sim import noise
+from rosmeery_jax.sim import localisation, noise
 from rosmeery_jax.world import load_world
 
 DEPTH_SCALE = 5000.0  # TUM RGB-D: a 16-bit depth value of 5000 is one metre
@@ -88,6 +88,9 @@ def check(cfg: RecordConfig, out: Path, resume: bool, dt: float) -> None:
         raise InputError("command line", "--rate", f"{cfg.rate_hz!r} Hz must divide the {1 / dt:g} Hz control rate "
                          "(10, 5, 2, 1, 0.5, ...)")
     noise.preset(cfg.noise, "command line", "--noise")
+    if cfg.localisation not in localisation.MODES:
+        raise InputError("command line", "--localisation", f"{cfg.localisation!r} is not one of "
+                         f"{', '.join(localisation.MODES)}")
     if cfg.format not in FORMATS:
         raise InputError("command line", "--format", f"{cfg.format!r} is not one of {', '.join(FORMATS)}")
     if cfg.depth_encoding not in ("32FC1", "16UC1"):

@@ -106,6 +106,9 @@ def read_map(ply: str | Path, taxonomy) -> SemanticMap:
 
 
 def _vertices(ply: Path) -> np.ndarray:
+    empty = _empty_vertices(ply)
+    if empty is not None:  # trimesh cannot read an ASCII PLY of no vertices
+        return empty
     try:
         with warnings.catch_warnings():  # trimesh casts an ASCII value its type cannot hold with a warning only
             warnings.simplefilter("error", RuntimeWarning)
@@ -125,6 +128,28 @@ def _vertices(ply: Path) -> np.ndarray:
     if missing:
         raise InputError(ply, f"vertex {missing[0]}", "missing")
     return vertex
+
+
+def _empty_vertices(ply: Path) -> np.ndarray | None:
+    """A PLY whose header declares no vertices (a mapper that saw nothing writes one) as an
+    empty vertex table of its properties; None for any other file."""
+    try:
+        head = ply.read_bytes()[:4096].decode("ascii", "replace")
+    except OSError:
+        return None
+    if "end_header" not in head:
+        return None
+    lines = [ln.split() for ln in head[:head.index("end_header")].splitlines()]
+    vertex = next((k for k, w in enumerate(lines) if w[:2] == ["element", "vertex"]), None)
+    if vertex is None or lines[vertex][2:] != ["0"]:
+        return None
+    props = []
+    for w in lines[vertex + 1:]:
+        if w[:1] != ["property"]:
+            break
+        if len(w) == 3:  # a list property holds no per-vertex number
+            props.append((w[2], "f8"))
+    return np.zeros(0, props) if {"x", "y", "z"} <= {n for n, _ in props} else None
 
 
 def _check_ascii_body(ply: Path) -> None:
