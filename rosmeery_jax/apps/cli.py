@@ -30,7 +30,7 @@ from rosmeery_jax.core.files import output_folder, require_new, write_atomic
 from rosmeery_jax.core.xla import compilation_cache, cores, host_devices
 from rosmeery_jax.detector import runtime as runtimes
 from rosmeery_jax.env import make
-from rosmeery_jax.metrics import field, map_score
+from rosmeery_jax.metrics import field, map_score, tasks
 from rosmeery_jax.metrics.align import to_world
 from rosmeery_jax.metrics.map_file import write_semantic_map
 from rosmeery_jax.metrics.trajectory import read_poses, replay
@@ -38,7 +38,7 @@ from rosmeery_jax.results import plots, statistics, tables, time_use
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
 from rosmeery_jax.session.outputs import check_folder, oracle_field
-from rosmeery_jax.world import load_world
+from rosmeery_jax.world import episodes, load_world
 
 
 def _cmd_bench(args) -> int:
@@ -208,8 +208,10 @@ def _cmd_evaluate(args) -> int:
         raise InputError("command line", "--metrics", err.problem) from None
     if not specs.plain_name(args.name):  # the tables' policy column: `rosmeery plot` makes file names of it
         raise InputError("command line", "--name", f"{args.name!r} is not a plain name (no folders, no leading dot)")
+    tasks.check_attempts(args.task_attempts, "command line", "--task-attempts")
     out = require_new(args.out)  # a session's or an earlier evaluation's tables are never replaced
     world = load_world(args.world)
+    eps = episodes.read(args.episodes, world) if args.episodes else None
     if args.bag:  # a ROS mapper's PointCloud2 maps, each at its stamp (apps.ros_bags)
         maps = ros_bags.read_maps(Path(args.bag), args.topic, args.labels_topic, world.name, world.taxonomy)
     else:  # every map is read and checked before any write
@@ -218,7 +220,8 @@ def _cmd_evaluate(args) -> int:
     if frame and frame["source"] == "icp":
         print(f"aligned by point-to-plane ICP: residual {1000 * frame['rms_m']:.1f} mm over "
               f"{100 * frame['inliers']:.0f}% of points, {frame['iterations']} iterations")
-    metric_df, objects, classes, summary = map_score.evaluate(world, maps, args.tolerance, args.name, names)
+    metric_df, objects, classes, summary = map_score.evaluate(world, maps, args.tolerance, args.name, names, eps,
+                                                              args.task_attempts)
     if frame:
         summary["alignment"] = frame
     with output_folder(out):
@@ -301,6 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rosmeery", description="Batched benchmark for robot semantic mapping.")
     sub = parser.add_subparsers(dest="command", required=True)
     d = SessionConfig()  # the help texts state the defaults of the config classes themselves
+    _tasks_parser(sub)
     world_commands.add_worlds(sub)
     world_commands.add_world(sub)
     _bench_parser(sub, d)
@@ -475,11 +479,41 @@ def _evaluate_parser(sub, d: SessionConfig) -> None:
                    "(the view extra)")
     p.add_argument("--metrics", metavar="M,N", default=",".join(d.metrics),
                    help=f"metrics to score (default: {','.join(d.metrics)}; field: every field map metric, "
-                        "docs/metrics.md)")
+                        "docs/metrics.md; task: the map-use metrics, docs/tasks.md)")
+    p.add_argument("--episodes", metavar="FILE.json", help="the object-goal episodes the task metrics put the maps "
+                   "to (default: the world's generated set of 50, seed 0; rosmeery tasks writes one; docs/tasks.md)")
+    p.add_argument("--task-attempts", type=int, default=tasks.ATTEMPTS, metavar="N",
+                   help=f"instances a task query tries before it gives up (default {tasks.ATTEMPTS})")
     frame = p.add_mutually_exclusive_group()
     frame.add_argument("--align", action="store_true", help="align the maps to the world first (point-to-plane ICP)")
     frame.add_argument("--transform", metavar="FILE", help="a 4 x 4 map-to-world transform (JSON or text) to apply first")
     p.set_defaults(func=_cmd_evaluate)
+
+
+def _tasks_parser(sub) -> None:
+    p = sub.add_parser("tasks", help="write a world's object-goal episodes (the task metrics' queries; docs/tasks.md)")
+    p.add_argument("--world", required=True, metavar="NAME_OR_PATH")
+    p.add_argument("--episodes", type=int, default=episodes.DEFAULT_EPISODES, metavar="N",
+                   help=f"how many (default {episodes.DEFAULT_EPISODES})")
+    p.add_argument("--seed", type=int, default=episodes.DEFAULT_SEED, help="default 0: the set evaluate uses")
+    p.add_argument("--out", metavar="FILE.json", help="default tasks/<world>_<seed>.json")
+    p.set_defaults(func=_cmd_tasks)
+
+
+def _cmd_tasks(args) -> int:
+    episodes.check_count(args.episodes, "command line", "--episodes")
+    world = load_world(args.world)
+    out = Path(args.out or f"tasks/{world.name}_{args.seed}.json")
+    if out.exists():
+        raise InputError(str(out), "--out", "exists: an episode set is never replaced; choose another name")
+    made = episodes.generate(world, args.episodes, args.seed)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    episodes.write(out, world, made, args.seed)
+    goals = sorted({e.goal for e in made})
+    d = [e.geodesic_distance for e in made]
+    print(f"{len(made)} episodes of {world.name} (seed {args.seed}; {len(goals)} goal categories; geodesic distance "
+          f"{min(d):.1f}-{max(d):.1f} m, median {float(np.median(d)):.1f}) -> {out}")
+    return 0
 
 
 def _train_parser(sub, d: SessionConfig) -> None:

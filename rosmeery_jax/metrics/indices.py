@@ -27,7 +27,10 @@ import numpy as np
 
 from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.metrics.field import FIELD_METRICS, FIELD_SET, expand
+from rosmeery_jax.metrics.field import FIELD_METRICS, FIELD_SET
+from rosmeery_jax.metrics.tasks import TASK_METRICS, TASK_SET
+
+MAP_METRICS = FIELD_METRICS + TASK_METRICS  # scored from maps, not from object logs
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog
 
 MetricFn = Callable[[ObjectLog, GroundTruthTable], "jnp.ndarray"]
@@ -44,7 +47,7 @@ def register(name: str) -> Callable[[MetricFn], MetricFn]:
         raise InputError("register_metric", "name", f"{name!r} is not a plain name ({specs.LABEL_RULE})")
 
     def add(fn: MetricFn) -> MetricFn:
-        if name in FIELD_METRICS or name == FIELD_SET or (name in DEFAULT_METRICS and name in REGISTRY):
+        if name in MAP_METRICS or name in (FIELD_SET, TASK_SET) or (name in DEFAULT_METRICS and name in REGISTRY):
             # your own may be re-registered (a notebook cell re-run)
             raise InputError("register_metric", "name", f"{name!r} is a built-in metric: name yours otherwise")
         if not callable(fn):
@@ -95,21 +98,28 @@ def opi_strict(log: ObjectLog, truth: GroundTruthTable):
     return _index(jnp.abs(p - log.correct) + false, p)
 
 
+def expand(names) -> tuple[str, ...]:
+    """``names`` with each set name (``field``, ``task``) replaced by its metrics, each once."""
+    sets = {FIELD_SET: FIELD_METRICS, TASK_SET: TASK_METRICS}
+    return tuple(dict.fromkeys(m for n in names for m in sets.get(n, (n,))))
+
+
 def resolve(names) -> tuple[str, ...]:
     """Check metric names against the registry (one-line error for an unknown one); a
     plugin ``FILE.py:fn`` or ``package.module:fn`` is loaded, checked and registered as
     ``fn``, the name its curves carry in the results. ``field`` stands for every field
-    map metric (:mod:`.field`), which are scored from maps, not from object logs."""
+    map metric (:mod:`.field`) and ``task`` for every map-use metric (:mod:`.tasks`), which
+    are scored from maps, not from object logs."""
     out = []
     for n in expand(names):
-        if n in FIELD_METRICS:
+        if n in MAP_METRICS:
             out.append(n)
             continue
         if n not in REGISTRY and specs.is_plugin(n):
             n = _register_plugin(n)
         if n not in REGISTRY:
             raise InputError("config", "metrics", f"unknown metric {n!r} (registered: {', '.join(sorted(REGISTRY))}; "
-                             f"the map metrics: {FIELD_SET} or one of them, docs/metrics.md; or a plugin "
+                             f"the map metrics: {FIELD_SET}, {TASK_SET} or one of them, docs/metrics.md; or a plugin "
                              "FILE.py:function)")
         if n not in DEFAULT_METRICS and CHECKED.get(n) is not REGISTRY[n]:  # registered in Python: checked once
             _check_curve(REGISTRY[n], _named(n))
@@ -174,7 +184,7 @@ def compute(log: ObjectLog, truth: GroundTruthTable, names=DEFAULT_METRICS) -> d
     from object logs (the field map metrics among ``names`` are left out), in one compiled
     call per shape (op by op, a session paid a compile of every operation for every world)."""
     log, truth = _arrays(log, truth)
-    names = tuple(n for n in resolve(names) if n not in FIELD_METRICS)
+    names = tuple(n for n in resolve(names) if n not in MAP_METRICS)
     curves = _curves(log, truth, names)  # a jitted dict comes back in sorted key order
     for n in names:  # checked on T = 3 steps when registered: a curve may depend on T
         if np.shape(curves[n]) != log.ps.shape[:-1]:

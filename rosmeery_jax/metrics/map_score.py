@@ -38,10 +38,11 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax import metrics
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.metrics import field
+from rosmeery_jax.metrics import field, tasks
 from rosmeery_jax.results import tables
 from rosmeery_jax.sim.knowledge import GroundTruthTable, ObjectLog, predicate_tables
 from rosmeery_jax.world import load_world
+from rosmeery_jax.world.episodes import generate as generate_episodes
 
 TOLERANCE = 0.05  # m: a point within this of a surface sample lies on it (samples are 5 cm apart)
 INSTANCE_FIELDS = ("object_id", "instance")
@@ -436,9 +437,11 @@ def _read_maps(maps, taxonomy) -> list[SemanticMap]:
 
 
 def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name: str = "external",
-             names=metrics.DEFAULT_METRICS):
+             names=metrics.DEFAULT_METRICS, episodes=None, attempts: int = tasks.ATTEMPTS):
     """Score maps of one run (curves over their ``time_s``, else their order) by the metrics
-    ``names`` (``field`` or field map metrics among them: :mod:`rosmeery_jax.metrics.field`).
+    ``names`` (``field`` or field map metrics among them: :mod:`rosmeery_jax.metrics.field`;
+    ``task`` or map-use metrics: :mod:`rosmeery_jax.metrics.tasks`, against ``episodes``, by
+    default the world's generated set, trying ``attempts`` instances).
 
     Returns (metrics table, objects table of the last map, per-class table, summary dict),
     the first two in the session's formats (policy = ``name``, detector = "own", seed 0).
@@ -467,6 +470,12 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
     log = ObjectLog(*(np.stack(f) for f in zip(*(sc.log for sc in scores))))
     curves = metrics.compute(log, table, names)
     curves.update({n: np.array([sc.field[n] for sc in scores]) for n in field_names})
+    task_names = tasks.wanted(names)
+    if task_names:
+        tasks.check_attempts(attempts, "evaluate")
+        eps = episodes if episodes is not None else generate_episodes(world)
+        done = [tasks.score(world, eps, maps[k].points, maps[k].instance, maps[k].labels, attempts) for k in order]
+        curves.update({n: np.array([r.values[n] for r in done]) for n in task_names})
     curves = {n: curves[n] for n in names}
     tags = dict(policy=name, detector="own", mapper="own", seed=0)
     metric_df = tables.metric_frame(curves, np.asarray(times)[order], world=world.name, **tags)

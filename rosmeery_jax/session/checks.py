@@ -20,7 +20,7 @@ from rosmeery_jax.env import make
 from rosmeery_jax.env.config import env_bytes
 from rosmeery_jax.gym import agent_class, check_agent
 from rosmeery_jax.mapping.protocol import check_entries as check_mappers
-from rosmeery_jax.metrics import field
+from rosmeery_jax.metrics import field, tasks
 from rosmeery_jax.policies import check_entry as check_policy
 from rosmeery_jax.policies import policy_label
 from rosmeery_jax.session import schedule
@@ -38,6 +38,10 @@ def check_session(cfg, source: str) -> None:
     layers: InputErrors from deeper down name ``source``."""
     with _as_source(source):
         names = metrics.resolve(cfg.metrics)
+        if tasks.wanted(names):
+            raise InputError("config", "metrics", "the task metrics are scored from maps by rosmeery evaluate "
+                             "(a session's maps/ among them: evaluate --map DIR/maps/...ply --metrics task), "
+                             "not during a session")
         if field.wanted(names) and "oracle" in cfg.mappers and any(specs.kind(p) == "agent" for p in cfg.policies):
             raise InputError("config", "metrics", "the field map metrics score the built-in knowledge's map "
                              "(mapper oracle) of policies, not of agent: runs; score an agent's runs with a mapper "

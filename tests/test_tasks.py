@@ -1,0 +1,167 @@
+"""Object-goal episodes and the map-use metrics, on a built hall whose distances are worked
+out by hand: cell centres lie at -4.575 + 0.05 k m, a chair box B spans x 2.3-2.7 (its
+success region starts at the cell centre x = 1.325, the first within 1 m of its west
+face), a copy A of it shifted 4.5 m west spans x -2.2 to -1.8 (its approach region ends at
+x = -0.825), and the start cell's centre is x = 0.025, on the same row."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import one_line_error, room_xml
+
+from rosmeery_jax.apps.cli import main
+from rosmeery_jax.core.errors import InputError
+from rosmeery_jax.metrics import tasks
+from rosmeery_jax.world import episodes, geodesic, load_world
+from rosmeery_jax.world.episodes import Episode
+from rosmeery_jax.world.freespace import FreeSpace
+
+CHAIR = '<body name="chair_1" pos="2.5 0 0"><geom type="box" pos="0 0 0.2" size="0.2 0.2 0.2"/></body>'
+DESK = '<body name="desk_1" pos="0 3 0"><geom type="box" pos="0 0 0.3" size="0.4 0.3 0.3"/></body>'
+START = (0.03, 0.03, 0.0)  # the cell whose centre is (0.025, 0.025)
+
+
+@pytest.fixture(scope="module")
+def hall(tmp_path_factory):
+    path = tmp_path_factory.mktemp("tasks") / "hall.xml"
+    path.write_text(room_xml(CHAIR + DESK, {"chair_1": "chair", "desk_1": "desk"}, spawn=(0.0, -2.0, 0.0), half=4.0))
+    return load_world(path)
+
+
+def _chair_points(world, shift: float = 0.0) -> np.ndarray:
+    t = world.truth
+    pts = np.asarray(t.samples.points, np.float64)[np.asarray(t.samples.object) == t.names.index("chair_1")]
+    return pts + [shift, 0.0, 0.0]
+
+
+def _episode(world) -> Episode:
+    return Episode(0, START, "chair", float(episodes.regions(world).distance["chair"][world.free_space.cell(START[:2])]))
+
+
+def _score(world, parts: list[tuple[np.ndarray, str | None]], attempts: int = 3):
+    points = np.concatenate([p for p, _ in parts]) if parts else np.zeros((0, 3))
+    instance = np.concatenate([np.full(len(p), k) for k, (p, _) in enumerate(parts)]) if parts else np.zeros(0, int)
+    return tasks.score(world, [_episode(world)], points, instance, {k: c for k, (_, c) in enumerate(parts)}, attempts)
+
+
+def test_the_shortest_distance_is_the_hand_computed_one(hall):
+    assert _episode(hall).geodesic_distance == pytest.approx(1.3, abs=1e-9)
+
+
+def test_a_perfect_map_succeeds_with_spl_one_on_a_straight_path(hall):
+    r = _score(hall, [(_chair_points(hall), "chair")])
+    assert r.values == pytest.approx({"task_success": 1.0, "task_spl": 1.0, "task_softspl": 1.0,
+                                      "task_distance": 0.0})
+    assert r.path[0] == pytest.approx(1.3, abs=1e-9)
+
+
+def test_a_chair_labelled_a_cabinet_fails_the_chair_query(hall):
+    r = _score(hall, [(_chair_points(hall), "cabinet")])
+    assert r.values == pytest.approx({"task_success": 0.0, "task_spl": 0.0, "task_softspl": 0.0,
+                                      "task_distance": 1.3}, abs=1e-9)
+    assert r.instance[0] == -1 and r.path[0] == 0.0
+
+
+def test_a_shifted_instance_fails_first_and_the_true_one_succeeds_second(hall):
+    """A (shifted) is nearer: 0.85 m to its approach region, then 2.15 m on to B's: l = 3.0."""
+    both = [(_chair_points(hall, -4.5), "chair"), (_chair_points(hall), "chair")]
+    r = _score(hall, both)
+    assert r.success[0] and r.instance[0] == 1
+    assert r.path[0] == pytest.approx(0.85 + 2.15, abs=1e-9)
+    assert r.values["task_spl"] == pytest.approx(1.3 / 3.0, abs=1e-9)
+    once = _score(hall, both, attempts=1)  # only A tried: it stops 2.15 m short of the region
+    assert not once.success[0] and once.instance[0] == 0
+    assert once.values["task_distance"] == pytest.approx(2.15, abs=1e-9)
+    assert once.values["task_softspl"] == 0.0  # it moved away from the goal: no progress
+
+
+def test_an_empty_map_scores_zero_and_no_nan(hall):
+    r = _score(hall, [])
+    assert r.values == pytest.approx({"task_success": 0.0, "task_spl": 0.0, "task_softspl": 0.0,
+                                      "task_distance": 1.3}, abs=1e-9)
+
+
+def test_geodesic_distance_goes_around_a_wall_by_hand():
+    ok = np.ones((5, 9), bool)
+    ok[:4, 4] = False  # a wall with a gap in the top row
+    fs = FreeSpace(np.zeros(2), 1.0, ~ok, ok, ok, ok.astype(np.float32))
+    d = geodesic.field(geodesic.graph(fs), np.array([[0, 0]]))
+    assert d[0, 3] == 3.0 and d[4, 0] == 4.0 and d[1, 1] == pytest.approx(np.sqrt(2))
+    # (0, 0) to (0, 8) through the gap at (4, 4), no diagonal past the wall's corner: 3 diagonals and
+    # a step to (4, 3), two steps to (4, 5), 3 diagonals and a step up to (0, 8)
+    assert d[0, 8] == pytest.approx(6 * np.sqrt(2) + 4)
+    assert np.isinf(d[0, 4])
+
+
+def test_generated_episodes_are_the_same_bytes_for_the_same_seed_and_cover_every_goal(hall, tmp_path):
+    a, b = episodes.generate(hall, 6, 3), episodes.generate(hall, 6, 3)
+    episodes.write(tmp_path / "a.json", hall, a, 3)
+    episodes.write(tmp_path / "b.json", hall, b, 3)
+    assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
+    assert {e.goal for e in a} == {"chair", "desk"}
+    assert all(e.geodesic_distance >= episodes.MIN_DISTANCE for e in a)
+    assert episodes.read(tmp_path / "a.json", hall) == a  # read back, the distances computed again
+    assert episodes.generate(hall, 6, 4) != a
+
+
+def _file(tmp_path, world, change) -> str:
+    doc = {"format": "rosmeery-objectnav", "version": 1, "world": world.name, "seed": 0,
+           "episodes": [{"id": 0, "start": list(START), "goal": "chair"}]}
+    change(doc)
+    path = tmp_path / "eps.json"
+    path.write_text(json.dumps(doc))
+    return str(path)
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda d: d.update(world="kitchen"), "world"),
+    (lambda d: d["episodes"][0].update(goal="toilet"), "episodes[0].goal"),
+    (lambda d: d["episodes"][0].update(start=[2.5, 0.0, 0.0]), "episodes[0].start"),  # inside the chair
+    (lambda d: d["episodes"][0].update(start=[float("nan"), 0.0, 0.0]), "episodes[0].start"),
+    (lambda d: d.update(episodes=[d["episodes"][0]] * 10_001), "episodes"),
+])
+def test_a_bad_episode_file_is_one_line_naming_the_field(hall, tmp_path, capsys, change, field):
+    ply, out = _map_files(hall, tmp_path)
+    assert main(["evaluate", "--world", str(hall.path), "--map", str(ply), "--metrics", "task",
+                 "--episodes", _file(tmp_path, hall, change), "--out", str(out)]) == 2
+    one_line_error(capsys, "eps.json", field)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("attempts", ["0", "-1"])
+def test_attempts_must_be_at_least_one(hall, tmp_path, capsys, attempts):
+    ply, out = _map_files(hall, tmp_path)
+    assert main(["evaluate", "--world", str(hall.path), "--map", str(ply), "--metrics", "task",
+                 "--task-attempts", attempts, "--out", str(out)]) == 2
+    one_line_error(capsys, "--task-attempts")
+    assert not out.exists()
+
+
+def _map_files(world, tmp_path):
+    pts = _chair_points(world)
+    ply = tmp_path / "map.ply"
+    header = (f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\nproperty float x\nproperty float y\n"
+              "property float z\nproperty int instance\nend_header\n")
+    ply.write_text(header + "".join(f"{x} {y} {z} 0\n" for x, y, z in pts))
+    ply.with_suffix(".json").write_text(json.dumps({"frame": {"world": world.name, "time_s": 1.0},
+                                                    "objects": [{"id": 0, "label": "chair"}]}))
+    return ply, tmp_path / "out"
+
+
+def test_evaluate_scores_the_task_metrics_by_name_and_a_session_refuses_them(hall, tmp_path, capsys):
+    ply, out = _map_files(hall, tmp_path)
+    eps = tmp_path / "set.json"
+    assert main(["tasks", "--world", str(hall.path), "--episodes", "4", "--seed", "1", "--out", str(eps)]) == 0
+    assert main(["evaluate", "--world", str(hall.path), "--map", str(ply), "--metrics", "ori,task",
+                 "--episodes", str(eps), "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    chairs = sum(e["goal"] == "chair" for e in json.loads(eps.read_text())["episodes"])
+    assert summary["task_success"] == pytest.approx(chairs / 4)  # the desk is not in the map
+    assert main(["tasks", "--world", str(hall.path), "--episodes", "4", "--out", str(eps)]) == 2  # never replaced
+    one_line_error(capsys, "set.json", "exists")
+    with pytest.raises(InputError, match="task metrics"):
+        from rosmeery_jax.session import SessionConfig
+        SessionConfig(worlds=(str(hall.path),), metrics=("ori", "task")).validate()
