@@ -85,19 +85,17 @@ def score(world, eps: list[Episode], points: np.ndarray, instance: np.ndarray, l
     tried = np.zeros((len(ids), e), bool)
     last = np.full(e, -1)
     want = label[:, None] == np.array(goals, object)[None, :]  # (U, E)
-    for _ in range(attempts):
-        cost = np.where(want & ~tried & ~done[None, :], dist[:, here] if len(ids) else np.zeros((0, e)), np.inf)
-        pick = np.argmin(cost, 0) if len(ids) else np.zeros(e, np.int64)
-        go = np.isfinite(cost[pick, np.arange(e)]) if len(ids) else np.zeros(e, bool)
+    for _ in range(attempts if ids else 0):  # no instance labelled with a goal: every robot stays put
+        cost = np.where(want & ~tried & ~done[None, :], dist[:, here], np.inf)  # (U, E)
+        pick = np.argmin(cost, 0)
+        go = np.isfinite(cost[pick, np.arange(e)])
         path[go] += cost[pick[go], np.flatnonzero(go)]
-        here = np.where(go, source[pick, here] if len(ids) else here, here)
+        here = np.where(go, source[pick, here], here)
         tried[pick[go], np.flatnonzero(go)] = True
         last = np.where(go, pick, last)
-        cell = g.cells[here]
-        done |= go & np.array([reg.region[goal][i, j] for goal, (i, j) in zip(goals, cell)], bool)
+        done |= go & _at(reg.region, goals, g.cells[here])
     cell = g.cells[here]
-    shortest = np.array([reg.distance[goal][i, j] for goal, (i, j) in zip(goals, starts)])
-    to_goal = np.array([reg.distance[goal][i, j] for goal, (i, j) in zip(goals, cell)])
+    shortest, to_goal = _at(reg.distance, goals, starts), _at(reg.distance, goals, cell)
     success = done
     efficiency = shortest / np.maximum(np.maximum(path, shortest), 1e-12)
     values = {"task_success": float(success.mean()), "task_spl": float(np.mean(success * efficiency)),
@@ -105,6 +103,11 @@ def score(world, eps: list[Episode], points: np.ndarray, instance: np.ndarray, l
               "task_distance": float(to_goal.mean())}
     chosen = np.array([ids[k] if k >= 0 else -1 for k in last], np.int64)
     return TaskResult(success, path, shortest, to_goal, chosen, cell, values)
+
+
+def _at(per_goal: dict, goals: list[str], cells: np.ndarray) -> np.ndarray:
+    """(E,) each episode's value of its goal's map (H, W) at its cell (E, 2)."""
+    return np.array([per_goal[goal][i, j] for goal, (i, j) in zip(goals, cells)])
 
 
 def _approaches(world, g, points: np.ndarray, instance: np.ndarray, ids: list, labels: dict):
