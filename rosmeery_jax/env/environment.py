@@ -158,7 +158,7 @@ class RobotEnv:
                                   las.min_range, las.max_range)
         if self.config.localisation == "scan_matching":  # the prediction refined on the map so far
             matched = localisation.match(state.logodds, self.grid, state.pose, self.beam_angles, ranges,
-                                         self.config.laser.max_range, self.config.mapping.clamp)
+                                         self.config.laser.max_range)
             state = state._replace(pose=jnp.where(moving, matched, state.pose))
         logodds = self.update_map(state.logodds, state.pose, ranges, labels)  # in the robot's own frame
         depth, seg = self.look(state.true_pose)

@@ -9,14 +9,13 @@
   robot turns on the spot), composed onto the last estimate. It drifts without bound.
 - ``scan_matching``: dead reckoning's prediction refined by a correlative scan matcher
   against the robot's own occupancy map, as a 2D SLAM front end does: the laser's hit
-  points are scored on the occupied evidence (positive log-odds) of the cell each falls
-  in, the cell the map marked it in (a bilinear reading between cell centres moved a
-  robot at rest by half a cell: walls lie on cell boundaries, so their hits sit on cell
-  corners), over a grid of poses around the prediction, coarse to fine (three stages of
-  3 x 3 x 3, each around the last's best). A stage's best pose replaces the prediction
-  only when it scores better by ``MARGIN`` of the scan's largest possible score (noise
-  alone does not move it), and only on steps where the odometry reports motion (a motion
-  filter, as GMapping's and Cartographer's skip scans at rest).
+  points are scored on the map's occupancy (bilinear in the log-odds, occupied side only)
+  over a grid of poses around the prediction, coarse to fine (three stages of 3 x 3 x 3,
+  each around the last's best), and the best pose is kept when it scores better than the
+  prediction. It runs only on steps where the odometry reports motion (:func:`moved`), a
+  motion filter as GMapping's and Cartographer's: at rest the map holds no information the
+  last match lacked, and on the worlds' grid-aligned walls (their hits on cell corners) the
+  bilinear score moved a resting robot by half a cell.
 
 Shapes: K laser beams, C candidate poses.
 """
@@ -29,18 +28,12 @@ import jax
 import jax.numpy as jnp
 
 from rosmeery_jax.sim.noise import NoiseConfig
-from rosmeery_jax.sim.occupancy import GridGeometry, in_extent
+from rosmeery_jax.sim.occupancy import GridGeometry
 
 MODES = ("ground_truth", "dead_reckoning", "scan_matching")
 # (step xy m, step yaw rad) of the matcher's stages; each searches +-1 step on every axis
 STAGES = ((0.04, math.radians(1.0)), (0.02, math.radians(0.5)), (0.01, math.radians(0.25)))
-MARGIN = 0.05  # of the scan's largest score (every hit on a clamped cell) a better pose must gain
 STILL = (1e-3, math.radians(0.05))  # m, rad: an odometry step below both is a robot at rest
-
-
-def moved(before: jax.Array, after: jax.Array) -> jax.Array:
-    """Whether the odometry's step ``before`` -> ``after`` (3,) is motion (the matcher runs)."""
-    return (jnp.hypot(*(after[:2] - before[:2])) > STILL[0]) | (jnp.abs(wrap(after[2] - before[2])) > STILL[1])
 
 
 def wrap(a: jax.Array) -> jax.Array:
@@ -65,11 +58,27 @@ def odometry(key: jax.Array, before: jax.Array, after: jax.Array, estimate: jax.
                       wrap(estimate[2] + turn_m)]).astype(estimate.dtype)
 
 
-def _evidence(logodds: jax.Array, geo: GridGeometry, xy: jax.Array) -> jax.Array:
-    """Occupied evidence (positive log-odds) of the cells world points (..., 2) fall in, by
-    the map's own cell rule (:meth:`GridGeometry.cell`); 0 outside the world."""
-    i, j = geo.cell(xy)
-    return jnp.where(in_extent(geo, xy), jnp.maximum(logodds[i, j], 0.0), 0.0)
+def moved(before: jax.Array, after: jax.Array) -> jax.Array:
+    """Whether the odometry's step ``before`` -> ``after`` (3,) is motion (the matcher runs)."""
+    return (jnp.hypot(*(after[:2] - before[:2])) > STILL[0]) | (jnp.abs(wrap(after[2] - before[2])) > STILL[1])
+
+
+def _occupancy(logodds: jax.Array, geo: GridGeometry, xy: jax.Array) -> jax.Array:
+    """Bilinear positive log-odds (occupied evidence) at world points (..., 2); 0 outside."""
+    occ = jnp.maximum(logodds, 0.0)
+    u = (xy[..., 0] - geo.origin[0]) / geo.resolution - 0.5
+    v = (xy[..., 1] - geo.origin[1]) / geo.resolution - 0.5
+    j0, i0 = jnp.floor(u), jnp.floor(v)
+    fu, fv = u - j0, v - i0
+    h, w = geo.extent[0], geo.extent[1]
+
+    def at(i, j):
+        ok = (i >= 0) & (j >= 0) & (i < h) & (j < w)
+        return jnp.where(ok, occ[jnp.clip(i, 0, occ.shape[0] - 1).astype(jnp.int32),
+                                 jnp.clip(j, 0, occ.shape[1] - 1).astype(jnp.int32)], 0.0)
+
+    return ((1 - fu) * (1 - fv) * at(i0, j0) + fu * (1 - fv) * at(i0, j0 + 1)
+            + (1 - fu) * fv * at(i0 + 1, j0) + fu * fv * at(i0 + 1, j0 + 1))
 
 
 def _offsets(step_xy: float, step_yaw: float) -> jax.Array:
@@ -81,23 +90,20 @@ def _offsets(step_xy: float, step_yaw: float) -> jax.Array:
 
 
 def match(logodds: jax.Array, geo: GridGeometry, prediction: jax.Array, angles: jax.Array, ranges: jax.Array,
-          max_range: float, clamp: float) -> jax.Array:
+          max_range: float) -> jax.Array:
     """The pose (3,) near ``prediction`` whose laser hit points (``ranges`` (K,) at beam
-    ``angles`` (K,) in the robot frame; max_range: none) best fit the map's occupancy
-    (``clamp``: the map's largest log-odds, for the margin)."""
+    ``angles`` (K,) in the robot frame; max_range: none) best fit the map's occupancy."""
     hit = ranges < max_range
     local = jnp.stack([ranges * jnp.cos(angles), ranges * jnp.sin(angles)], -1)  # (K, 2)
-    margin = MARGIN * clamp * jnp.sum(hit)
 
     def score(p):
         c, s = jnp.cos(p[2]), jnp.sin(p[2])
         world = p[:2] + jnp.stack([c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1]], -1)
-        return jnp.sum(jnp.where(hit, _evidence(logodds, geo, world), 0.0))
+        return jnp.sum(jnp.where(hit, _occupancy(logodds, geo, world), 0.0))
 
     pose = prediction
     for step_xy, step_yaw in STAGES:
         cands = pose + _offsets(step_xy, step_yaw)
         scores = jax.vmap(score)(cands)
-        best = jnp.argmax(scores)
-        pose = cands[jnp.where(scores[best] > scores[0] + margin, best, 0)]  # candidate 0: the zero offset
+        pose = cands[jnp.argmax(scores)]  # the zero offset first: no evidence keeps the prediction
     return pose.at[2].set(wrap(pose[2]))
