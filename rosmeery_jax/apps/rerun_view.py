@@ -122,7 +122,9 @@ def blueprint(metrics: list[str]):
 
     whole = rrb.VisibleTimeRange(TIMELINE, start=rrb.TimeRangeBoundary.infinite(),
                                  end=rrb.TimeRangeBoundary.infinite())
-    panels = [rrb.TimeSeriesView(origin=f"metrics/{m}", name=m, time_ranges=[whole]) for m in metrics]
+    axis = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                 end=rrb.TimeRangeBoundary.infinite()))  # drawn: the whole run
+    panels = [rrb.TimeSeriesView(origin=f"metrics/{m}", name=m, time_ranges=[whole], axis_x=axis) for m in metrics]
     return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="world", name="worlds, maps and paths",
                                                           time_ranges=[whole]),
                                         rrb.Vertical(*panels), column_shares=[3, 2]),
