@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.sparse import csgraph
 
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.world import episodes as episodes_
 from rosmeery_jax.world.episodes import Episode
 
@@ -61,8 +62,7 @@ def wanted(names) -> tuple[str, ...]:
 
 
 def check_attempts(attempts, source, where: str = "task_attempts") -> int:
-    from rosmeery_jax.core.errors import InputError
-
+    """``attempts`` if it is a whole number in [1, 100], else one InputError naming ``where``."""
     if isinstance(attempts, bool) or not isinstance(attempts, int) or not 1 <= attempts <= 100:
         raise InputError(source, where, f"{attempts!r} must be a whole number of instances in [1, 100]")
     return attempts
