@@ -229,5 +229,6 @@ def _episode(path: Path, world, k: int, e) -> Episode:
     d = float(reg.distance[goal][i, j])
     if not math.isfinite(d):
         raise InputError(path, f"{where}.goal", f"no {goal} can be reached from {start[:2]}")
-    return Episode(int(e.get("id", k)) if isinstance(e.get("id", k), int) else k, tuple(float(v) for v in start),
-                   goal, round(d, 4))
+    eid = e.get("id", k)
+    eid = eid if isinstance(eid, int) and not isinstance(eid, bool) else k  # an unusable id: its place
+    return Episode(eid, tuple(float(v) for v in start), goal, round(d, 4))
