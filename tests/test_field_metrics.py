@@ -171,28 +171,30 @@ def test_a_growing_map_scores_as_from_nothing():
             assert got[name] == pytest.approx(want[name], rel=1e-12, abs=1e-15), name
 
 
-def test_a_sessions_field_curves_end_at_what_evaluate_gives_its_exported_map(tmp_path):
+def test_a_sessions_map_metric_curves_end_at_what_evaluate_gives_its_exported_map(tmp_path):
     """The built-in knowledge's map over time (each sample's first-observed step) ends as the
-    exported map: its final field values are evaluate's of that map; defaults add none."""
+    exported map: its final field and task values are evaluate's of that map; defaults add none."""
     import pandas as pd
 
     from rosmeery_jax.apps.cli import main
+    from rosmeery_jax.metrics.tasks import TASK_METRICS
 
     out = tmp_path / "run"
     assert main(["run", "--worlds", "small_office", "--seeds", "2", "--detector", "off", "--duration", "6", "--quiet",
-                 "--policies", "frontier", "--metrics", "ori,field", "--out", str(out)]) == 0
+                 "--policies", "frontier", "--metrics", "ori,field,task", "--out", str(out)]) == 0
     df = pd.read_csv(out / "metrics.csv")
-    assert set(df.metric) == {"ori", *field.FIELD_METRICS} and np.isfinite(df.value).all()
+    assert set(df.metric) == {"ori", *field.FIELD_METRICS, *TASK_METRICS} and np.isfinite(df.value).all()
     for seed in (0, 1):
         run = df[df.seed == seed]
         final = run[run.time_s == run.time_s.max()].set_index("metric").value
         ev = tmp_path / f"eval{seed}"
         ply = out / "maps" / f"small_office__frontier__seed{seed}.ply"
         assert main(["evaluate", "--world", "small_office", "--map", str(ply), "--out", str(ev), "--metrics",
-                     "ori,field"]) == 0
+                     "ori,field,task"]) == 0
         ours = pd.read_csv(ev / "metrics.csv").set_index("metric").value
-        for metric in ("ori", *field.FIELD_METRICS):
+        for metric in ("ori", *field.FIELD_METRICS, *TASK_METRICS):
             assert final[metric] == pytest.approx(ours[metric], abs=1e-6), metric
         assert final["completeness_5cm"] > 0 and final["accuracy_5cm"] == 1.0  # its points are samples
         first = run[run.time_s == run.time_s.min()].set_index("metric").value
         assert first["completeness_20cm"] <= final["completeness_20cm"]
+        assert first["task_success"] == 0 and final["task_success"] > 0  # nothing seen yet: no goal found

@@ -1,8 +1,9 @@
 """Object-goal episodes and the map-use metrics, on a built hall whose distances are worked
-out by hand: cell centres lie at -4.575 + 0.05 k m, a chair box B spans x 2.3-2.7 (its
-success region starts at the cell centre x = 1.325, the first within 1 m of its west
-face), a copy A of it shifted 4.5 m west spans x -2.2 to -1.8 (its approach region ends at
-x = -0.825), and the start cell's centre is x = 0.025, on the same row."""
+out by hand: cell centres lie at -4.575 + 0.05 k m, a chair box B spans x 2.3-2.7 (its west
+face's samples lie in the cells centred at x = 2.325, so its success region starts at the
+cell centre x = 1.325, 1 m away), a copy A of it shifted 4.525 m west spans x -2.225 to
+-1.825 (its east face's cells centred at -1.825: its approach region ends at x = -0.825),
+and the start cell's centre is x = 0.025, on the same row."""
 
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ def test_a_chair_labelled_a_cabinet_fails_the_chair_query(hall):
 
 def test_a_shifted_instance_fails_first_and_the_true_one_succeeds_second(hall):
     """A (shifted) is nearer: 0.85 m to its approach region, then 2.15 m on to B's: l = 3.0."""
-    both = [(_chair_points(hall, -4.5), "chair"), (_chair_points(hall), "chair")]
+    both = [(_chair_points(hall, -4.525), "chair"), (_chair_points(hall), "chair")]
     r = _score(hall, both)
     assert r.success[0] and r.instance[0] == 1
     assert r.path[0] == pytest.approx(0.85 + 2.15, abs=1e-9)
@@ -151,7 +152,7 @@ def _map_files(world, tmp_path):
     return ply, tmp_path / "out"
 
 
-def test_evaluate_scores_the_task_metrics_by_name_and_a_session_refuses_them(hall, tmp_path, capsys):
+def test_evaluate_scores_the_task_metrics_by_name(hall, tmp_path, capsys):
     ply, out = _map_files(hall, tmp_path)
     eps = tmp_path / "set.json"
     assert main(["tasks", "--world", str(hall.path), "--episodes", "4", "--seed", "1", "--out", str(eps)]) == 0
@@ -162,6 +163,40 @@ def test_evaluate_scores_the_task_metrics_by_name_and_a_session_refuses_them(hal
     assert summary["task_success"] == pytest.approx(chairs / 4)  # the desk is not in the map
     assert main(["tasks", "--world", str(hall.path), "--episodes", "4", "--out", str(eps)]) == 2  # never replaced
     one_line_error(capsys, "set.json", "exists")
-    with pytest.raises(InputError, match="task metrics"):
-        from rosmeery_jax.session import SessionConfig
-        SessionConfig(worlds=(str(hall.path),), metrics=("ori", "task")).validate()
+
+
+@pytest.mark.parametrize("setting, value", [("task_attempts", 0), ("task_attempts", -1), ("task_attempts", 1.5),
+                                            ("task_episodes", 0), ("task_episodes", 10 ** 6)])
+def test_a_session_refuses_bad_task_settings_naming_them(hall, setting, value):
+    from rosmeery_jax.session import SessionConfig
+
+    with pytest.raises(InputError, match=setting):
+        SessionConfig(worlds=(str(hall.path),), metrics=("ori", "task"), **{setting: value}).validate()
+
+
+def test_a_map_scored_as_it_grows_scores_as_the_map_scored_at_once(hall):
+    """The scorer keeps what it learnt of earlier maps: points added, instances merged and
+    labels changed on the way give, at every step, what a fresh scorer gives that map."""
+    rng = np.random.default_rng(0)
+    a, b = _chair_points(hall, -4.525), _chair_points(hall)
+    desk = np.asarray(hall.truth.samples.points, np.float64)[
+        np.asarray(hall.truth.samples.object) == hall.truth.names.index("desk_1")]
+    points = np.concatenate([a, b, desk])
+    instance = np.repeat([0, 1, 2], [len(a), len(b), len(desk)])
+    order = rng.permutation(len(points))
+    points, instance = points[order], instance[order]
+    eps = episodes.generate(hall, 6, seed=3)
+    grown = tasks.TaskScorer(hall, eps)
+    steps = [(40, {0: "chair", 1: "chair", 2: "desk"}), (200, {0: "chair", 1: "cabinet", 2: "desk"}),
+             (len(points), {0: "chair", 1: "chair", 2: "chair"})]
+    for end, labels in steps:
+        got = grown.score(points[:end], instance[:end], labels)
+        want = tasks.score(hall, eps, points[:end], instance[:end], labels)
+        np.testing.assert_array_equal(got.path, want.path)
+        np.testing.assert_array_equal(got.stop, want.stop)
+        assert got.values == want.values
+    merged = np.where(instance == 1, 0, instance)  # instances 0 and 1 become one
+    got = grown.score(points, merged, {0: "chair", 2: "desk"})
+    assert got.values == tasks.score(hall, eps, points, merged, {0: "chair", 2: "desk"}).values
+    desk = np.array([e.goal == "desk" for e in eps])
+    assert desk.any() and got.success[desk].all()  # the desk is untouched by the merge

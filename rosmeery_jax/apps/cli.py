@@ -37,7 +37,7 @@ from rosmeery_jax.metrics.trajectory import read_poses, replay
 from rosmeery_jax.results import plots, statistics, tables, time_use
 from rosmeery_jax.session import Session, SessionConfig, digest, load_config
 from rosmeery_jax.session.join import join
-from rosmeery_jax.session.outputs import check_folder, oracle_field
+from rosmeery_jax.session.outputs import check_folder, oracle_maps
 from rosmeery_jax.world import episodes, load_world
 
 
@@ -70,9 +70,10 @@ def _cmd_replay(args) -> int:
     env = make(args.world)
     run = replay(env, times, poses)
     curves = metrics.compute(run.logs, env.sk.truth, names)
-    wanted = field.wanted(names)
-    if wanted:  # the map metrics of the knowledge's map as it grew, sample by sample
-        curves.update(oracle_field(env.world, run.stamps, np.arange(len(times)), run.logs, wanted))
+    wanted, task = field.wanted(names), tasks.wanted(names)
+    if wanted or task:  # the map metrics of the knowledge's map as it grew, sample by sample
+        curves.update(oracle_maps(env.world, run.stamps, np.arange(len(times)), run.logs, wanted,
+                                  tasks.TaskQuery(task) if task else None))
     curves = {n: curves[n] for n in names}
     tags = dict(policy="replay", detector="off", seed=0)
     final = jax.tree.map(lambda a: a[-1], run.logs)
@@ -96,7 +97,8 @@ def _cmd_run(args) -> int:
                       metrics=args.metrics, conf_threshold=args.conf_threshold, weights=args.weights,
                       chunk_s=args.chunk_s, detector_runtime=args.detector_runtime,
                       detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
-                      digest=args.digest or None, noise=args.noise, localisation=args.localisation)
+                      digest=args.digest or None, noise=args.noise, localisation=args.localisation,
+                      task_episodes=args.task_episodes, task_attempts=args.task_attempts)
     seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
           f"{cfg.out}")
@@ -390,6 +392,10 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    "sensors) or realistic (docs/robot.md; each parameter as env noise__NAME in the config)")
     p.add_argument("--localisation", metavar="MODE", help="the robot's pose: told (ground_truth, the default) or its "
                    "own estimate, dead_reckoning or scan_matching (docs/robot.md)")
+    p.add_argument("--task-episodes", type=int, metavar="N", help="the task metrics' episodes per world (default "
+                   f"{d.task_episodes}: its generated set, seed 0; docs/tasks.md)")
+    p.add_argument("--task-attempts", type=int, metavar="N", help="map instances a task episode tries at most "
+                   f"(default {d.task_attempts})")
     p.add_argument("--cluster", metavar="ADDRESS", help="run each (world, policy) as a Ray task: ray (a new local "
                    "cluster), auto (the running one), ray://HOST:PORT or HOST:PORT (docs/cluster.md; needs the "
                    "[cluster] extra)")

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from rosmeery_jax.core import plugins, specs
 from rosmeery_jax.core.errors import InputError
-from rosmeery_jax.metrics import field
+from rosmeery_jax.metrics import field, tasks
 from rosmeery_jax.metrics.map_score import Score, score_instances, tie
 from rosmeery_jax.raycast.sensors import CameraConfig
 
@@ -243,12 +243,15 @@ class OnlineScorer:
     pair is added once to the instances' shared samples, and a map unchanged since the last
     call is not scored again. Old points given other instance ids (instances merged) are
     counted again from their ties; any other change scores the map from scratch. The
-    result is the same either way. With ``field_names``, the Score carries those field map
-    metrics too (:class:`rosmeery_jax.metrics.field.FieldScorer`, incremental alike)."""
+    result is the same either way. With ``field_names``, the Score's ``field`` carries those
+    field map metrics (:class:`rosmeery_jax.metrics.field.FieldScorer`, incremental alike);
+    with a ``task`` query, the task metrics too (:class:`rosmeery_jax.metrics.tasks.TaskScorer`)."""
 
-    def __init__(self, world, tolerance: float, field_names: tuple[str, ...] = ()):
+    def __init__(self, world, tolerance: float, field_names: tuple[str, ...] = (), task: tasks.TaskQuery = None):
         self.world, self.tolerance, self.field_names = world, tolerance, tuple(field_names)
         self.field = field.FieldScorer(field.FieldTruth.of(world)) if self.field_names else None
+        self.task = task.scorer(world) if task is not None and task.names else None
+        self.task_names = task.names if self.task is not None else ()
         self.tree = cKDTree(np.asarray(world.truth.samples.points, np.float64))  # built once, not per map
         self.objects = np.asarray(world.truth.samples.object)
         self._clear()
@@ -291,6 +294,10 @@ class OnlineScorer:
         if self.field is not None:
             tally = self.field.tally(m.points, m.instance, m.label, m.confidence, self.sample, self.shared)
             sc = sc._replace(field=field.values(tally, self.field.truth, self.field_names), tally=tally)
+        if self.task is not None:
+            names = self.world.taxonomy.names
+            done = self.task.score(m.points, m.instance, {i: names[c] for i, c in enumerate(m.label.tolist()) if c >= 0})
+            sc = sc._replace(field={**(sc.field or {}), **{n: done.values[n] for n in self.task_names}})
         self.last = (m.label.copy(), m.confidence.copy(), sc)
         return sc
 

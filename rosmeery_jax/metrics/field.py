@@ -121,16 +121,6 @@ def wanted(names) -> tuple[str, ...]:
     return tuple(n for n in FIELD_METRICS if n in names)
 
 
-def expand(names) -> tuple[str, ...]:
-    """``names`` with FIELD_SET replaced by every field metric (each name once)."""
-    out = []
-    for n in names:
-        for m in FIELD_METRICS if n == FIELD_SET else (n,):
-            if m not in out:
-                out.append(m)
-    return tuple(out)
-
-
 class FieldScorer:
     """The tally of one robot's map as it grows (module docstring): :meth:`tally` takes the
     map now (points, instance ids, per-id label and confidence) with each point's tied

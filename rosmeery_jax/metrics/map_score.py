@@ -64,8 +64,9 @@ class SemanticMap(NamedTuple):
 class Score(NamedTuple):
     """A map scored against a world: log (ObjectLog, fields (N,)); matched (N,) instance id of
     each object (-1 none); off_object: share of points on no object; unmatched: instances
-    matched to no object; field: {name: value} of the field map metrics asked for
-    (:mod:`rosmeery_jax.metrics.field`), and tally, what they were computed from."""
+    matched to no object; field: {name: value} of the map metrics asked for (field:
+    :mod:`rosmeery_jax.metrics.field`, and task: :mod:`rosmeery_jax.metrics.tasks`), and
+    tally, what the field metrics were computed from."""
 
     log: ObjectLog
     matched: np.ndarray

@@ -25,7 +25,7 @@ from rosmeery_jax.policies import check_entry as check_policy
 from rosmeery_jax.policies import policy_label
 from rosmeery_jax.session import schedule
 from rosmeery_jax.session.batch import BLOCK
-from rosmeery_jax.world import load_world
+from rosmeery_jax.world import episodes, load_world
 from rosmeery_jax.world.load import check_entry as check_world
 
 LOG_BYTES_PER_OBJECT_STEP = 24  # ObjectLog: six 4-byte fields
@@ -38,18 +38,19 @@ def check_session(cfg, source: str) -> None:
     layers: InputErrors from deeper down name ``source``."""
     with _as_source(source):
         names = metrics.resolve(cfg.metrics)
-        if tasks.wanted(names):
-            raise InputError("config", "metrics", "the task metrics are scored from maps by rosmeery evaluate "
-                             "(a session's maps/ among them: evaluate --map DIR/maps/...ply --metrics task), "
-                             "not during a session")
-        if field.wanted(names) and "oracle" in cfg.mappers and any(specs.kind(p) == "agent" for p in cfg.policies):
-            raise InputError("config", "metrics", "the field map metrics score the built-in knowledge's map "
+        episodes.check_count(cfg.task_episodes, "config", "task_episodes")
+        tasks.check_attempts(cfg.task_attempts, "config")
+        maps = field.wanted(names) or tasks.wanted(names)
+        if maps and "oracle" in cfg.mappers and any(specs.kind(p) == "agent" for p in cfg.policies):
+            raise InputError("config", "metrics", "the map metrics (field, task) score the built-in knowledge's map "
                              "(mapper oracle) of policies, not of agent: runs; score an agent's runs with a mapper "
                              "(mappers = [\"perceived\"]) or evaluate their exported maps")
         env = schedule.env_config(cfg)  # type-checks the overrides
         for w in cfg.worlds:
             check_world(w)
         worlds = [load_world(w) for w in cfg.worlds]
+        for w in worlds if tasks.wanted(names) else ():  # a world with no goal to seek: refused now
+            episodes.generated(w, cfg.task_episodes)
         stage = functools.cache(lambda: _plugin_stage(cfg))
         for p in cfg.policies:
             if specs.kind(p) == "agent":

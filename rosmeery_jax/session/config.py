@@ -22,7 +22,7 @@ LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "first_seed", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
                  "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime", "noise",
-                 "localisation")
+                 "localisation", "task_episodes", "task_attempts")
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,9 @@ class SessionConfig:
     # (rosmeery_jax.sim.noise; each parameter also as env noise__NAME)
     localisation: str = "ground_truth"  # the robot's pose: told (ground_truth), or estimated by itself:
     # dead_reckoning (odometry integrated) or scan_matching (odometry refined on its own map): sim.localisation
+    task_episodes: int = 50  # the task metrics' object-goal episodes per world (its generated
+    # set, seed 0: rosmeery tasks; docs/tasks.md), when metrics name them
+    task_attempts: int = 3  # map instances a task episode tries at most
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
     # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
     # the YOLO detector runs), at most one per block

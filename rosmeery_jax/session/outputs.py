@@ -35,12 +35,13 @@ from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.env import Track
 from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, mapper_label
 from rosmeery_jax.metrics import field
+from rosmeery_jax.metrics.indices import MAP_METRICS
 from rosmeery_jax.metrics.map_file import build_map, write_map, write_semantic_map
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.results import manifest, plots, tables, time_use
 from rosmeery_jax.session.checks import run_label
 from rosmeery_jax.session.config import SessionConfig
-from rosmeery_jax.session.schedule import frames_before, sampled_rows
+from rosmeery_jax.session.schedule import frames_before, sampled_rows, task_query
 from rosmeery_jax.sim.knowledge import ObjectLog
 from rosmeery_jax.world import load_world
 
@@ -83,7 +84,8 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     counted = frames_before(cfg, step[keep])
     tags = dict(world=world.name, policy=policy, detector=cfg.detector)
     names = metrics.resolve(cfg.metrics)
-    field_names = field.wanted(names)
+    field_names, task = field.wanted(names), task_query(cfg)
+    map_names = [n for n in names if n in MAP_METRICS]
     curves, objects, paths = [], [], []
     for i, seed in enumerate(run.seeds):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[i], logs)
@@ -92,9 +94,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             k = k._replace(seen=k.seen[:s], label=k.label[:n], confidence=k.confidence[:n])
             write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
             c = {m: v[keep] for m, v in metrics.compute(log, env.truth, names).items()}  # {name: (K,)}
-            if field_names:
-                c.update(oracle_field(world, run.stamps[i, :s], step[keep], jax.tree.map(lambda a: a[keep], log),
-                                      field_names))
+            if map_names:
+                c.update(oracle_maps(world, run.stamps[i, :s], step[keep], jax.tree.map(lambda a: a[keep], log),
+                                     field_names, task))
             curves.append(tables.metric_frame({m: c[m] for m in names}, times[keep], seed=seed, mapper="oracle",
                                                **tags))
             objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], log), seed=seed,
@@ -106,7 +108,7 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             done = run.mapped[spec][i]
             mlog = ObjectLog(*(np.stack(a) for a in zip(*(done.logs[c] for c in counted))))  # (K, N)
             c = metrics.compute(mlog, env.truth, names)
-            c.update({m: np.array([done.fields[k][m] for k in counted]) for m in field_names})
+            c.update({m: np.array([done.fields[k][m] for k in counted]) for m in map_names})
             c = {m: c[m] for m in names}
             curves.append(tables.metric_frame(c, times[keep], seed=seed, mapper=label, **tags))
             objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], mlog), seed=seed, mapper=label,
@@ -133,8 +135,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     seal_run(out, name)
 
 
-def oracle_field(world, stamps: np.ndarray, steps: np.ndarray, log: ObjectLog, names) -> dict[str, np.ndarray]:
-    """{name: (K,)} field map metrics of the built-in knowledge's map at ``steps`` (K,):
+def oracle_maps(world, stamps: np.ndarray, steps: np.ndarray, log: ObjectLog, names, task=None) -> dict:
+    """{name: (K,)} map metrics (field ``names``, and ``task``'s) of the built-in knowledge's
+    map at ``steps`` (K,):
     the samples first observed by then (``stamps`` (S,), -1 never) labelled by their
     object's held label and confidence in ``log`` (fields (K, N)). The map grows sample
     by sample in the order of observation, so it is scored incrementally."""
@@ -144,13 +147,13 @@ def oracle_field(world, stamps: np.ndarray, steps: np.ndarray, log: ObjectLog, n
     ends = np.searchsorted(stamps[order], steps, side="right")
     points = np.asarray(truth.samples.points, np.float64)[order]
     instance = np.asarray(truth.samples.object, np.int64)[order]
-    scorer = OnlineScorer(world, TOLERANCE, names)
-    out = {n: np.zeros(len(steps)) for n in names}
+    scorer = OnlineScorer(world, TOLERANCE, names, task)
+    out = {n: np.zeros(len(steps)) for n in (*names, *scorer.task_names)}
     for k, end in enumerate(ends):
         conf = np.where(log.label[k] >= 0, log.conf_any[k], 0.0).astype(np.float32)
         sc = scorer.score(MapState(points[:end], instance[:end], np.asarray(log.label[k], np.int32), conf),
                           ties=order[:end])  # each point is its sample
-        for n in names:
+        for n in out:
             out[n][k] = sc.field[n]
     return out
 

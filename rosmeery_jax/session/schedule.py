@@ -15,7 +15,8 @@ from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.env.decision import Decision
 from rosmeery_jax.mapping.perceived import mapper_for
-from rosmeery_jax.metrics import field
+from rosmeery_jax.metrics import field, tasks
+from rosmeery_jax.metrics.indices import expand
 from rosmeery_jax.rl.task import STEP_LIMIT
 from rosmeery_jax.sim import noise
 
@@ -136,14 +137,21 @@ def frames_before(cfg, steps: np.ndarray) -> np.ndarray:
     return np.maximum(np.asarray(steps) - 1, 0) // frame_steps(cfg)
 
 
+def task_query(cfg) -> tasks.TaskQuery | None:
+    """The task metrics ``cfg`` scores, with its episodes and attempts (None: none)."""
+    names = tasks.wanted(expand(cfg.metrics))
+    return tasks.TaskQuery(names, cfg.task_episodes, cfg.task_attempts) if names else None
+
+
 class Plan(NamedTuple):
     """How a group is stepped: ``total`` decisions, ``per_call`` of them per jitted call,
     ``decide_every`` control steps per decision, a detector frame every ``frame_steps``
     steps (a divisor of ``decide_every``), a log row every ``log_every`` steps (a divisor of
     ``frame_steps``); ``mappers``: the mapper entries fed every detector frame per env
     (needs detectors), their maps scored after each frame count in ``score_at``; ``field``:
-    the field map metrics scored on their maps; ``stamp``: the samples' first-observed
-    steps are kept (the built-in knowledge's map over time, for those metrics)."""
+    the field map metrics scored on their maps; ``task``: the task metrics too (None: none);
+    ``stamp``: the samples' first-observed steps are kept (the built-in knowledge's map over
+    time, for those metrics)."""
 
     total: int
     per_call: int
@@ -155,16 +163,18 @@ class Plan(NamedTuple):
     digest: bool = False  # a digest of each env's state after every chunk (session.digest)
     field: tuple[str, ...] = ()
     stamp: bool = False
+    task: tasks.TaskQuery | None = None
 
     @staticmethod
     def of(cfg) -> "Plan":
         """The plan of a session configuration's runs (the same for every group)."""
         total = decisions(cfg)
-        names = field.wanted(field.expand(cfg.metrics))
+        names = field.wanted(expand(cfg.metrics))
+        task = task_query(cfg)
         return Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
                     tuple(m for m in cfg.mappers if m != "oracle"),
                     frozenset(frames_before(cfg, sampled_rows(cfg) * log_every(cfg)).tolist()), cfg.digest,
-                    names, bool(names) and "oracle" in cfg.mappers)
+                    names, bool(names or task) and "oracle" in cfg.mappers, task)
 
     @property
     def frames_per(self) -> int:

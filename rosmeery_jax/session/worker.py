@@ -112,7 +112,7 @@ class Worker:
         for spec in self.plan.mappers:
             cls = mapper_for(spec)
             out[spec] = Mapped(spec, cls(self.camera, env.world.taxonomy.names),
-                                OnlineScorer(env.world, TOLERANCE, self.plan.field))
+                                OnlineScorer(env.world, TOLERANCE, self.plan.field, self.plan.task))
             self.timing["score_s"] += self._score(out[spec], 0)
         return out
 

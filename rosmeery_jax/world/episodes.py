@@ -2,10 +2,11 @@
 episode datasets: a start pose in free space and a goal category present in the world,
 with the geodesic distance from the start to the nearest success region of the category.
 
-A **success region** of a category is the set of reachable cells (the robot's centre) within
-``SUCCESS_DISTANCE`` (1.0 m, Habitat's ObjectNav radius) of a surface sample of an object of
-that category, measured on the floor plane, with a line of sight to that sample that no wall
-blocks (furniture does not block it: the camera sees over most of it).
+A **success region** of a category is the union of the approach nodes
+(:mod:`rosmeery_jax.world.approach`) of the cells holding a surface sample of an object of
+that category: the reachable cells (the robot's centre) within ``SUCCESS_DISTANCE`` (1.0 m,
+Habitat's ObjectNav radius) of such a cell, centre to centre on the floor plane, with no
+wall cell between them (furniture does not block the sight: the camera sees over most of it).
 
 A set is generated from a seed (:func:`generate`): goals cycle through the world's
 reachable categories in a shuffled order, so every category is a goal at least once when
@@ -30,16 +31,15 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import write_atomic
 from rosmeery_jax.world import geodesic
+from rosmeery_jax.world.approach import SUCCESS_DISTANCE, Approach
 from rosmeery_jax.world.freespace import rasterize
 from rosmeery_jax.world.scene import WALL
 
 FORMAT, VERSION = "rosmeery-objectnav", 1
-SUCCESS_DISTANCE = 1.0  # m: Habitat ObjectNav's success radius
 MIN_DISTANCE = 1.0  # m: a start's least geodesic distance to its goal's region
 MAX_EPISODES = 10_000  # a set larger than this is a mistake (and would not fit a batch)
 DEFAULT_EPISODES, DEFAULT_SEED = 50, 0
@@ -53,12 +53,12 @@ class Episode(NamedTuple):
 
 
 class Regions(NamedTuple):
-    """A world's task geometry: its free-space graph, its wall cells (H, W) bool (what blocks
-    a line of sight), each category's success region (H, W) bool and the geodesic distance
-    field (H, W) metres to it."""
+    """A world's task geometry: its free-space graph, its approach nodes (what blocks a line
+    of sight: its wall cells), each category's success region (H, W) bool and the geodesic
+    distance field (H, W) metres to it."""
 
     graph: geodesic.Graph
-    walls: np.ndarray
+    approach: Approach
     region: dict
     distance: dict
 
@@ -83,51 +83,23 @@ def _regions(world) -> Regions:
     fs = world.free_space
     g = geodesic.graph(fs)
     walls = rasterize(world.scene, world.scene.object_id == WALL, fs.origin, fs.occupied.shape, fs.resolution)
+    near = Approach(walls, g, fs.origin)
     t = world.truth
     obj = np.asarray(t.samples.object)
-    xy = np.asarray(t.samples.points, np.float64)[:, :2]
+    cells = near.cells(np.asarray(t.samples.points, np.float64)[:, :2])
     region, distance = {}, {}
     for category in sorted(set(t.categories)):
         ids = [n for n, c in enumerate(t.categories) if c == category]
-        inside = _visible_near(fs, walls, xy[np.isin(obj, ids)])
-        region[category] = inside
-        distance[category] = geodesic.field(g, np.argwhere(inside))
-    return Regions(g, walls, region, distance)
+        region[category] = near.region(cells[np.isin(obj, ids)])
+        distance[category] = geodesic.field(g, np.argwhere(region[category]))
+    return Regions(g, near, region, distance)
 
 
 def approach_region(world, xy: np.ndarray) -> np.ndarray:
-    """(H, W) the reachable cells within SUCCESS_DISTANCE of one of the points ``xy`` (P, 2)
-    in sight of it: a success region's rule applied to any points (a map's instance)."""
-    return _visible_near(world.free_space, regions(world).walls, np.asarray(xy, np.float64))
-
-
-def _visible_near(fs, walls: np.ndarray, samples: np.ndarray, nearest: int = 8) -> np.ndarray:
-    """(H, W) reachable cells within SUCCESS_DISTANCE of one of ``samples`` (S, 2), one of
-    their ``nearest`` samples in sight (no wall cell on the segment between them)."""
-    out = np.zeros(fs.reachable.shape, bool)
-    if not len(samples):
-        return out
-    lo = np.floor((samples.min(0) - SUCCESS_DISTANCE - fs.origin) / fs.resolution).astype(int)
-    hi = np.ceil((samples.max(0) + SUCCESS_DISTANCE - fs.origin) / fs.resolution).astype(int)
-    box = np.zeros_like(out)
-    box[max(lo[1], 0):max(hi[1] + 1, 0), max(lo[0], 0):max(hi[0] + 1, 0)] = True  # rows y, columns x
-    cells = np.argwhere(fs.reachable & box)
-    centres = fs.origin + (cells[:, ::-1] + 0.5) * fs.resolution
-    if not len(cells):
-        return out
-    d, k = cKDTree(samples).query(centres, k=min(nearest, len(samples)), distance_upper_bound=SUCCESS_DISTANCE)
-    d, k = d.reshape(len(centres), -1), k.reshape(len(centres), -1)
-    near = np.isfinite(d).any(1)
-    centres, cells, d, k = centres[near], cells[near], d[near], k[near]
-    steps = np.linspace(0.0, 1.0, int(math.ceil(2 * SUCCESS_DISTANCE / fs.resolution)) + 1)
-    target = samples[np.minimum(k, len(samples) - 1)]  # (C, K, 2)
-    along = centres[:, None, None, :] + steps[None, None, :, None] * (target - centres[:, None, :])[:, :, None, :]
-    ij = np.floor((along - fs.origin) / fs.resolution).astype(np.int64)[..., ::-1]
-    ij = np.clip(ij, 0, np.array(walls.shape) - 1)
-    clear = ~walls[ij[..., 0], ij[..., 1]].any(-1) & np.isfinite(d)  # (C, K)
-    seen = clear.any(1)
-    out[cells[seen, 0], cells[seen, 1]] = True
-    return out
+    """(H, W) the approach region of the points ``xy`` (P, 2): a success region's rule
+    applied to any points (a map's instance)."""
+    near = regions(world).approach
+    return near.region(near.cells(xy))
 
 
 def generate(world, episodes: int = DEFAULT_EPISODES, seed: int = DEFAULT_SEED) -> list[Episode]:
@@ -160,6 +132,17 @@ def generate(world, episodes: int = DEFAULT_EPISODES, seed: int = DEFAULT_SEED) 
         out.append(Episode(k, (round(float(x), 4), round(float(y), 4), round(yaw, 4)), goal,
                            round(float(d[pick]), 4)))
     return out
+
+
+_GENERATED: dict = {}  # (world file, its config, count): the seed-0 set
+
+
+def generated(world, episodes: int = DEFAULT_EPISODES) -> list[Episode]:
+    """The world's default set of ``episodes`` (seed 0), made once per process."""
+    key = (str(world.path), world_hash(world), world.config, episodes)
+    if key not in _GENERATED:
+        _GENERATED[key] = generate(world, episodes, DEFAULT_SEED)
+    return _GENERATED[key]
 
 
 def _spread(cells: np.ndarray, rng, n: int) -> np.ndarray:

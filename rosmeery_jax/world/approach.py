@@ -1,0 +1,157 @@
+"""Where a robot can stand to find an object: the **approach nodes** of a floor cell are the
+reachable cells (the robot's centre, :mod:`rosmeery_jax.world.geodesic`'s nodes) whose
+centre lies within ``SUCCESS_DISTANCE`` (1.0 m, Habitat's ObjectNav radius) of that cell's
+centre, with no wall cell strictly between them (furniture does not block the sight: the
+camera sees over most of it; the target cell itself may be a wall's, as a picture on it).
+
+A success region (:mod:`rosmeery_jax.world.episodes`) is the union of the approach nodes of
+a category's surface-sample cells; a map instance's approach region is the union of those
+of the cells its points lie in. One rule for both, so the built-in knowledge's instance of
+an object approaches only cells of that object's true success region.
+
+The sight lines are laid out once per grid as cell offsets; a cell's nodes are computed
+when first asked for and kept (:class:`Approach`). Shapes: C cells, K offsets within the
+radius, L cells on a sight line, M nodes.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from rosmeery_jax.world import geodesic
+
+SUCCESS_DISTANCE = 1.0  # m: Habitat ObjectNav's success radius
+CHUNK = 1024  # cells laid out at once ((C, K) nodes)
+
+
+def _lines(r: int, radius: float):
+    """Offsets (K, 2) within ``radius`` cells of a cell; per offset the distinct cells a
+    straight line from the target's centre to the offset cell's centre crosses strictly
+    between the two, (K, L, 2) padded with the offset itself (reachable, so never a wall),
+    and how many there are (K,)."""
+    di, dj = np.mgrid[-r:r + 1, -r:r + 1]
+    offsets = np.stack([di.ravel(), dj.ravel()], -1)
+    offsets = offsets[np.hypot(*offsets.T) <= radius + 1e-9]
+    lam = np.linspace(0.0, 1.0, 4 * r + 1)[1:-1]  # a quarter cell apart: no crossed cell missed
+    lines = []
+    for o in offsets:
+        along = np.floor(0.5 + lam[:, None] * o[None, :]).astype(np.int64)
+        keep = ~((along == 0).all(-1) | (along == o).all(-1))
+        lines.append(np.unique(along[keep], axis=0))
+    count = np.array([len(x) for x in lines], np.int64)
+    out = np.repeat(offsets[:, None, :], max(int(count.max()), 1), axis=1)
+    for k, x in enumerate(lines):
+        out[k, :len(x)] = x
+    return offsets, out, count
+
+
+@njit(cache=True, nogil=True)
+def _approach_nodes(walls, index, targets, offsets, lines, count):  # pragma: no cover - compiled
+    """(C, K) the node of each target's offset cell where it is reachable and no wall lies on
+    the line between (else -1): targets (C, 2) rows and columns in the padded grid."""
+    out = np.full((targets.shape[0], offsets.shape[0]), -1, np.int64)
+    for c in range(targets.shape[0]):
+        ti, tj = targets[c, 0], targets[c, 1]
+        for k in range(offsets.shape[0]):
+            node = index[ti + offsets[k, 0], tj + offsets[k, 1]]
+            if node < 0:
+                continue
+            clear = True
+            for m in range(count[k]):
+                if walls[ti + lines[k, m, 0], tj + lines[k, m, 1]]:
+                    clear = False
+                    break
+            if clear:
+                out[c, k] = node
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _nearest(fields, flat, start, length, slots):  # pragma: no cover - compiled
+    """(Q, F) the least of each field (columns of ``fields`` (V, F)) over each cell's nodes
+    (``flat[start[s]:start[s] + length[s]]`` for its slot s in ``slots`` (Q,)) and that
+    node, the smallest of ties (inf and -1 for a cell no node approaches)."""
+    q, f = slots.shape[0], fields.shape[1]
+    dist, node = np.full((q, f), np.inf), np.full((q, f), -1, np.int64)
+    for c in range(q):
+        s = slots[c]
+        for m in range(start[s], start[s] + length[s]):
+            n = flat[m]
+            for k in range(f):
+                v = fields[n, k]
+                if v < dist[c, k] or (v == dist[c, k] and v < np.inf and n < node[c, k]):
+                    dist[c, k] = fields[n, k]
+                    node[c, k] = n
+    return dist, node
+
+
+class Approach:
+    """The approach nodes of a grid's cells (module docstring), kept per cell once asked for.
+
+    ``walls`` (H, W) bool blocks sight; ``graph`` the reachable cells' graph; ``origin``
+    (2,) the grid's lower-left corner."""
+
+    def __init__(self, walls: np.ndarray, graph: geodesic.Graph, origin: np.ndarray):
+        self.shape, self.graph, self.origin = walls.shape, graph, np.asarray(origin, np.float64)
+        self.r = int(math.floor(SUCCESS_DISTANCE / graph.resolution + 1e-9))
+        self.offsets, self.lines, self.count = _lines(self.r, SUCCESS_DISTANCE / graph.resolution)
+        p = self.r + 1  # a border: no bounds checks
+        self.walls = np.pad(np.asarray(walls, bool), p)
+        self.index = np.pad(np.asarray(graph.index, np.int64), p, constant_values=-1)
+        self.pad = p
+        # the nodes kept: cell c's are flat[start[slot[c]] : ... + length[slot[c]]]
+        self.slot = np.full(walls.size, -1, np.int64)
+        self.start, self.length = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        self.flat = np.zeros(0, np.int64)
+
+    def cells(self, xy: np.ndarray) -> np.ndarray:
+        """(P,) flat cell of each point ``xy`` (P, 2); -1 off the grid."""
+        ji = np.floor((np.asarray(xy, np.float64).reshape(-1, 2) - self.origin)
+                      / self.graph.resolution).astype(np.int64)
+        j, i = ji[:, 0], ji[:, 1]
+        inside = (i >= 0) & (i < self.shape[0]) & (j >= 0) & (j < self.shape[1])
+        return np.where(inside, i * self.shape[1] + j, -1)
+
+    def slots(self, cells: np.ndarray) -> np.ndarray:
+        """(C,) where each flat cell's nodes are kept (laid out first if new)."""
+        cells = np.asarray(cells, np.int64)
+        new = np.unique(cells[self.slot[cells] < 0])
+        for k in range(0, len(new), CHUNK):
+            self._lay(new[k:k + CHUNK])
+        return self.slot[cells]
+
+    def nodes(self, cell: int) -> np.ndarray:
+        """One flat cell's approach nodes (M,)."""
+        s = int(self.slots(np.array([cell]))[0])
+        return self.flat[self.start[s]:self.start[s] + self.length[s]]
+
+    def region(self, cells: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the union of the approach nodes of ``cells`` as grid cells."""
+        out = np.zeros(self.shape, bool)
+        cells = np.unique(cells)
+        s = self.slots(cells[cells >= 0])
+        if len(s):
+            nodes = self.flat[np.concatenate([np.arange(a, a + n) for a, n in zip(self.start[s], self.length[s])])]
+            i, j = self.graph.cells[nodes].T
+            out[i, j] = True
+        return out
+
+    def nearest(self, fields: np.ndarray, cells: np.ndarray):
+        """(Q, F) metres and node: for each of ``cells`` (Q,), the least of each field
+        (``fields`` (V, F), a column per field) over its approach nodes, and where."""
+        s = self.slots(cells)
+        return _nearest(np.ascontiguousarray(fields), self.flat, self.start, self.length, s)
+
+    def _lay(self, cells: np.ndarray) -> None:
+        i, j = np.divmod(cells, self.shape[1])
+        targets = np.stack([i, j], -1) + self.pad
+        found = _approach_nodes(self.walls, self.index, targets, self.offsets, self.lines, self.count)
+        keep = found >= 0
+        length = keep.sum(1)
+        self.slot[cells] = len(self.start) + np.arange(len(cells))
+        self.start = np.r_[self.start, len(self.flat) + np.cumsum(length) - length]
+        self.length = np.r_[self.length, length]
+        self.flat = np.r_[self.flat, found[keep]]
