@@ -69,25 +69,6 @@ def _approach_nodes(walls, index, targets, offsets, lines, count):  # pragma: no
     return out
 
 
-@njit(cache=True, nogil=True)
-def _nearest(fields, flat, start, length, slots):  # pragma: no cover - compiled
-    """(Q, F) the least of each field (columns of ``fields`` (V, F)) over each cell's nodes
-    (``flat[start[s]:start[s] + length[s]]`` for its slot s in ``slots`` (Q,)) and that
-    node, the smallest of ties (inf and -1 for a cell no node approaches)."""
-    q, f = slots.shape[0], fields.shape[1]
-    dist, node = np.full((q, f), np.inf), np.full((q, f), -1, np.int64)
-    for c in range(q):
-        s = slots[c]
-        for m in range(start[s], start[s] + length[s]):
-            n = flat[m]
-            for k in range(f):
-                v = fields[n, k]
-                if v < dist[c, k] or (v == dist[c, k] and v < np.inf and n < node[c, k]):
-                    dist[c, k] = fields[n, k]
-                    node[c, k] = n
-    return dist, node
-
-
 class Approach:
     """The approach nodes of a grid's cells (module docstring), kept per cell once asked for.
 
@@ -123,27 +104,23 @@ class Approach:
             self._lay(new[k:k + CHUNK])
         return self.slot[cells]
 
-    def nodes(self, cell: int) -> np.ndarray:
-        """One flat cell's approach nodes (M,)."""
-        s = int(self.slots(np.array([cell]))[0])
-        return self.flat[self.start[s]:self.start[s] + self.length[s]]
+    def gather(self, cells: np.ndarray) -> np.ndarray:
+        """The approach nodes of each of ``cells`` (flat, -1 ignored) one after the other."""
+        s = self.slots(cells[cells >= 0])
+        n = self.length[s]
+        at = np.repeat(self.start[s] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+        return self.flat[at]
+
+    def union(self, cells: np.ndarray) -> np.ndarray:
+        """The approach nodes of any of ``cells`` (flat, -1 ignored), sorted, each once."""
+        return np.unique(self.gather(np.unique(cells)))
 
     def region(self, cells: np.ndarray) -> np.ndarray:
         """(H, W) bool: the union of the approach nodes of ``cells`` as grid cells."""
         out = np.zeros(self.shape, bool)
-        cells = np.unique(cells)
-        s = self.slots(cells[cells >= 0])
-        if len(s):
-            nodes = self.flat[np.concatenate([np.arange(a, a + n) for a, n in zip(self.start[s], self.length[s])])]
-            i, j = self.graph.cells[nodes].T
-            out[i, j] = True
+        i, j = self.graph.cells[self.union(cells)].T
+        out[i, j] = True
         return out
-
-    def nearest(self, fields: np.ndarray, cells: np.ndarray):
-        """(Q, F) metres and node: for each of ``cells`` (Q,), the least of each field
-        (``fields`` (V, F), a column per field) over its approach nodes, and where."""
-        s = self.slots(cells)
-        return _nearest(np.ascontiguousarray(fields), self.flat, self.start, self.length, s)
 
     def _lay(self, cells: np.ndarray) -> None:
         i, j = np.divmod(cells, self.shape[1])
