@@ -1,6 +1,7 @@
 """The usefulness tables of docs/paper.md ("How useful the map is") from session folders.
 
-    .venv/bin/python experiments/usefulness/table.py results/usefulness_exact results/usefulness_noisy
+    .venv/bin/python experiments/usefulness/table.py exact=results/usefulness_exact \
+        scan_matching=results/usefulness_noisy
 
 Each folder is a session with the task metrics (``--metrics ori,task``) and the mappers
 ``oracle,perceived``. Prints, per folder, the mean task success / SPL over its seeds at 60,
@@ -28,18 +29,26 @@ def curves(folder: Path) -> pd.DataFrame:
     return df[df.metric.isin(["ori", "task_success", "task_spl"])]
 
 
-def at_times(df: pd.DataFrame) -> str:
+def cell(part: pd.DataFrame) -> str:
+    """Mean success and SPL over seeds at each of TIMES: 'S 0.69 0.86 0.98 0.98 · SPL 0.64 ...'."""
+    out = []
+    for key, name in (("task_success", "S"), ("task_spl", "SPL")):
+        v = [part[(part.metric == key) & (part.time_s == t)].value.mean() for t in TIMES]
+        out.append(name + " " + " ".join(f"{x:.2f}" for x in v))
+    return " · ".join(out)
+
+
+def at_times(frames: dict) -> str:
+    """One row per world and policy; a column per (folder, mapper)."""
+    names = [(label, mapper) for label in frames for mapper in ("oracle", "perceived")]
+    first = next(iter(frames.values()))
     rows = []
-    for (world, policy), part in df.groupby(["world", "policy"], sort=False):
-        cells = []
-        for mapper in ("oracle", "perceived"):
-            for t in TIMES:
-                m = part[(part.mapper == mapper) & (part.time_s == t)]
-                s, spl = (m[m.metric == k].value.mean() for k in ("task_success", "task_spl"))
-                cells.append(f"{s:.2f} / {spl:.2f}")
+    for world, policy in first[["world", "policy"]].drop_duplicates().itertuples(index=False):
+        cells = [cell(frames[label][(frames[label].world == world) & (frames[label].policy == policy)
+                                    & (frames[label].mapper == mapper)]) for label, mapper in names]
         rows.append(f"| {WORLDS.get(world, world)} | {policy} | " + " | ".join(cells) + " |")
-    head = " | ".join(f"{m} {t:g} s" for m in ("oracle", "perceived") for t in TIMES)
-    return "\n".join([f"| world | policy | {head} |", "|---|---|" + "---|" * 2 * len(TIMES), *rows])
+    head = " | ".join(f"{mapper}, {label}" for label, mapper in names)
+    return "\n".join([f"| world | policy | {head} |", "|---|---|" + "---|" * len(names), *rows])
 
 
 def tau(ori: np.ndarray, spl: np.ndarray) -> str:
@@ -49,29 +58,33 @@ def tau(ori: np.ndarray, spl: np.ndarray) -> str:
     ci = stats.bootstrap((ori, spl), lambda a, b: stats.kendalltau(a, b).statistic, paired=True,
                          n_resamples=2000, vectorized=False, rng=np.random.default_rng(0), method="percentile")
     lo, hi = ci.confidence_interval
+    if not (np.isfinite(lo) and np.isfinite(hi)):  # resamples too alike (SPL nearly constant)
+        return f"{t:+.2f} [no interval]"
     return f"{t:+.2f} [{lo:+.2f}, {hi:+.2f}]"
 
 
-def taus(df: pd.DataFrame) -> str:
-    final = df[df.time_s == df.time_s.max()].pivot_table(index=["world", "policy", "seed", "mapper"],
-                                                          columns="metric", values="value").reset_index()
+def taus(frames: dict) -> str:
     rows = []
-    for mapper in ("oracle", "perceived"):
-        f = final[final.mapper == mapper]
-        cells = [tau(f.ori.to_numpy(), f.task_spl.to_numpy()) + f" (n={len(f)})"]
-        for world in WORLDS:
-            w = f[f.world == world]
-            cells.append(tau(w.ori.to_numpy(), w.task_spl.to_numpy()))
-        rows.append(f"| {mapper} | " + " | ".join(cells) + " |")
+    for label, df in frames.items():
+        final = df[df.time_s == df.time_s.max()].pivot_table(index=["world", "policy", "seed", "mapper"],
+                                                              columns="metric", values="value").reset_index()
+        for mapper in ("oracle", "perceived"):
+            f = final[final.mapper == mapper]
+            cells = [tau(f.ori.to_numpy(), f.task_spl.to_numpy()) + f" (n={len(f)})"]
+            cells += [tau(w.ori.to_numpy(), w.task_spl.to_numpy()) for w in (f[f.world == k] for k in WORLDS)]
+            rows.append(f"| {mapper}, {label} | " + " | ".join(cells) + " |")
     head = " | ".join(WORLDS.values())
-    return "\n".join([f"| mapper | all runs | {head} |", "|---|---|" + "---|" * len(WORLDS), *rows])
+    return "\n".join([f"| map | all runs | {head} |", "|---|---|" + "---|" * len(WORLDS), *rows])
 
 
 def main(folders: list[str]) -> None:
-    for folder in map(Path, folders):
-        df = curves(folder)
-        print(f"## {folder}\n\ntask success / SPL, mean over seeds\n\n{at_times(df)}\n\n"
-              f"Kendall's tau, final ORI vs final task SPL, 95 % bootstrap interval\n\n{taus(df)}\n")
+    """Folders as LABEL=DIR (or DIR: its name is the label)."""
+    frames = {}
+    for f in folders:
+        label, _, path = f.rpartition("=")
+        frames[label or Path(path).name] = curves(Path(path))
+    print(f"task success (S) and SPL at {', '.join(f'{t:g}' for t in TIMES)} s, mean over seeds\n\n{at_times(frames)}\n\n"
+          f"Kendall's tau, final ORI vs final task SPL, 95 % bootstrap interval\n\n{taus(frames)}")
 
 
 if __name__ == "__main__":
