@@ -200,3 +200,24 @@ def test_a_map_scored_as_it_grows_scores_as_the_map_scored_at_once(hall):
     assert got.values == tasks.score(hall, eps, points, merged, {0: "chair", 2: "desk"}).values
     desk = np.array([e.goal == "desk" for e in eps])
     assert desk.any() and got.success[desk].all()  # the desk is untouched by the merge
+
+
+def test_a_mappers_scorer_carries_the_task_metrics_of_its_map(hall):
+    """The scorer a session gives each mapper (and the built-in knowledge) adds the task
+    metrics of the map it scores: those of the same map scored alone, episodes the world's
+    generated set."""
+    from rosmeery_jax.mapping.protocol import MapState, OnlineScorer
+    from rosmeery_jax.metrics.map_score import TOLERANCE
+
+    names = hall.taxonomy.names
+    scorer = OnlineScorer(hall, TOLERANCE, (), tasks.TaskQuery(tasks.TASK_METRICS, 6, 2))
+    a, b = _chair_points(hall, -4.525), _chair_points(hall)
+    points = np.concatenate([a, b])
+    instance = np.repeat([0, 1], [len(a), len(b)])
+    label = np.array([names.index("chair"), names.index("cabinet")], np.int32)
+    for end in (len(a) // 2, len(points)):
+        sc = scorer.score(MapState(points[:end], instance[:end], label, np.full(2, 0.9, np.float32)))
+        want = tasks.score(hall, episodes.generate(hall, 6), points[:end], instance[:end],
+                           {0: "chair", 1: "cabinet"}, attempts=2).values
+        assert {n: sc.field[n] for n in tasks.TASK_METRICS} == want
+    assert sc.field["task_success"] < 1  # the chair the map calls a cabinet is never sought
