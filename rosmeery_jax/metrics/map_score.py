@@ -475,7 +475,8 @@ def evaluate(world, maps: list[SemanticMap], tolerance: float = TOLERANCE, name:
     if task_names:
         tasks.check_attempts(attempts, "evaluate")
         eps = episodes if episodes is not None else generate_episodes(world)
-        done = [tasks.score(world, eps, maps[k].points, maps[k].instance, maps[k].labels, attempts) for k in order]
+        scorer = tasks.TaskScorer(world, eps, attempts)  # one per run: its maps share what it keeps
+        done = [scorer.score(maps[k].points, maps[k].instance, maps[k].labels) for k in order]
         curves.update({n: np.array([r.values[n] for r in done]) for n in task_names})
     curves = {n: curves[n] for n in names}
     tags = dict(policy=name, detector="own", mapper="own", seed=0)
