@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from conftest import one_line_error, room_xml
 
@@ -221,3 +222,46 @@ def test_a_mappers_scorer_carries_the_task_metrics_of_its_map(hall):
                            {0: "chair", 1: "cabinet"}, attempts=2).values
         assert {n: sc.field[n] for n in tasks.TASK_METRICS} == want
     assert sc.field["task_success"] < 1  # the chair the map calls a cabinet is never sought
+
+
+def test_a_robot_with_a_perfect_map_drives_to_every_goal(hall, tmp_path, monkeypatch):
+    """Executed tasks (task "objectnav"): the built-in knowledge's final map replaced by the
+    perfect one (every sample, its true label). Every episode of the hall succeeds in one
+    attempt, the robot stopping in its goal's region; it drives at least the geodesic
+    distance and, the hall being open, not much more; tasks.csv holds one row per episode
+    and seed, the same when the drives run again."""
+    from rosmeery_jax.mapping.protocol import MapState
+    from rosmeery_jax.session import objectnav
+
+    t = hall.truth
+    cats = np.array([hall.taxonomy.names.index(c) for c in t.categories], np.int32)
+    perfect = MapState(np.asarray(t.samples.points), np.asarray(t.samples.object), cats, np.ones(len(cats), np.float32))
+    monkeypatch.setattr(objectnav, "final_maps", lambda world, sim, j, mappers: {"oracle": perfect})
+    real, twice = objectnav.for_group, []
+
+    def driven_twice(*args):  # the task phase run again on the same exploration: the same rows
+        first, again = real(*args), real(*args)
+        for name in first:
+            pd.testing.assert_frame_equal(first[name], again[name])
+        twice.append(len(first))
+        return first
+
+    monkeypatch.setattr(objectnav, "for_group", driven_twice)
+    assert main(["run", "--worlds", str(hall.path), "--policies", "frontier", "--seeds", "2", "--duration", "5",
+                 "--detector", "off", "--task", "objectnav", "--task-episodes", "4", "--quiet",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert twice == [1]
+    df = pd.read_csv(tmp_path / "o" / "tasks.csv")
+    assert len(df) == 2 * 4 and sorted(set(df.episode)) == [0, 1, 2, 3]
+    assert (df.success == 1).all() and (df.attempts == 1).all() and (df.distance_m == 0).all()
+    assert (df.query_success == 1).all()
+    assert (df.path_m >= df.shortest_m - 0.2).all() and (df.spl > 0.6).all()  # within the goal's tolerance
+    means = objectnav.means(df)
+    assert (means.objectnav_success == 1).all() and len(means) == 2
+
+
+def test_a_task_the_session_does_not_know_is_one_line(hall, tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["run", "--worlds", str(hall.path), "--task", "fetch", "--out", str(out)]) == 2
+    one_line_error(capsys, "task", "'fetch' is not a task")
+    assert not out.exists()

@@ -98,7 +98,7 @@ def _cmd_run(args) -> int:
                       chunk_s=args.chunk_s, detector_runtime=args.detector_runtime,
                       detector_period_s=args.detector_period_s, mappers=args.mapper, devices=args.devices,
                       digest=args.digest or None, noise=args.noise, localisation=args.localisation,
-                      task_episodes=args.task_episodes, task_attempts=args.task_attempts)
+                      task_episodes=args.task_episodes, task_attempts=args.task_attempts, task=args.task)
     seeds = f"{cfg.seeds} seeds" if not cfg.first_seed else f"seeds {cfg.first_seed}-{cfg.seed_range[-1]}"
     print(f"session: {len(cfg.worlds)} worlds x {len(cfg.policies)} policies x {seeds} x {cfg.duration:g} s -> "
           f"{cfg.out}")
@@ -392,6 +392,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    "sensors) or realistic (docs/robot.md; each parameter as env noise__NAME in the config)")
     p.add_argument("--localisation", metavar="MODE", help="the robot's pose: told (ground_truth, the default) or its "
                    "own estimate, dead_reckoning or scan_matching (docs/robot.md)")
+    p.add_argument("--task", metavar="TASK", help="objectnav: after exploring, each robot drives its world's "
+                   "task episodes with each mapper's final map (tasks.csv; docs/tasks.md); default none")
     p.add_argument("--task-episodes", type=int, metavar="N", help="the task metrics' episodes per world (default "
                    f"{d.task_episodes}: its generated set, seed 0; docs/tasks.md)")
     p.add_argument("--task-attempts", type=int, metavar="N", help="map instances a task episode tries at most "

@@ -134,23 +134,32 @@ class RobotEnv:
 
     def step(self, state: State, action: jax.Array) -> State:
         """0.1 s: the stages below in order (the bench times each alone, ``stage_chain``)."""
+        return self._sense(*self._motion(state, action))
+
+    def drive(self, state: State, action: jax.Array) -> State:
+        """0.1 s of a task's drive (:mod:`rosmeery_jax.env.drive`): :meth:`step` without the
+        camera, the knowledge and the map update; the robot localises itself on its map as
+        it is."""
+        return self._localise(*self._motion(state, action))[0]
+
+    def _motion(self, state: State, action: jax.Array) -> tuple[State, jax.Array | bool]:
+        """The navigator's command executed; the state moved and whether the odometry
+        reported motion (only then does the scan matcher refine the estimate)."""
         nav, cmd = self.navigate(state, action)
         if self.config.noise.actuation:  # the drive executes the command imperfectly
             cmd = noise.command(noise.key(state.key, state.t, noise.ACTUATION), cmd, self.config.noise)
         physics, pose = self.move(state.physics, cmd)
         if state.truth is None:
-            state = state._replace(physics=physics, pose=pose, nav=nav, t=state.t + 1)
-        else:  # the robot's estimate follows its odometry; the truth, the physics
-            estimate = localisation.odometry(noise.key(state.key, state.t, noise.ODOMETRY), state.truth, pose,
-                                             state.pose, self.config.noise)
-            moving = localisation.moved(state.pose, estimate)
-            state = state._replace(physics=physics, pose=estimate, truth=pose, nav=nav, t=state.t + 1)
-            return self._sense(state, moving)
-        return self._sense(state)
+            return state._replace(physics=physics, pose=pose, nav=nav, t=state.t + 1), False
+        # the robot's estimate follows its odometry; the truth, the physics
+        estimate = localisation.odometry(noise.key(state.key, state.t, noise.ODOMETRY), state.truth, pose,
+                                         state.pose, self.config.noise)
+        moving = localisation.moved(state.pose, estimate)
+        return state._replace(physics=physics, pose=estimate, truth=pose, nav=nav, t=state.t + 1), moving
 
-    def _sense(self, state: State, moving: jax.Array | bool = False) -> State:
-        """The sensors at the new pose; ``moving``: the odometry reported motion this step
-        (only then does the scan matcher refine the estimate)."""
+    def _localise(self, state: State, moving: jax.Array | bool = False) -> tuple[State, jax.Array]:
+        """The laser at the new pose (``ranges`` set) and, with scan matching and
+        ``moving``, the estimate refined on the map so far; also what each beam hit."""
         ranges, labels = self.scan(state.true_pose)
         if self.config.noise.laser:  # the robot's own map and what policies read come from the noisy laser
             las = self.config.laser
@@ -160,10 +169,15 @@ class RobotEnv:
             matched = localisation.match(state.logodds, self.grid, state.pose, self.beam_angles, ranges,
                                          self.config.laser.max_range)
             state = state._replace(pose=jnp.where(moving, matched, state.pose))
-        logodds = self.update_map(state.logodds, state.pose, ranges, labels)  # in the robot's own frame
+        return state._replace(ranges=ranges), labels
+
+    def _sense(self, state: State, moving: jax.Array | bool = False) -> State:
+        """The sensors at the new pose (:meth:`_localise`), the map, the camera and what it saw."""
+        state, labels = self._localise(state, moving)
+        logodds = self.update_map(state.logodds, state.pose, state.ranges, labels)  # in the robot's own frame
         depth, seg = self.look(state.true_pose)
         knowledge = self.sk.observe(state.knowledge, state.true_pose, depth)  # what was in view: the truth
-        return state._replace(ranges=ranges, logodds=logodds, depth=depth, seg=seg, knowledge=knowledge)
+        return state._replace(logodds=logodds, depth=depth, seg=seg, knowledge=knowledge)
 
     # The step's stages, one concept each; ``step`` composes them.
 

@@ -105,6 +105,7 @@ class TaskScorer:
 
     def __init__(self, world, eps: list[Episode], attempts: int = ATTEMPTS):
         self.reg, self.attempts = episodes_.regions(world), attempts
+        self.episodes = list(eps)
         fs, g = world.free_space, self.reg.graph
         self.goals = sorted({e.goal for e in eps})
         self.goal = np.array([self.goals.index(e.goal) for e in eps], np.int64)  # (E,)
@@ -147,6 +148,13 @@ class TaskScorer:
         self.last = (dict(labels), result)
         return result
 
+    def route(self, points: np.ndarray, instance: np.ndarray, labels: dict) -> tuple[np.ndarray, np.ndarray]:
+        """The instances each episode would try, in order, whatever it finds at each: (E, A)
+        instance ids (-1: none left) and (E, A, 2) row, col of the approach node it would
+        stop at (the plan of an executed task: docs/tasks.md)."""
+        self.score(points, instance, labels)
+        return self._search(labels, chain=True)
+
     def _regroup(self, instance: np.ndarray) -> None:
         cells = self.cells
         self._clear()
@@ -178,8 +186,10 @@ class TaskScorer:
                 low, node = np.where(better, low, dist), np.where(better, node, at_node)
             self.best[i] = low, node
 
-    def _search(self, labels: dict) -> TaskResult:
-        """Every episode's search (module docstring) among the instances labelled with a goal."""
+    def _search(self, labels: dict, chain: bool = False):
+        """Every episode's search (module docstring) among the instances labelled with a
+        goal; with ``chain``, the whole sequence of attempts whatever each finds, as
+        :meth:`route` returns it."""
         owner = np.array(sorted(i for i in self.best if labels.get(i) in self.goals), np.int64)  # (U,)
         label = np.array([self.goals.index(labels[i]) for i in owner.tolist()], np.int64)
         e = len(self.goal)
@@ -188,6 +198,7 @@ class TaskScorer:
         tried = np.zeros((len(owner), e), bool)
         last = np.full(e, -1)
         want = label[:, None] == self.goal[None, :]  # (U, E)
+        picks, stops = np.full((e, self.attempts), -1), np.zeros((e, self.attempts, 2), np.int64)
         for attempt in range(self.attempts if len(owner) else 0):
             if attempt == 0:
                 dist = np.stack([self.best[i][0] for i in owner.tolist()])  # (U, E)
@@ -201,9 +212,13 @@ class TaskScorer:
             here = np.where(go, node[pick, np.arange(e)], here)
             tried[pick[go], np.flatnonzero(go)] = True
             last = np.where(go, pick, last)
-            done |= go & self.region[self.goal, self._flat(here)]
+            picks[go, attempt], stops[go, attempt] = owner[pick[go]], self.reg.graph.cells[here[go]]
+            if not chain:
+                done |= go & self.region[self.goal, self._flat(here)]
             if not (~done & go).any():
                 break
+        if chain:
+            return picks, stops
         to_goal = self.to_goal[self.goal, self._flat(here)]
         efficiency = self.shortest / np.maximum(np.maximum(path, self.shortest), 1e-12)
         progress = np.clip(1 - to_goal / np.maximum(self.shortest, 1e-12), 0, 1)

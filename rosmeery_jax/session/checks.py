@@ -49,7 +49,10 @@ def check_session(cfg, source: str) -> None:
         for w in cfg.worlds:
             check_world(w)
         worlds = [load_world(w) for w in cfg.worlds]
-        for w in worlds if tasks.wanted(names) else ():  # a world with no goal to seek: refused now
+        if cfg.task != "none" and any(specs.kind(p) == "agent" for p in cfg.policies):
+            raise InputError("config", "task", f"{cfg.task!r} runs in the engine after the built-in and plugin "
+                             "policies' runs; agent: runs have no task phase")
+        for w in worlds if tasks.wanted(names) or cfg.task != "none" else ():  # no goal to seek: refused now
             episodes.generated(w, cfg.task_episodes)
         stage = functools.cache(lambda: _plugin_stage(cfg))
         for p in cfg.policies:

@@ -19,10 +19,11 @@ from rosmeery_jax.metrics import DEFAULT_METRICS
 from rosmeery_jax.session.checks import check_session
 
 LIST_FIELDS = ("worlds", "policies", "metrics", "mappers")
+TASKS = ("none", "objectnav")  # what the robots do after exploring (docs/tasks.md)
 # Settings that change results: resume refuses a change to any of them.
 RESULT_FIELDS = ("seeds", "first_seed", "duration", "detector", "conf_threshold", "decide_every", "detect_every",
                  "detector_period_s", "sample_s", "metrics", "env", "mappers", "detector_runtime", "noise",
-                 "localisation", "task_episodes", "task_attempts")
+                 "localisation", "task_episodes", "task_attempts", "task")
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,8 @@ class SessionConfig:
     task_episodes: int = 50  # the task metrics' object-goal episodes per world (its generated
     # set, seed 0: rosmeery tasks; docs/tasks.md), when metrics name them
     task_attempts: int = 3  # map instances a task episode tries at most
+    task: str = "none"  # "objectnav": after exploring, each robot drives its world's task episodes in the
+    # simulation, once per mapper, with that mapper's final map (tasks.csv; docs/tasks.md)
     devices: int = 0  # split each batch over this many devices (speed only: results are the same);
     # 0 = every device JAX has (on a CPU one host device per core, less one for torch when
     # the YOLO detector runs), at most one per block
@@ -123,6 +126,8 @@ def _check_values(cfg: SessionConfig, source: str) -> None:
     if cfg.detect_every < 0 or cfg.decide_every % max(cfg.detect_every, 1):
         raise InputError(source, "detect_every", f"{cfg.detect_every!r} must be 0 (one frame per decision) or a "
                          f"divisor of decide_every ({cfg.decide_every})")
+    if cfg.task not in TASKS:
+        raise InputError(source, "task", f"{cfg.task!r} is not a task (tasks: {', '.join(TASKS)})")
     if cfg.devices < 0:
         raise InputError(source, "devices", f"{cfg.devices!r} must be a whole number >= 0 (0: every device)")
     for name in ("duration", "chunk_s", "sample_s", "detector_period_s"):

@@ -42,6 +42,7 @@ class Simulation(NamedTuple):
     log_every: int = 1
     digests: list | None = None  # per chunk: {part: (B,) digests} (session.digest)
     stamps: np.ndarray | None = None  # (B, S) int32 each sample's first-observed step, -1 never (Plan.stamp)
+    logodds: Any = None  # (B padded, H, W) the robots' occupancy maps at the end (Plan.drives)
 
 
 class Keys(NamedTuple):
@@ -131,6 +132,7 @@ def simulate(group: Group, plan: Plan, detectors: dict | None, bar, clock: "Comp
     keep = group.real
     return _collect(group, start, state, data, blocks, track0, done, worker, timing)._replace(
         stamps=np.asarray(stamps[0])[keep] if stamps else None,
+        logodds=state.logodds if plan.drives is not None else None,
         digests=[{k: [v[r] for r in np.flatnonzero(group.real)] for k, v in part.items()} for part in digests]
         if plan.digest else None)
 

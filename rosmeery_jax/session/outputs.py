@@ -8,8 +8,9 @@
     OUT/runs/<world>__<policy>.navigation.csv where each seed's time went (results.time_use;
         runs in target mode: the navigator drives)
     OUT/runs/<world>__<policy>.timing.json    the batch's compile, simulation and detector times
-    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv, OUT/navigation.csv   all finished
-        runs, merged once at the end
+    OUT/runs/<world>__<policy>.tasks.csv      task "objectnav": each executed episode (session.objectnav)
+    OUT/metrics.csv, OUT/objects.csv, OUT/trajectories.csv, OUT/navigation.csv (OUT/tasks.csv)
+        all finished runs, merged once at the end
     OUT/plots/<world>_<metric>.png            mean over seeds with a std band per policy
     OUT/timing.json                           compile (``compiles``), simulation, detector and wall times
 
@@ -68,6 +69,7 @@ class RunResult(NamedTuple):
     seeds: range
     digests: pd.DataFrame | None = None  # seed, chunk, time_s and a digest per part (session.digest)
     stamps: np.ndarray | None = None  # (S, samples) first-observed step per sample (engine.Simulation)
+    tasks: pd.DataFrame | None = None  # the executed task episodes (session.objectnav), task "objectnav"
 
 
 def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: dict) -> None:
@@ -131,6 +133,8 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
                           runs / f"{name}.navigation.csv")
     if run.digests is not None:
         tables.write_csv(run.digests, runs / f"{name}.digest.csv")
+    if run.tasks is not None:
+        tables.write_csv(run.tasks, runs / f"{name}.tasks.csv")
     tables.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
     seal_run(out, name)
 
@@ -211,7 +215,7 @@ def check_folder(out: Path) -> None:
             raise err
 
 
-MERGED = ("metrics.csv", "objects.csv", "trajectories.csv", "navigation.csv")  # the tables of every run
+MERGED = ("metrics.csv", "objects.csv", "trajectories.csv", "navigation.csv", "tasks.csv")  # every run's tables
 
 
 def merge(out: Path) -> None:
@@ -221,7 +225,7 @@ def merge(out: Path) -> None:
         return
     df = pd.concat([pd.read_csv(p) for p in runs], ignore_index=True)
     written = [tables.write_csv(df, out / MERGED[0])]
-    for suffix, merged in zip((".objects.csv", ".trajectory.csv", ".navigation.csv"), MERGED[1:]):
+    for suffix, merged in zip((".objects.csv", ".trajectory.csv", ".navigation.csv", ".tasks.csv"), MERGED[1:]):
         parts = [p.with_name(p.name.replace(".metrics.csv", suffix)) for p in runs]
         parts = [pd.read_csv(p) for p in parts if p.exists()]
         if parts:
@@ -231,13 +235,13 @@ def merge(out: Path) -> None:
 
 
 TIMING_KEYS = ("env_steps", "frames", "detector_s", "mapper_s", "mapper_cpu_s", "score_s", "wait_s", "compile_s",
-               "compiles", "xla_compiles", "cache_hits", "sim_s")
+               "compiles", "xla_compiles", "cache_hits", "sim_s", "task_s")
 
 
 def sum_timing(parts: list[dict], t_start: float) -> dict:
     """This invocation's figures: the groups' (or cluster shards') times summed, and the wall
     time from ``t_start`` to now (set-up, compile, simulation, detection, writing)."""
-    total = {k: sum(g.get(k, 0) for g in parts) for k in TIMING_KEYS}
+    total = {k: sum(g.get(k, 0) for g in parts) for k in TIMING_KEYS if k != "task_s" or any(k in g for g in parts)}
     return {**total, **rates(total["env_steps"], time.perf_counter() - t_start, total["sim_s"])}
 
 

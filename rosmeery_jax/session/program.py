@@ -25,7 +25,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from rosmeery_jax.core import interrupt, xla
-from rosmeery_jax.env import RobotEnv, Track
+from rosmeery_jax.env import RobotEnv, Track, drive
 from rosmeery_jax.env import world_data as wd
 from rosmeery_jax.env.decision import Decision, Frames, decide
 from rosmeery_jax.session.batch import BLOCK, Group
@@ -197,6 +197,26 @@ def label_fn(group: Group):
             return k, env.sk.label_fields(k)
 
         return jax.lax.scan(body, k, (obj, label, conf))
+
+    return blocked(one, group.devices)
+
+
+def drive_fn(group: Group, steps: int, stream: int):
+    """The executed tasks' program (:mod:`rosmeery_jax.session.objectnav`), blocked: per env
+    its map logodds (H, W) and S drives (:mod:`rosmeery_jax.env.drive`) with their goals (S,
+    3); drives flagged ``again`` (S,) start afresh at ``starts`` (S, 3) first, their key the
+    env's ``seeds`` (S,) key folded with ``stream`` and ``copies`` (S,). Each drive then
+    advances ``steps`` control steps. Returns the drives."""
+
+    def one(stacked, block, logodds, drives, goals, again, starts, seeds, copies):
+        env, _ = in_world(group, stacked, block)
+
+        def slot(d, goal, fresh, pose, seed, copy):
+            key = jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), stream), copy)
+            d = jax.tree.map(lambda a, b: jax.numpy.where(fresh, a, b), drive.start(env, pose, logodds, key), d)
+            return drive.advance(env, d, goal, logodds, steps)
+
+        return jax.vmap(slot)(drives, goals, again, starts, seeds, copies)
 
     return blocked(one, group.devices)
 

@@ -32,7 +32,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.files import LOCK, folder_lock, output_folder, write_atomic
 from rosmeery_jax.detector.detections import make_detector
 from rosmeery_jax.results import manifest, tables
-from rosmeery_jax.session import batch, cluster, engine
+from rosmeery_jax.session import batch, cluster, engine, objectnav
 from rosmeery_jax.session.agents import run_agent
 from rosmeery_jax.session.config import SessionConfig
 from rosmeery_jax.session.folder import check_out, versions
@@ -115,11 +115,14 @@ class Session:
             clock = engine.CompileClock()
             t0 = time.perf_counter()
             sim = engine.simulate(group, plan, _detectors(cfg, group), bar, clock)
+            driven, t1 = {}, time.perf_counter()
+            if plan.drives is not None:
+                driven = objectnav.for_group(group, plan.drives, sim, cfg.mappers, [p.name for p in group.policies])
             timing = {**sim.timing, "compile_s": clock.seconds, "wall_s": time.perf_counter() - t0,
-                      "devices": group.devices}
+                      "devices": group.devices, **({"task_s": time.perf_counter() - t1} if driven else {})}
             timings.append(timing)
             for run in group.runs:
-                write_run(cfg, _result(group, run, sim), run.name, out, timing)
+                write_run(cfg, _result(group, run, sim)._replace(tasks=driven.get(run.name)), run.name, out, timing)
         bar.close()
         return timings
 

@@ -164,6 +164,7 @@ class Plan(NamedTuple):
     field: tuple[str, ...] = ()
     stamp: bool = False
     task: tasks.TaskQuery | None = None
+    drives: tasks.TaskQuery | None = None  # task "objectnav": the episodes the robots drive after exploring
 
     @staticmethod
     def of(cfg) -> "Plan":
@@ -174,7 +175,8 @@ class Plan(NamedTuple):
         return Plan(total, per_call(cfg, total), cfg.decide_every, frame_steps(cfg), log_every(cfg),
                     tuple(m for m in cfg.mappers if m != "oracle"),
                     frozenset(frames_before(cfg, sampled_rows(cfg) * log_every(cfg)).tolist()), cfg.digest,
-                    names, bool(names or task) and "oracle" in cfg.mappers, task)
+                    names, bool(names or task) and "oracle" in cfg.mappers, task,
+                    tasks.TaskQuery((), cfg.task_episodes, cfg.task_attempts) if cfg.task == "objectnav" else None)
 
     @property
     def frames_per(self) -> int:
