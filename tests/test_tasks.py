@@ -265,3 +265,10 @@ def test_a_task_the_session_does_not_know_is_one_line(hall, tmp_path, capsys):
     assert main(["run", "--worlds", str(hall.path), "--task", "fetch", "--out", str(out)]) == 2
     one_line_error(capsys, "task", "'fetch' is not a task")
     assert not out.exists()
+
+
+def test_python_agents_have_no_task_phase_said_in_one_line(hall):
+    from rosmeery_jax.session import SessionConfig
+
+    with pytest.raises(InputError, match="task: 'objectnav' runs in the engine.*agent: runs have no task phase"):
+        SessionConfig(worlds=(str(hall.path),), policies=("agent:my_agent.py:Mine",), task="objectnav").validate()

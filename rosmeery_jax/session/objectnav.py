@@ -243,7 +243,8 @@ def frame(ended: list[Ended], judge: Judge, world: str, policy: str, seed: dict,
                      "distance_m": d, "path_m": e.path, "shortest_m": shortest, "time_s": round(e.steps * dt, 6),
                      "query_success": int(c.query_success)})
     df = pd.DataFrame(rows, columns=list(COLUMNS))
-    return df.sort_values(["world", "policy", "mapper", "seed", "episode"]).reset_index(drop=True)
+    return df.sort_values(["world", "policy", "seed", "mapper", "episode"]).reset_index(drop=True)  # seed-major,
+    # as every run file: `rosmeery join` concatenates the parts' seeds
 
 
 def means(tasks: pd.DataFrame) -> pd.DataFrame:
