@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 from scipy import ndimage
 
+from rosmeery_jax.env import drive
 from rosmeery_jax.mapping.protocol import MapState, mapper_label
 from rosmeery_jax.session.batch import Group
 from rosmeery_jax.session.program import drive_fn
@@ -40,7 +41,6 @@ STEPS = 50  # control steps per call of the drive program (5 s)
 INWARD = 0.3  # m: a goal pose's least depth inside its instance's approach region (twice the goal tolerance)
 STREAM = 0x7A5C  # the drives' keys: folded into the seed's key, then the episode's copy index
 
-TASKS = "objectnav"
 COLUMNS = ("world", "policy", "mapper", "seed", "episode", "goal", "start_x", "start_y", "start_yaw", "instance",
            "attempts", "stop_x", "stop_y", "stop_yaw", "navigator", "success", "spl", "softspl", "distance_m", "path_m",
            "shortest_m", "time_s", "query_success")
@@ -131,54 +131,61 @@ class Judge:
         return float(self.reg.distance[goal][self.cell(xy)])
 
 
-def run(group: Group, logodds: jax.Array, copies: list[Copy], dt: float) -> list[Ended]:
+class Slots:
+    """Which copy each of a robot's ``SLOTS`` drives holds (B, S; -1: none left) and its
+    attempt, with the program's inputs for the next call: goals, starts and ``again``
+    (start afresh). Each robot's copies wait in its queue."""
+
+    def __init__(self, copies: list[Copy], b: int):
+        self.copies = copies
+        self.queue = [[k for k, c in enumerate(copies) if c.row == r and c.tries] for r in range(b)]
+        self.copy, self.attempt = np.full((b, SLOTS), -1), np.zeros((b, SLOTS), np.int64)
+        self.goals, self.starts = np.zeros((b, SLOTS, 3), np.float32), np.zeros((b, SLOTS, 3), np.float32)
+        self.again = np.zeros((b, SLOTS), bool)
+        for r in range(b):
+            for k in range(SLOTS):
+                self.fill(r, k)
+
+    def fill(self, r: int, k: int) -> None:
+        """Slot (r, k) takes its robot's next copy, if any, from its start."""
+        self.copy[r, k] = self.queue[r].pop(0) if self.queue[r] else -1
+        self.attempt[r, k] = 0
+        if self.copy[r, k] >= 0:
+            c = self.copies[self.copy[r, k]]
+            self.goals[r, k], self.starts[r, k], self.again[r, k] = c.goals[0], c.episode.start, True
+
+    def next_goal(self, r: int, k: int) -> None:
+        self.attempt[r, k] += 1
+        self.goals[r, k] = self.copies[self.copy[r, k]].goals[self.attempt[r, k]]
+
+
+def run(group: Group, logodds: jax.Array, copies: list[Copy]) -> list[Ended]:
     """Drive every copy (their ``row`` indexes the group's B envs; ``logodds`` (B, H, W) the
     robots' maps at the end of exploring); the episodes as they ended, in no set order."""
     judges = {w: Judge(group.envs[w].world) for w in set(group.world[[c.row for c in copies]].tolist())}
     fn = drive_fn(group, STEPS, STREAM)
-    b, s = group.size, SLOTS
-    queue = [[k for k, c in enumerate(copies) if c.row == r and c.tries] for r in range(b)]
     ended = [Ended(c, 0, np.asarray(c.episode.start, np.float32), 0.0, 0) for c in copies if not c.tries]
-    slot = np.full((b, s), -1)
-    attempt = np.zeros((b, s), np.int64)
-    goals, starts = np.zeros((b, s, 3), np.float32), np.zeros((b, s, 3), np.float32)
-    again = np.zeros((b, s), bool)
-
-    def fill(r: int, k: int) -> None:
-        slot[r, k] = queue[r].pop(0) if queue[r] else -1
-        attempt[r, k] = 0
-        if slot[r, k] >= 0:
-            c = copies[slot[r, k]]
-            goals[r, k], starts[r, k], again[r, k] = c.goals[0], c.episode.start, True
-
-    for r in range(b):
-        for k in range(s):
-            fill(r, k)
-    drives = _empty(group, logodds, b, s)
-    seeds = np.repeat(np.asarray(group.seed, np.uint32)[:, None], s, 1)
-    while (slot >= 0).any():
-        drives = fn(group.data, jnp.asarray(group.blocks), logodds, drives, jnp.asarray(goals), jnp.asarray(again),
-                    jnp.asarray(starts), jnp.asarray(seeds), jnp.asarray(np.maximum(slot, 0), jnp.uint32))
-        again[:] = False
+    slots = Slots(copies, group.size)
+    drives = _empty(group, logodds, group.size, SLOTS)
+    seeds = np.repeat(np.asarray(group.seed, np.uint32)[:, None], SLOTS, 1)
+    while (slots.copy >= 0).any():
+        drives = fn(group.data, jnp.asarray(group.blocks), logodds, drives, *map(jnp.asarray, (
+            slots.goals, slots.again, slots.starts, seeds, np.maximum(slots.copy, 0).astype(np.uint32))))
+        slots.again[:] = False
         done, stop, status = np.asarray(drives.ended), np.asarray(drives.stop), np.asarray(drives.state.nav.status)
-        for r, k in zip(*np.nonzero(done & (slot >= 0))):
-            c = copies[slot[r, k]]
-            judge = judges[int(group.world[r])]
-            tried = attempt[r, k] + 1
-            if judge.success(c.episode.goal, stop[r, k, :2]) or tried >= c.tries:
+        for r, k in zip(*np.nonzero(done & (slots.copy >= 0))):
+            c, tried = copies[slots.copy[r, k]], slots.attempt[r, k] + 1
+            if judges[int(group.world[r])].success(c.episode.goal, stop[r, k, :2]) or tried >= c.tries:
                 ended.append(Ended(c, tried, stop[r, k], float(drives.path[r, k]), int(drives.steps[r, k]),
                                    int(status[r, k])))
-                fill(r, k)
+                slots.fill(r, k)
             else:
-                attempt[r, k] = tried
-                goals[r, k] = c.goals[tried]
+                slots.next_goal(r, k)
     return ended
 
 
 def _empty(group: Group, logodds: jax.Array, b: int, s: int):
     """(B, S) drives of zeros in the shape the program keeps (each starts afresh first)."""
-    from rosmeery_jax.env import drive
-
     shape = jax.eval_shape(lambda: drive.start(group.env, jnp.zeros(3), logodds[0], jax.random.key(0)))
 
     def zeros(leaf):
@@ -201,7 +208,7 @@ def for_group(group: Group, query, sim, mappers: tuple[str, ...], policy_names: 
         world = group.envs[w].world
         for spec, m in final_maps(world, sim, j, mappers).items():
             copies += plan(world, scorers[w], m, row, spec)
-    ended = run(group, sim.logodds, copies, group.env.dt)
+    ended = run(group, sim.logodds, copies)
     judges = {w: Judge(group.envs[w].world) for w in scorers}
     out = {}
     for r in group.runs:
