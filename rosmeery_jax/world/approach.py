@@ -83,10 +83,24 @@ class Approach:
         self.walls = np.pad(np.asarray(walls, bool), p)
         self.index = np.pad(np.asarray(graph.index, np.int64), p, constant_values=-1)
         self.pad = p
-        # the nodes kept: cell c's are flat[start[slot[c]] : ... + length[slot[c]]]
+        # the nodes kept: cell c's are flat[start[slot[c]] : ... + length[slot[c]]]; the
+        # arrays grow by doubling, as a map's cells arrive a few at a time (a copy of every
+        # node kept at each arrival cost a session most of the task metrics' time)
         self.slot = np.full(walls.size, -1, np.int64)
-        self.start, self.length = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        self.flat = np.zeros(0, np.int64)
+        self._start, self._length, self._flat = (np.zeros(0, np.int64) for _ in range(3))
+        self.cells_kept, self.nodes_kept = 0, 0
+
+    @property
+    def start(self) -> np.ndarray:
+        return self._start[:self.cells_kept]
+
+    @property
+    def length(self) -> np.ndarray:
+        return self._length[:self.cells_kept]
+
+    @property
+    def flat(self) -> np.ndarray:
+        return self._flat[:self.nodes_kept]
 
     def cells(self, xy: np.ndarray) -> np.ndarray:
         """(P,) flat cell of each point ``xy`` (P, 2); -1 off the grid."""
@@ -128,7 +142,20 @@ class Approach:
         found = _approach_nodes(self.walls, self.index, targets, self.offsets, self.lines, self.count)
         keep = found >= 0
         length = keep.sum(1)
-        self.slot[cells] = len(self.start) + np.arange(len(cells))
-        self.start = np.r_[self.start, len(self.flat) + np.cumsum(length) - length]
-        self.length = np.r_[self.length, length]
-        self.flat = np.r_[self.flat, found[keep]]
+        c, n = self.cells_kept, self.nodes_kept
+        self._start, self._length = _room(self._start, c + len(cells)), _room(self._length, c + len(cells))
+        self._flat = _room(self._flat, n + int(length.sum()))
+        self.slot[cells] = c + np.arange(len(cells))
+        self._start[c:c + len(cells)] = n + np.cumsum(length) - length
+        self._length[c:c + len(cells)] = length
+        self._flat[n:n + int(length.sum())] = found[keep]
+        self.cells_kept, self.nodes_kept = c + len(cells), n + int(length.sum())
+
+
+def _room(a: np.ndarray, size: int) -> np.ndarray:
+    """``a``, or a copy twice as long, holding at least ``size`` entries."""
+    if size <= len(a):
+        return a
+    grown = np.zeros(max(size, 2 * len(a)), a.dtype)
+    grown[:len(a)] = a
+    return grown
