@@ -272,3 +272,37 @@ def test_python_agents_have_no_task_phase_said_in_one_line(hall):
 
     with pytest.raises(InputError, match="task: 'objectnav' runs in the engine.*agent: runs have no task phase"):
         SessionConfig(worlds=(str(hall.path),), policies=("agent:my_agent.py:Mine",), task="objectnav").validate()
+
+
+def test_the_plan_drives_into_the_region_or_to_a_policys_own_goals(hall):
+    """The built-in plan's goal for the chair lies on the start's row, the first cell 0.3 m
+    from the nearest cell outside the chair's region (x = 1.275 + 0.3), facing the chair; a
+    policy's ``task_goals`` replaces it, and a bad return is one error naming the plugin."""
+    from rosmeery_jax.mapping.protocol import MapState
+    from rosmeery_jax.session import objectnav
+
+    chair = _chair_points(hall)
+    m = MapState(chair, np.zeros(len(chair), np.int64), np.array([hall.taxonomy.names.index("chair")]),
+                 np.ones(1, np.float32))
+    scorer = tasks.TaskScorer(hall, [_episode(hall)])
+    (copy,) = objectnav.plan(hall, scorer, m, 0, "oracle")
+    assert copy.tries == 1 and copy.instance.tolist() == [0] and copy.query_success
+    x, y, yaw = copy.goals[0]
+    assert x == pytest.approx(1.275 + 0.3, abs=1e-5) and y == pytest.approx(0.025, abs=1e-5) and yaw == pytest.approx(0, abs=0.2)
+
+    class Own:
+        name = "own"
+
+        def __init__(self, goals):
+            self.goals = goals
+
+        def task_goals(self, semantic_map, start, goal, attempts):
+            return self.goals
+
+    (copy,) = objectnav.plan(hall, scorer, m, 0, "oracle", Own([[1.0, 0.0, 0.0], [2.0, 0.5, 1.0]]), "own.py:Own")
+    assert copy.goals.tolist() == [[1.0, 0.0, 0.0], [2.0, 0.5, 1.0]] and copy.instance.tolist() == [-1, -1]
+    (copy,) = objectnav.plan(hall, scorer, m, 0, "oracle", Own(None), "own.py:Own")
+    assert copy.instance.tolist() == [0]  # None: the built-in search
+    for bad in ([[1.0, np.nan, 0.0]], [[0.0, 0.0, 0.0]] * 4, "north"):
+        with pytest.raises(InputError, match="plugin 'own.py:Own': task_goals must return at most 3 finite"):
+            objectnav.plan(hall, scorer, m, 0, "oracle", Own(bad), "own.py:Own")

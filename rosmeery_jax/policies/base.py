@@ -51,6 +51,14 @@ class Policy(ABC):
         """The batched policy state for keys (B,)."""
         return jax.vmap(self.init)(keys)
 
+    def task_goals(self, semantic_map, start, goal: str, attempts: int):
+        """Executed tasks (``task = "objectnav"``, docs/tasks.md), on the host: the poses (k,
+        3), k <= ``attempts``, that a robot exploring with this policy drives to in turn to
+        find an object of category ``goal`` from ``start`` (3,) with its final map
+        ``semantic_map`` (a ``MapState``: points, instance, label, confidence); it stops at
+        the first in a success region. None (the default): the built-in search."""
+        return None
+
     def check_start(self, poses) -> None:
         """Raise InputError when the reset poses (B, 3) do not suit the policy."""
 

@@ -29,8 +29,11 @@ import numpy as np
 import pandas as pd
 from scipy import ndimage
 
+from rosmeery_jax.core import plugins
+from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import drive
 from rosmeery_jax.mapping.protocol import MapState, mapper_label
+from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.session.batch import Group
 from rosmeery_jax.session.program import drive_fn
 from rosmeery_jax.sim.navigation import IDLE, STATUS_NAMES
@@ -48,7 +51,8 @@ COLUMNS = ("world", "policy", "mapper", "seed", "episode", "goal", "start_x", "s
 
 class Copy(NamedTuple):
     """One episode of one robot and map: its env row, mapper entry and episode; the goal
-    poses to try (A, 3) and their instance ids (A,) (-1: none), and the query's verdict."""
+    poses to try (k, 3), k <= attempts, and their instance ids (k,) (-1: a policy's own
+    goal), and the query's verdict."""
 
     row: int
     mapper: str
@@ -59,7 +63,7 @@ class Copy(NamedTuple):
 
     @property
     def tries(self) -> int:
-        return int((self.instance >= 0).sum())
+        return len(self.goals)
 
 
 class Ended(NamedTuple):
@@ -74,9 +78,10 @@ class Ended(NamedTuple):
     status: int = IDLE
 
 
-def plan(world, scorer, m: MapState, row: int, mapper: str) -> list[Copy]:
+def plan(world, scorer, m: MapState, row: int, mapper: str, policy=None, spec: str = "") -> list[Copy]:
     """The episodes of ``scorer`` (a TaskScorer of ``world``) for the final map ``m`` of
-    env ``row``'s mapper entry ``mapper``."""
+    env ``row``'s mapper entry ``mapper``: the built-in search's goals, or those of
+    ``policy``'s ``task_goals`` (the plugin entry ``spec``) where it gives some."""
     names = world.taxonomy.names
     labels = {i: names[c] for i, c in enumerate(np.asarray(m.label).tolist()) if c >= 0}
     points, instance = np.asarray(m.points, np.float64).reshape(-1, 3), np.asarray(m.instance, np.int64)
@@ -90,8 +95,30 @@ def plan(world, scorer, m: MapState, row: int, mapper: str) -> list[Copy]:
         if i not in depth:
             depth[i] = ndimage.distance_transform_edt(episodes_.approach_region(world, mine)) * world.free_space.resolution
         goals[e, a] = goal_pose(world.free_space, cells[e, a], depth[i], mine)
-    eps = scorer.episodes
-    return [Copy(row, mapper, eps[e], goals[e], picks[e], bool(query.success[e])) for e in range(len(eps))]
+    out = []
+    for e, ep in enumerate(scorer.episodes):
+        own = own_goals(policy, spec, m, ep.start, ep.goal, scorer.attempts) if policy is not None else None
+        tried = picks[e] >= 0
+        out.append(Copy(row, mapper, ep, goals[e][tried], picks[e][tried], bool(query.success[e])) if own is None
+                   else Copy(row, mapper, ep, own, np.full(len(own), -1), bool(query.success[e])))
+    return out
+
+
+def own_goals(policy, spec: str, m: MapState, start, goal: str, attempts: int) -> np.ndarray | None:
+    """A policy plugin's (entry ``spec``) goals as (k, 3) float32, None for the built-in
+    search, or one InputError naming the plugin."""
+    with plugins.raised_by(spec, "policies", "task_goals"):
+        own = policy.task_goals(m, np.asarray(start, np.float32), goal, attempts)
+    if own is None:
+        return None
+    try:
+        own = np.asarray(own, np.float32).reshape(-1, 3)
+    except (TypeError, ValueError):
+        own = None
+    if own is None or len(own) > attempts or not np.isfinite(own).all():
+        raise InputError("config", "policies", f"plugin {spec!r}: task_goals must return at most {attempts} finite "
+                         "poses (x, y, yaw) or None")
+    return own
 
 
 def goal_pose(fs, node: np.ndarray, depth: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -202,12 +229,15 @@ def for_group(group: Group, query, sim, mappers: tuple[str, ...], policy_names: 
     holds the robots' maps); tasks.csv's rows per run name."""
     real = np.flatnonzero(group.real)
     scorers = {w: query.scorer(group.envs[w].world) for w in sorted(set(group.world[real].tolist()))}
+    owner = {int(row): r for r in group.runs for row in r.rows}
     copies = []
     for j, row in enumerate(real.tolist()):
         w = int(group.world[row])
         world = group.envs[w].world
+        run_of = owner[row]
+        own = run_of.host_policy if type(run_of.host_policy).task_goals is not Policy.task_goals else None
         for spec, m in final_maps(world, sim, j, mappers).items():
-            copies += plan(world, scorers[w], m, row, spec)
+            copies += plan(world, scorers[w], m, row, spec, own, run_of.spec)
     ended = run(group, sim.logodds, copies)
     judges = {w: Judge(group.envs[w].world) for w in scorers}
     out = {}
