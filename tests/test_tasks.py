@@ -226,10 +226,10 @@ def test_a_mappers_scorer_carries_the_task_metrics_of_its_map(hall):
 
 def test_a_robot_with_a_perfect_map_drives_to_every_goal(hall, tmp_path, monkeypatch):
     """Executed tasks (task "objectnav"): the built-in knowledge's final map replaced by the
-    perfect one (every sample, its true label). Every episode of the hall succeeds in one
-    attempt, the robot stopping in its goal's region; it drives at least the geodesic
-    distance and, the hall being open, not much more; tasks.csv holds one row per episode
-    and seed, the same when the drives run again."""
+    perfect one (every sample, its true label). Every episode of the open hall succeeds in
+    one attempt, the navigator reaching its goal in the region; the robot drives at least
+    the geodesic distance and not much more; tasks.csv holds one row per episode and seed,
+    the same when the drives run again."""
     from rosmeery_jax.mapping.protocol import MapState
     from rosmeery_jax.session import objectnav
 
@@ -252,9 +252,9 @@ def test_a_robot_with_a_perfect_map_drives_to_every_goal(hall, tmp_path, monkeyp
                  "--out", str(tmp_path / "o")]) == 0
     assert twice == [1]
     df = pd.read_csv(tmp_path / "o" / "tasks.csv")
-    assert len(df) == 2 * 4 and sorted(set(df.episode)) == [0, 1, 2, 3]
+    assert len(df) == 2 * 4 and sorted(set(df.episode)) == [0, 1, 2, 3] and set(df.goal) == {"chair", "desk"}
     assert (df.success == 1).all() and (df.attempts == 1).all() and (df.distance_m == 0).all()
-    assert (df.query_success == 1).all()
+    assert (df.query_success == 1).all() and (df.navigator == "reached").all()
     assert (df.path_m >= df.shortest_m - 0.2).all() and (df.spl > 0.6).all()  # within the goal's tolerance
     means = objectnav.means(df)
     assert (means.objectnav_success == 1).all() and len(means) == 2
