@@ -224,7 +224,7 @@ def test_a_mappers_scorer_carries_the_task_metrics_of_its_map(hall):
     assert sc.field["task_success"] < 1  # the chair the map calls a cabinet is never sought
 
 
-def test_a_robot_with_a_perfect_map_drives_to_every_goal(hall, tmp_path, monkeypatch):
+def test_a_robot_with_a_perfect_map_drives_to_every_goal(hall, tmp_path, monkeypatch, capsys):
     """Executed tasks (task "objectnav"): the built-in knowledge's final map replaced by the
     perfect one (every sample, its true label). Every episode of the open hall succeeds in
     one attempt, the navigator reaching its goal in the region; the robot drives at least
@@ -251,6 +251,7 @@ def test_a_robot_with_a_perfect_map_drives_to_every_goal(hall, tmp_path, monkeyp
                  "--detector", "off", "--task", "objectnav", "--task-episodes", "4", "--quiet",
                  "--out", str(tmp_path / "o")]) == 0
     assert twice == [1]
+    assert "objectnav: 8 episodes driven in" in capsys.readouterr().out  # the session's summary says so
     df = pd.read_csv(tmp_path / "o" / "tasks.csv")
     assert len(df) == 2 * 4 and sorted(set(df.episode)) == [0, 1, 2, 3] and set(df.goal) == {"chair", "desk"}
     assert (df.success == 1).all() and (df.attempts == 1).all() and (df.distance_m == 0).all()

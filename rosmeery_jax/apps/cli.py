@@ -157,7 +157,16 @@ def _print_summary(out: Path) -> None:
             print(f"mappers (fed and scored): {t['mapper_s']:.1f} s in the same worker thread "
                   f"({t.get('mapper_cpu_s', 0):.1f} CPU-s over the mappers' threads), of which scoring their maps "
                   f"{t['score_s']:.1f} s")
+        if (out / "tasks.csv").exists() and "task_s" in t:
+            print(_tasks_line(pd.read_csv(out / "tasks.csv"), t["task_s"]))
     print(f"results in {out}/ (metrics.csv, objects.csv, config.json, maps/, plots/)")
+
+
+def _tasks_line(tasks_df: pd.DataFrame, task_s: float) -> str:
+    """The executed tasks in one line: per mapper, success and SPL over every episode."""
+    per = tasks_df.groupby("mapper", sort=False)[["success", "spl"]].mean()
+    said = "; ".join(f"{m}: success {r.success:.2f}, SPL {r.spl:.2f}" for m, r in per.iterrows())
+    return f"objectnav: {len(tasks_df):,} episodes driven in {task_s:.1f} s ({said}; tasks.csv)"
 
 
 def _cmd_teleop(args) -> int:
