@@ -155,12 +155,13 @@ def test_odometry_without_noise_follows_the_true_motion_and_drifts_with_it():
 
 def test_the_robot_localises_itself_scan_matching_better_than_dead_reckoning(tmp_path):
     """trajectories.csv holds the estimate beside the truth; the scan matcher keeps it
-    closer than the odometry alone (a 40 s run of two seeds, realistic noise)."""
+    closer than the odometry alone (a 20 s run of two seeds, realistic noise: medians of
+    about 2 cm against 22 cm on 2026-12-08)."""
     errors = {}
     for mode in ("dead_reckoning", "scan_matching"):
         out = tmp_path / mode
         assert main(["run", "--worlds", "small_office", "--policies", "frontier", "--detector", "off", "--seeds", "2",
-                     "--duration", "40", "--noise", "realistic", "--localisation", mode, "--quiet",
+                     "--duration", "20", "--noise", "realistic", "--localisation", mode, "--quiet",
                      "--out", str(out)]) == 0
         t = pd.read_csv(out / "trajectories.csv")
         errors[mode] = np.hypot(t.x - t.est_x, t.y - t.est_y)
