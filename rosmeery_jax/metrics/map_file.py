@@ -33,11 +33,16 @@ SCHEMA_PATH = resources.files("rosmeery_jax.metrics") / "semantic_map.schema.jso
 def semantic_map(world, knowledge, time_s: float) -> tuple[trimesh.Trimesh, dict]:
     """(point cloud with vertex attributes, R + P as a JSON-ready dict) from one env's
     :class:`Knowledge` (numpy or jax arrays, no batch axis)."""
-    truth = world.truth
-    seen = np.asarray(knowledge.seen) > 0.5
-    obj = np.asarray(truth.samples.object)[seen]
-    return build_map(world, np.asarray(truth.samples.points)[seen], obj, list(truth.names),
-                     np.asarray(knowledge.label), np.asarray(knowledge.confidence, np.float32), time_s)
+    points, obj = knowledge_points(world, knowledge.seen)
+    return build_map(world, points, obj, list(world.truth.names), np.asarray(knowledge.label),
+                     np.asarray(knowledge.confidence, np.float32), time_s)
+
+
+def knowledge_points(world, seen) -> tuple[np.ndarray, np.ndarray]:
+    """The built-in knowledge's map points: the ground-truth samples observed (``seen`` (S,)
+    coverage > 0.5), (P, 3), and their object ids (P,)."""
+    keep = np.asarray(seen) > 0.5
+    return np.asarray(world.truth.samples.points)[keep], np.asarray(world.truth.samples.object)[keep]
 
 
 def build_map(world, points: np.ndarray, instance: np.ndarray, names: list[str], label: np.ndarray,

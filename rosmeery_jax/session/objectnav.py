@@ -33,6 +33,7 @@ from rosmeery_jax.core import plugins
 from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.env import drive
 from rosmeery_jax.mapping.protocol import MapState, mapper_label
+from rosmeery_jax.metrics.map_file import knowledge_points
 from rosmeery_jax.policies.base import Policy
 from rosmeery_jax.session.batch import Group
 from rosmeery_jax.session.program import drive_fn
@@ -68,13 +69,15 @@ class Copy(NamedTuple):
 
 class Ended(NamedTuple):
     """An episode driven: the attempts it made, its true stop pose (3,), path (m), steps,
-    and how the navigator ended its last drive (``sim.navigation``'s status code)."""
+    whether it stopped in a success region, and how the navigator ended its last drive
+    (``sim.navigation``'s status code)."""
 
     copy: Copy
     attempts: int
     stop: np.ndarray
     path: float
     steps: int
+    success: bool = False
     status: int = IDLE
 
 
@@ -93,7 +96,8 @@ def plan(world, scorer, m: MapState, row: int, mapper: str, policy=None, spec: s
         i = int(picks[e, a])
         mine = points[instance == i, :2]
         if i not in depth:
-            depth[i] = ndimage.distance_transform_edt(episodes_.approach_region(world, mine)) * world.free_space.resolution
+            region = episodes_.approach_region(world, mine)
+            depth[i] = ndimage.distance_transform_edt(region) * world.free_space.resolution
         goals[e, a] = goal_pose(world.free_space, cells[e, a], depth[i], mine)
     out = []
     for e, ep in enumerate(scorer.episodes):
@@ -186,24 +190,27 @@ class Slots:
         self.goals[r, k] = self.copies[self.copy[r, k]].goals[self.attempt[r, k]]
 
 
-def run(group: Group, logodds: jax.Array, copies: list[Copy]) -> list[Ended]:
+def run(group: Group, logodds: jax.Array, copies: list[Copy], judges: dict) -> list[Ended]:
     """Drive every copy (their ``row`` indexes the group's B envs; ``logodds`` (B, H, W) the
-    robots' maps at the end of exploring); the episodes as they ended, in no set order."""
-    judges = {w: Judge(group.envs[w].world) for w in set(group.world[[c.row for c in copies]].tolist())}
+    robots' maps at the end of exploring; ``judges`` a Judge per world index); the
+    episodes as they ended, in no set order."""
     fn = drive_fn(group, STEPS, STREAM)
+    blocks = jnp.asarray(group.blocks)
     ended = [Ended(c, 0, np.asarray(c.episode.start, np.float32), 0.0, 0) for c in copies if not c.tries]
     slots = Slots(copies, group.size)
     drives = _empty(group, logodds, group.size, SLOTS)
     seeds = np.repeat(np.asarray(group.seed, np.uint32)[:, None], SLOTS, 1)
     while (slots.copy >= 0).any():
-        drives = fn(group.data, jnp.asarray(group.blocks), logodds, drives, *map(jnp.asarray, (
+        drives = fn(group.data, blocks, logodds, drives, *map(jnp.asarray, (
             slots.goals, slots.again, slots.starts, seeds, np.maximum(slots.copy, 0).astype(np.uint32))))
         slots.again[:] = False
-        done, stop, status = np.asarray(drives.ended), np.asarray(drives.stop), np.asarray(drives.state.nav.status)
+        done, stop, path, steps, status = jax.device_get(  # one copy to the host per call
+            (drives.ended, drives.stop, drives.path, drives.steps, drives.state.nav.status))
         for r, k in zip(*np.nonzero(done & (slots.copy >= 0))):
             c, tried = copies[slots.copy[r, k]], slots.attempt[r, k] + 1
-            if judges[int(group.world[r])].success(c.episode.goal, stop[r, k, :2]) or tried >= c.tries:
-                ended.append(Ended(c, tried, stop[r, k], float(drives.path[r, k]), int(drives.steps[r, k]),
+            success = judges[int(group.world[r])].success(c.episode.goal, stop[r, k, :2])
+            if success or tried >= c.tries:
+                ended.append(Ended(c, tried, stop[r, k], float(path[r, k]), int(steps[r, k]), success,
                                    int(status[r, k])))
                 slots.fill(r, k)
             else:
@@ -238,11 +245,12 @@ def for_group(group: Group, query, sim, mappers: tuple[str, ...], policy_names: 
         own = run_of.host_policy if type(run_of.host_policy).task_goals is not Policy.task_goals else None
         for spec, m in final_maps(world, sim, j, mappers).items():
             copies += plan(world, scorers[w], m, row, spec, own, run_of.spec)
-    ended = run(group, sim.logodds, copies)
     judges = {w: Judge(group.envs[w].world) for w in scorers}
+    ended = run(group, sim.logodds, copies, judges)
     out = {}
     for r in group.runs:
-        mine = [e for e in ended if e.copy.row in set(r.rows.tolist())]
+        rows = set(r.rows.tolist())
+        mine = [e for e in ended if e.copy.row in rows]
         seed = dict(zip(r.rows.tolist(), r.seeds))
         out[r.name] = frame(mine, judges[r.world], group.envs[r.world].world.name, policy_names[r.policy], seed,
                             group.env.dt)
@@ -254,11 +262,10 @@ def final_maps(world, sim, j: int, mappers: tuple[str, ...]) -> dict[str, MapSta
     observed samples, ``oracle``) and each fed mapper's last scored map."""
     out = {}
     if "oracle" in mappers:
-        k, truth = sim.knowledge, world.truth
-        seen = np.asarray(k.seen[j][:len(truth.samples.object)]) > 0.5
-        out["oracle"] = MapState(np.asarray(truth.samples.points)[seen], np.asarray(truth.samples.object)[seen],
-                                 np.asarray(k.label[j][:truth.num_objects]),
-                                 np.asarray(k.confidence[j][:truth.num_objects], np.float32))
+        k, n = sim.knowledge, world.truth.num_objects
+        points, instance = knowledge_points(world, k.seen[j][:len(world.truth.samples.object)])
+        out["oracle"] = MapState(points, instance, np.asarray(k.label[j][:n]),
+                                 np.asarray(k.confidence[j][:n], np.float32))
     return {**out, **{spec: per_env[j].final for spec, per_env in (sim.mapped or {}).items()}}
 
 
@@ -267,7 +274,7 @@ def frame(ended: list[Ended], judge: Judge, world: str, policy: str, seed: dict,
     rows = []
     for e in ended:
         c, ep = e.copy, e.copy.episode
-        success = judge.success(ep.goal, e.stop[:2]) if e.attempts else False
+        success = e.success
         d = judge.distance(ep.goal, e.stop[:2]) if e.attempts else ep.geodesic_distance
         shortest = ep.geodesic_distance
         efficiency = shortest / max(e.path, shortest, 1e-12)
@@ -275,7 +282,8 @@ def frame(ended: list[Ended], judge: Judge, world: str, policy: str, seed: dict,
                      "episode": ep.id, "goal": ep.goal, "start_x": ep.start[0], "start_y": ep.start[1],
                      "start_yaw": ep.start[2], "instance": int(c.instance[e.attempts - 1]) if e.attempts else -1,
                      "attempts": e.attempts, "stop_x": float(e.stop[0]), "stop_y": float(e.stop[1]),
-                     "stop_yaw": float(e.stop[2]), "navigator": STATUS_NAMES[e.status], "success": int(success), "spl": float(success * efficiency),
+                     "stop_yaw": float(e.stop[2]), "navigator": STATUS_NAMES[e.status], "success": int(success),
+                     "spl": float(success * efficiency),
                      "softspl": float(np.clip(1 - d / max(shortest, 1e-12), 0, 1) * efficiency),
                      "distance_m": d, "path_m": e.path, "shortest_m": shortest, "time_s": round(e.steps * dt, 6),
                      "query_success": int(c.query_success)})
