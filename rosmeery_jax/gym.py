@@ -119,6 +119,7 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         self._decision = Decision(config.decide_every, log_every, bool(log_every))
         self._reset = xla.jit(jax.vmap(self._reset_one))
         self._step = xla.jit(jax.vmap(self._step_one))
+        self._place = xla.jit(jax.vmap(self._place_one))
         self._log = xla.jit(jax.vmap(lambda w, s: self.bank.env_at(w).log(s)))
         self._knowledge = xla.jit(jax.vmap(lambda w, s: self.bank.env_at(w).labelled_knowledge(s)))
         self._scorers = [OnlineScorer(self.bank.worlds[w], TOLERANCE) for w in self.world]
@@ -166,6 +167,11 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         s, out = decide(env, s, action, self._decision)
         kept = (out.logs, out.track) if self.log_every else None
         return s, self._observe(env, s, t), score(env, s, self.config.reward), kept
+
+    def _place_one(self, world, s, pose, t):
+        env = self.bank.env_at(world)
+        s = env.place(s, pose)
+        return s, self._observe(env, s, t)
 
     def _observe(self, env, s, t) -> dict:
         obs = {}
@@ -224,6 +230,29 @@ class VectorEnv(gymnasium.vector.VectorEnv):
         truncated = np.full(self.num_envs, self.t >= self.horizon)
         self._done = truncated.copy()
         return _host(obs), reward, np.zeros(self.num_envs, bool), truncated, {}
+
+    # -- a task phase after the episode (a session's task "objectnav", session.agents) ----
+    def place(self, poses) -> dict:
+        """Put the B robots at ``poses`` (B, 3), each its estimate there too, navigator idle,
+        map and knowledge kept (``RobotEnv.place``); their observations."""
+        if self.state is None:
+            raise RuntimeError("call reset() before place()")
+        poses = jnp.asarray(_checked(poses, (self.num_envs, 3), "poses"))
+        self.state, obs = self._place(jnp.asarray(self.world), self.state, poses,
+                                      jnp.full(self.num_envs, self.t, jnp.int32))
+        return _host(obs)
+
+    def advance(self, actions) -> dict:
+        """One decision of the B robots outside the episode's clock (no reward, never
+        truncated); their observations. With ``log_every``, ``last_track`` holds its steps."""
+        if self.state is None:
+            raise RuntimeError("call reset() before advance()")
+        actions = jnp.asarray(_checked(actions, self.action_space.shape, "actions"))
+        self.state, obs, _, recorded = self._step(jnp.asarray(self.world), self.state, actions,
+                                                  jnp.full(self.num_envs, self.t, jnp.int32))
+        if recorded is not None:
+            self.last_logs, self.last_track = recorded
+        return _host(obs)
 
     def submit_map(self, i: int, m: MapState) -> dict:
         """Score robot ``i``'s own map now: {metric: value} (the session's default metrics)."""
@@ -319,6 +348,13 @@ class Agent(ABC):
         """The B robots' next actions (B, 3) target poses (or (B, 2) velocities) from their
         observations (each (B, ...))."""
 
+    def seek(self, obs: dict, goal: str) -> tuple[np.ndarray, np.ndarray]:
+        """A session's task phase (task "objectnav", docs/tasks.md): the B robots' actions
+        (as :meth:`act`'s) toward an object of category ``goal``, and ``stop`` (B,) bool:
+        True ends a robot's episode where it stands, judged there. Called once per
+        decision; an agent that does not override it has no task phase."""
+        raise NotImplementedError
+
 
 def agent_class(spec: str, source: str = "config") -> type[Agent]:
     """The class an ``agent:FILE.py:Name`` entry names, checked as a class."""
@@ -334,12 +370,16 @@ def agent_class(spec: str, source: str = "config") -> type[Agent]:
     return cls
 
 
-def check_agent(spec: str, detector: str) -> None:
-    """A session's ``agent:`` entry: an Agent class, in a session with the detector off."""
-    agent_class(spec)
+def check_agent(spec: str, detector: str, task: str = "none") -> None:
+    """A session's ``agent:`` entry: an Agent class, in a session with the detector off,
+    with a ``seek`` method where the session has a task phase."""
+    cls = agent_class(spec)
     if detector != "off":
         raise InputError("config", "policies", f"{spec!r}: a Python agent runs with --detector off (its "
                          "robots label what they observe)")
+    if task != "none" and cls.seek is Agent.seek:
+        raise InputError("config", "task", f"{task!r}: agent {spec!r} has no task phase (implement "
+                         "seek(obs, goal) -> (actions, stop))")
 
 
 def _host(obs: dict) -> dict:

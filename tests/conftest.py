@@ -52,14 +52,15 @@ def suite_xla_flags() -> str:
     return re.sub(r"\s*--xla_force_host_platform_device_count=\d+", "", os.environ["XLA_FLAGS"]).strip()
 
 
-# The slowest files first (cold-cache seconds on 2 cores, most of them compiling: test_rl
-# about 215, test_stats under 1), so the two xdist workers (pyproject: a file per worker at a
+# The slowest files first (cold-cache seconds on 2 cores, most of them compiling: test_engine
+# about 370, test_stats under 1), so the two xdist workers (pyproject: a file per worker at a
 # time, in this order) finish together rather than one waiting for the other's last long
 # file. Within a file the order is unchanged.
-SLOWEST_FIRST = ("test_rl", "test_platform", "test_cluster", "test_engine", "test_plugins", "test_gym",
-                 "test_hardening", "test_detector", "test_session", "test_teleop", "test_navigation",
-                 "test_metrics", "test_safety", "test_procedural", "test_explorers", "test_digest", "test_runtime",
-                 "test_record")
+SLOWEST_FIRST = ("test_engine", "test_cluster", "test_rl", "test_plugins", "test_hardening", "test_platform",
+                 "test_detector", "test_noise", "test_runtime", "test_gym", "test_teleop", "test_session",
+                 "test_metrics", "test_tasks", "test_navigation", "test_procedural", "test_experiments", "test_record",
+                 "test_ros_bags", "test_rerun_view", "test_digest", "test_integrity", "test_safety", "test_explorers",
+                 "test_field_metrics")
 
 
 def pytest_collection_modifyitems(items):

@@ -268,11 +268,69 @@ def test_a_task_the_session_does_not_know_is_one_line(hall, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_python_agents_have_no_task_phase_said_in_one_line(hall):
-    from rosmeery_jax.session import SessionConfig
+SEEKERS = """import numpy as np
+from rosmeery_jax.gym import Agent
 
-    with pytest.raises(InputError, match="task: 'objectnav' runs in the engine.*agent: runs have no task phase"):
-        SessionConfig(worlds=(str(hall.path),), policies=("agent:my_agent.py:Mine",), task="objectnav").validate()
+GOALS = {"chair": (1.6, 0.0, 0.0), "desk": (0.0, 2.0, np.pi / 2)}  # 0.7 m from each one's face
+
+
+class Goer(Agent):
+    name, camera = "goer", False
+
+    def act(self, obs):
+        return obs["pose"]  # stays where it is while exploring
+
+    def seek(self, obs, goal):
+        return np.tile(np.float32(GOALS[goal]), (len(obs["pose"]), 1)), obs["nav_status"][:, 0] == 2  # reached
+
+
+class Quitter(Goer):
+    name = "quitter"
+
+    def seek(self, obs, goal):
+        return obs["pose"], np.ones(len(obs["pose"]), bool)
+"""
+
+
+def test_a_python_agent_seeks_the_goals_itself(hall, tmp_path, capsys):
+    """An agent's own task phase: put at each episode's start, it drives to a pose 0.7 m
+    before the goal object and stops there (success, path at least the geodesic distance);
+    one that stops at once is judged at the start (failure, path 0, distance the episode's
+    geodesic distance)."""
+    agents = tmp_path / "seekers.py"
+    agents.write_text(SEEKERS)
+    out = tmp_path / "o"
+    assert main(["run", "--worlds", str(hall.path), "--policies", f"agent:{agents}:Goer,agent:{agents}:Quitter",
+                 "--seeds", "2", "--duration", "2", "--detector", "off", "--task", "objectnav", "--task-episodes", "3",
+                 "--quiet", "--out", str(out)]) == 0
+    assert "objectnav: 12 episodes driven in" in capsys.readouterr().out
+    df = pd.read_csv(out / "tasks.csv")
+    assert len(df) == 2 * 2 * 3 and set(df.mapper) == {"own"} and (df.navigator == "stopped").all()
+    assert (df.attempts == 1).all() and (df.instance == -1).all() and (df.query_success == -1).all()
+    goer, quitter = df[df.policy == "goer"], df[df.policy == "quitter"]
+    assert (goer.success == 1).all() and (goer.path_m >= goer.shortest_m).all() and (goer.spl > 0.5).all()
+    assert np.allclose(goer[["stop_x", "stop_y"]].to_numpy(), [[1.6, 0.0] if g == "chair" else [0.0, 2.0]
+                                                            for g in goer.goal], atol=0.25)
+    assert (quitter.success == 0).all() and (quitter.path_m == 0).all() and (quitter.time_s == 0).all()
+    np.testing.assert_allclose(quitter.distance_m, quitter.shortest_m, atol=1e-4)  # episodes keep 4 decimals
+    np.testing.assert_allclose(quitter[["stop_x", "stop_y"]], quitter[["start_x", "start_y"]], atol=1e-6)
+
+
+@pytest.mark.parametrize("body, needle", [
+    ("", "has no task phase (implement seek(obs, goal) -> (actions, stop))"),
+    ("    def seek(self, obs, goal):\n        return obs['pose']\n", "seek must return (actions, stop)"),
+    ("    def seek(self, obs, goal):\n        return obs['pose'], np.zeros(1, int)\n", "stop must be 1 booleans"),
+])
+def test_an_agent_without_a_working_seek_is_one_line(hall, tmp_path, capsys, body, needle):
+    agent = tmp_path / "a.py"
+    agent.write_text("import numpy as np\nfrom rosmeery_jax.gym import Agent\nclass A(Agent):\n    name = 'a'\n"
+                     "    camera = False\n    def act(self, obs):\n        return obs['pose']\n" + body)
+    out = tmp_path / "o"
+    assert main(["run", "--worlds", str(hall.path), "--policies", f"agent:{agent}:A", "--seeds", "1", "--duration",
+                 "1", "--detector", "off", "--task", "objectnav", "--task-episodes", "1", "--quiet", "--out",
+                 str(out)]) == 2
+    one_line_error(capsys, needle)
+    assert not (out / "tasks.csv").exists() and not (out / "metrics.csv").exists()
 
 
 def test_the_plan_drives_into_the_region_or_to_a_policys_own_goals(hall):

@@ -132,6 +132,13 @@ class RobotEnv:
                       None if self.config.localisation == "ground_truth" else pose)  # the start is known
         return self._sense(state)
 
+    def place(self, state: State, pose: jax.Array) -> State:
+        """The robot put at ``pose`` (3,) (its estimate there too: the start of a task's
+        episode is known), its navigator idle, its map and knowledge kept; it senses there."""
+        state = state._replace(physics=self.platform.init(pose), pose=pose, nav=self.navigator.init(),
+                               truth=None if state.truth is None else pose)
+        return self._sense(state)
+
     def step(self, state: State, action: jax.Array) -> State:
         """0.1 s: the stages below in order (the bench times each alone, ``stage_chain``)."""
         return self._sense(*self._motion(state, action))

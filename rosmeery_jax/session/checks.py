@@ -49,15 +49,12 @@ def check_session(cfg, source: str) -> None:
         for w in cfg.worlds:
             check_world(w)
         worlds = [load_world(w) for w in cfg.worlds]
-        if cfg.task != "none" and any(specs.kind(p) == "agent" for p in cfg.policies):
-            raise InputError("config", "task", f"{cfg.task!r} runs in the engine after the built-in and plugin "
-                             "policies' runs; agent: runs have no task phase")
         for w in worlds if tasks.wanted(names) or cfg.task != "none" else ():  # no goal to seek: refused now
             episodes.generated(w, cfg.task_episodes)
         stage = functools.cache(lambda: _plugin_stage(cfg))
         for p in cfg.policies:
             if specs.kind(p) == "agent":
-                check_agent(p, cfg.detector)
+                check_agent(p, cfg.detector, cfg.task)
             else:
                 check_policy(p, {w.name for w in worlds}, stage)
         check_mappers(cfg.mappers, env.camera, worlds[0].taxonomy.names)

@@ -40,7 +40,7 @@ from rosmeery_jax.session.program import drive_fn
 from rosmeery_jax.sim.navigation import IDLE, STATUS_NAMES
 from rosmeery_jax.world import episodes as episodes_
 
-SLOTS = 16  # drives per robot at once
+SLOTS = 16  # drives per robot at once, at most (fewer where no robot has as many episodes to drive)
 STEPS = 50  # control steps per call of the drive program (5 s)
 INWARD = 0.3  # m: a goal pose's least depth inside its instance's approach region (twice the goal tolerance)
 STREAM = 0x7A5C  # the drives' keys: folded into the seed's key, then the episode's copy index
@@ -51,16 +51,16 @@ COLUMNS = ("world", "policy", "mapper", "seed", "episode", "goal", "start_x", "s
 
 
 class Copy(NamedTuple):
-    """One episode of one robot and map: its env row, mapper entry and episode; the goal
+    """One episode of one robot and map: its env row, mapper (its results' label) and episode; the goal
     poses to try (k, 3), k <= attempts, and their instance ids (k,) (-1: a policy's own
-    goal), and the query's verdict."""
+    goal), and the query's verdict (None: no query, an agent's own search)."""
 
     row: int
     mapper: str
     episode: episodes_.Episode
     goals: np.ndarray
     instance: np.ndarray
-    query_success: bool
+    query_success: bool | None
 
     @property
     def tries(self) -> int:
@@ -70,7 +70,7 @@ class Copy(NamedTuple):
 class Ended(NamedTuple):
     """An episode driven: the attempts it made, its true stop pose (3,), path (m), steps,
     whether it stopped in a success region, and how the navigator ended its last drive
-    (``sim.navigation``'s status code)."""
+    (``sim.navigation``'s status code; an agent's episode: "stopped" or "timeout")."""
 
     copy: Copy
     attempts: int
@@ -78,7 +78,7 @@ class Ended(NamedTuple):
     path: float
     steps: int
     success: bool = False
-    status: int = IDLE
+    status: int | str = IDLE
 
 
 def plan(world, scorer, m: MapState, row: int, mapper: str, policy=None, spec: str = "") -> list[Copy]:
@@ -163,18 +163,20 @@ class Judge:
 
 
 class Slots:
-    """Which copy each of a robot's ``SLOTS`` drives holds (B, S; -1: none left) and its
-    attempt, with the program's inputs for the next call: goals, starts and ``again``
-    (start afresh). Each robot's copies wait in its queue."""
+    """Which copy each of a robot's S drives holds (B, S; -1: none left) and its attempt,
+    with the program's inputs for the next call: goals, starts and ``again`` (start
+    afresh). Each robot's copies wait in its queue; S is ``SLOTS`` or, where no robot has
+    that many copies to drive, the most any robot has (the program computes every slot)."""
 
     def __init__(self, copies: list[Copy], b: int):
         self.copies = copies
         self.queue = [[k for k, c in enumerate(copies) if c.row == r and c.tries] for r in range(b)]
-        self.copy, self.attempt = np.full((b, SLOTS), -1), np.zeros((b, SLOTS), np.int64)
-        self.goals, self.starts = np.zeros((b, SLOTS, 3), np.float32), np.zeros((b, SLOTS, 3), np.float32)
-        self.again = np.zeros((b, SLOTS), bool)
+        s = max(1, min(SLOTS, max(map(len, self.queue))))
+        self.copy, self.attempt = np.full((b, s), -1), np.zeros((b, s), np.int64)
+        self.goals, self.starts = np.zeros((b, s, 3), np.float32), np.zeros((b, s, 3), np.float32)
+        self.again = np.zeros((b, s), bool)
         for r in range(b):
-            for k in range(SLOTS):
+            for k in range(s):
                 self.fill(r, k)
 
     def fill(self, r: int, k: int) -> None:
@@ -198,8 +200,9 @@ def run(group: Group, logodds: jax.Array, copies: list[Copy], judges: dict) -> l
     blocks = jnp.asarray(group.blocks)
     ended = [Ended(c, 0, np.asarray(c.episode.start, np.float32), 0.0, 0) for c in copies if not c.tries]
     slots = Slots(copies, group.size)
-    drives = _empty(group, logodds, group.size, SLOTS)
-    seeds = np.repeat(np.asarray(group.seed, np.uint32)[:, None], SLOTS, 1)
+    s = slots.copy.shape[1]
+    drives = _empty(group, logodds, group.size, s)
+    seeds = np.repeat(np.asarray(group.seed, np.uint32)[:, None], s, 1)
     while (slots.copy >= 0).any():
         drives = fn(group.data, blocks, logodds, drives, *map(jnp.asarray, (
             slots.goals, slots.again, slots.starts, seeds, np.maximum(slots.copy, 0).astype(np.uint32))))
@@ -244,7 +247,7 @@ def for_group(group: Group, query, sim, mappers: tuple[str, ...], policy_names: 
         run_of = owner[row]
         own = run_of.host_policy if type(run_of.host_policy).task_goals is not Policy.task_goals else None
         for spec, m in final_maps(world, sim, j, mappers).items():
-            copies += plan(world, scorers[w], m, row, spec, own, run_of.spec)
+            copies += plan(world, scorers[w], m, row, mapper_label(spec), own, run_of.spec)
     judges = {w: Judge(group.envs[w].world) for w in scorers}
     ended = run(group, sim.logodds, copies, judges)
     out = {}
@@ -278,15 +281,17 @@ def frame(ended: list[Ended], judge: Judge, world: str, policy: str, seed: dict,
         d = judge.distance(ep.goal, e.stop[:2]) if e.attempts else ep.geodesic_distance
         shortest = ep.geodesic_distance
         efficiency = shortest / max(e.path, shortest, 1e-12)
-        rows.append({"world": world, "policy": policy, "mapper": mapper_label(c.mapper), "seed": seed[c.row],
+        rows.append({"world": world, "policy": policy, "mapper": c.mapper, "seed": seed[c.row],
                      "episode": ep.id, "goal": ep.goal, "start_x": ep.start[0], "start_y": ep.start[1],
                      "start_yaw": ep.start[2], "instance": int(c.instance[e.attempts - 1]) if e.attempts else -1,
                      "attempts": e.attempts, "stop_x": float(e.stop[0]), "stop_y": float(e.stop[1]),
-                     "stop_yaw": float(e.stop[2]), "navigator": STATUS_NAMES[e.status], "success": int(success),
+                     "stop_yaw": float(e.stop[2]),
+                     "navigator": e.status if isinstance(e.status, str) else STATUS_NAMES[e.status],
+                     "success": int(success),
                      "spl": float(success * efficiency),
                      "softspl": float(np.clip(1 - d / max(shortest, 1e-12), 0, 1) * efficiency),
                      "distance_m": d, "path_m": e.path, "shortest_m": shortest, "time_s": round(e.steps * dt, 6),
-                     "query_success": int(c.query_success)})
+                     "query_success": -1 if c.query_success is None else int(c.query_success)})
     df = pd.DataFrame(rows, columns=list(COLUMNS))
     return df.sort_values(["world", "policy", "seed", "mapper", "episode"]).reset_index(drop=True)  # seed-major,
     # as every run file: `rosmeery join` concatenates the parts' seeds
