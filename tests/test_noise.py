@@ -99,14 +99,12 @@ def test_off_is_the_exact_sensors():
     assert real.depth and real.laser and real.rgb and real.actuation
 
 
-# 10 s: one chunk of 10 decisions, the program of the scan matcher's 20 s runs below (shared
-# through the compilation cache)
-ARGS = ["run", "--worlds", "small_office", "--policies", "frontier", "--detector", "off", "--duration", "10",
-        "--noise", "realistic", "--localisation", "scan_matching", "--quiet"]
+ARGS = ["run", "--worlds", "small_office", "--policies", "frontier", "--detector", "off", "--duration", "6",
+        "--noise", "realistic", "--quiet"]
 
 
 def test_noisy_runs_are_reproducible_per_seed_whatever_their_batch(tmp_path):
-    """Seed 1 beside seed 0, and alone: the same noisy, self-localised run, bit for bit."""
+    """Seed 1 beside seed 0, and alone: the same noisy run, bit for bit; seed 0 differs."""
     assert main([*ARGS, "--seeds", "2", "--out", str(tmp_path / "two")]) == 0
     assert main([*ARGS, "--seeds", "1", "--first-seed", "1", "--out", str(tmp_path / "one")]) == 0
     two, one = (pd.read_csv(tmp_path / d / "trajectories.csv") for d in ("two", "one"))
