@@ -98,20 +98,21 @@ def test_plugins_run_like_builtins_in_one_session(tmp_path, capsys):
     out, toml = tmp_path / "o", tmp_path / "frames.toml"
     toml.write_text("detect_every = 5\n")
     assert main([*SESSION, "--policies", f"frontier,{plugin}:MyFrontier,{example}", "--metrics",
-                 f"ori,opi,{metric}", "--mapper", f"oracle,perceived,{plugin}:MyPerceived,{mapper},{sweeper}:Sweeper",
+                 f"ori,opi,{metric}", "--mapper", f"oracle,perceived,fused,{plugin}:MyPerceived,{mapper},{sweeper}:Sweeper",
                  "--config", str(toml), "--out", str(out)]) == 0
     assert "mappers (fed and scored)" in capsys.readouterr().out
     df = pd.read_csv(out / "metrics.csv")
     assert set(df.policy) == {"frontier", "my_frontier", "farthest_free"}
     assert set(df.metric) == {"ori", "opi", "labelled_share"}
-    assert set(df.mapper) == {"oracle", "perceived", "my_perceived", "voxel_numpy", "sweeper"}
+    assert set(df.mapper) == {"oracle", "perceived", "fused", "my_perceived", "voxel_numpy", "sweeper"}
     _check_sweeps(records, 6, 5)
     assert json.loads((out / "timing.json").read_text())["frames"] == 6 * 12  # 6 robots, 2 a second
     _same(df, "policy", "frontier", "my_frontier")
     _same(df, "mapper", "perceived", "my_perceived")
-    own = df[(df.mapper == "voxel_numpy") & (df.metric == "ori")]
-    assert own.value.between(0, 1).all() and own[own.time_s == 0].value.eq(0).all() and own.value.max() > 0
-    assert (out / "maps" / "small_office__frontier__seed0__voxel_numpy.ply").is_file()
+    for name in ("voxel_numpy", "fused"):  # a plugin's and the built-in fused mapper's maps
+        own = df[(df.mapper == name) & (df.metric == "ori")]
+        assert own.value.between(0, 1).all() and own[own.time_s == 0].value.eq(0).all() and own.value.max() > 0
+        assert (out / "maps" / f"small_office__frontier__seed0__{name}.ply").is_file()
     share = df[df.metric == "labelled_share"].value
     assert share.between(0, 1).all() and share.max() > 0
     path = pd.read_csv(out / "trajectories.csv").query("policy == 'farthest_free'")

@@ -390,8 +390,8 @@ def _run_parser(sub, d: SessionConfig) -> None:
                    f"{d.detector_runtime}; docs/detector.md)")
     p.add_argument("--metrics", metavar="M,N", help=f"active metrics (default: {','.join(d.metrics)})")
     p.add_argument("--mapper", metavar="M,N", help="who builds the scored map: oracle (the built-in knowledge, "
-                   "ground-truth association), perceived (detector frames' depth cut to the detected objects) "
-                   "and/or your own mapper as "
+                   "ground-truth association), perceived (detector frames' depth cut to the detected objects), "
+                   "fused (voxels and labels fused over frames) and/or your own mapper as "
                    f"FILE.py:Name or package.module:Name (docs/byo.md); default {','.join(d.mappers)}")
     p.add_argument("--out", metavar="DIR", help=f"results folder (default {d.out})")
     p.add_argument("--resume", action="store_true", help="continue an interrupted session in --out")

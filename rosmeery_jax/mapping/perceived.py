@@ -30,7 +30,7 @@ from rosmeery_jax.mapping.passes import (
     off_walls,
     publish_pass,
 )
-from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState, mapper_class
+from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, Mapper, MapState
 from rosmeery_jax.mapping.voxel_table import Rows, cube_keys
 
 
@@ -396,20 +396,6 @@ class PerceivedMapper(Mapper):
         pair = (meet & kin & (count[:, None] < cfg.absorb_size * count[None])
                 & (touched[:, None] | touched[None]))
         return ids, box, count, pair
-
-
-def mapper_for(spec: str) -> type:
-    """A session's mapper entry's class: the built-in perceived mapper or a plugin."""
-    return PerceivedMapper if built_in(spec) else mapper_class(spec)
-
-
-def built_in(spec: str) -> bool:
-    """Whether a session's mapper entry is the built-in perceived mapper, not a plugin (a
-    subclass of it included). A session trusts it: its maps are well formed and never
-    changed once handed out, so they are taken as they are (a plugin's are checked and
-    copied: :func:`~rosmeery_jax.mapping.protocol.check_map`), and the envs' mappers run
-    in parallel threads (a plugin's may share state: they run one after another)."""
-    return spec == "perceived"
 
 
 def _ranks(rank: np.ndarray | int, n: int) -> np.ndarray:

@@ -33,7 +33,7 @@ from rosmeery_jax.metrics import field, tasks
 from rosmeery_jax.metrics.map_score import Score, score_instances, tie
 from rosmeery_jax.raycast.sensors import CameraConfig
 
-BUILT_IN = ("oracle", "perceived")  # "oracle": the built-in knowledge (no mapper object)
+BUILT_IN = ("oracle", "perceived", "fused")  # "oracle": the built-in knowledge (no mapper object)
 
 
 class Camera(NamedTuple):
@@ -160,7 +160,8 @@ def mapper_class(spec: str, source: str = "config") -> type[Mapper]:
             raise InputError(source, "mappers", f"plugin {spec!r} lacks a {method} method")
     if cls.name in ("mapper", *BUILT_IN) or not specs.label_name(cls.name):
         raise InputError(source, "mappers", f"plugin {spec!r} needs a class attribute name that labels its "
-                         f"results: a plain name ({specs.LABEL_RULE}), not 'mapper', 'oracle' or 'perceived'")
+                         f"results: a plain name ({specs.LABEL_RULE}), not 'mapper' or a built-in's "
+                         f"({', '.join(BUILT_IN)})")
     return cls
 
 

@@ -50,7 +50,8 @@ class SessionConfig:
     mappers: tuple[str, ...] = ("oracle",)  # who builds the scored map: "oracle" (the built-in
     # knowledge: detections tied to objects by the ground-truth segmentation) and/or
     # "perceived" (detector frames' depth cut to the detected objects, no ground truth:
-    # rosmeery_jax.mapping.perceived)
+    # rosmeery_jax.mapping.perceived), "fused" (voxels and labels fused over frames, for
+    # noisy sensing: rosmeery_jax.mapping.fused)
     out: str = "results/session"
     digest: bool = False  # write a digest of each robot's state per chunk (runs/*.digest.csv), to
     # find where two runs part (rosmeery diff); it waits for every chunk, so it is slower

@@ -14,7 +14,7 @@ from rosmeery_jax.core.errors import InputError
 from rosmeery_jax.core.overrides import flatten
 from rosmeery_jax.env import EnvConfig
 from rosmeery_jax.env.decision import Decision
-from rosmeery_jax.mapping.perceived import mapper_for
+from rosmeery_jax.mapping.built_ins import mapper_for
 from rosmeery_jax.metrics import field, tasks
 from rosmeery_jax.metrics.indices import expand
 from rosmeery_jax.rl.task import STEP_LIMIT

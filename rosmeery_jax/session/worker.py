@@ -29,7 +29,7 @@ from rosmeery_jax.core.xla import cores
 from rosmeery_jax.detector.detections import pad
 from rosmeery_jax.env import RobotEnv, Track
 from rosmeery_jax.env.decision import Frames
-from rosmeery_jax.mapping.perceived import built_in, mapper_for
+from rosmeery_jax.mapping.built_ins import built_in, mapper_for
 from rosmeery_jax.mapping.protocol import Camera, DepthFrame, Frame, MapState, OnlineScorer, check_map, raised_by
 from rosmeery_jax.metrics.map_score import TOLERANCE
 from rosmeery_jax.session.batch import Group
