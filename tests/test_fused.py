@@ -52,10 +52,9 @@ def test_a_wall_seen_from_two_poses_with_1_cm_noise_is_one_surface():
         m.add(_frame(i, robot, _render(robot, [WALL], rng, 0.01)))
     s = m.semantic_map()
     assert len(s.label) == 1 and s.label[0] == 0  # one instance, a chair (its only votes)
-    x = s.points[:, 0]
-    # voxel centres 1.975 and 2.025 hold the surface at x = 2: one layer on each side of it
-    assert set(np.round(x, 3)) <= {1.975, 2.025} and (np.abs(x - 2.0) < 0.05).mean() == 1.0
-    assert len(s.points) > 300  # the wall's face in view, 5 cm voxels
+    x = s.points[:, 0]  # the points of one surface at x = 2: spread as the noise, no second layer
+    assert np.abs(x - 2.0).max() < 0.05 and 0.005 < x.std() < 0.015 and abs(x.mean() - 2.0) < 0.002
+    assert len(s.points) > 1000  # the wall's face in view, a point per 2.5 cm half-voxel
 
 
 def test_a_label_seen_three_times_as_chair_and_once_as_table_is_a_chair():
@@ -76,7 +75,7 @@ def test_a_3_cm_pose_offset_does_not_split_an_instance():
         m.add(_frame(i, truth, _render(truth, [CUBE]), camera_robot=est))  # depth from the truth, pose estimated
     s = m.semantic_map()
     assert len(np.unique(s.instance)) == 1 and len(s.label) == 1 and s.label[0] == 0
-    assert np.ptp(s.points[:, 1]) == pytest.approx(0.5 + 0.05, abs=0.051)  # the cube's 0.5 m, a voxel of blur
+    assert 0.45 < np.ptp(s.points[:, 1]) < 0.5 + 0.035  # the cube's 0.5 m, up to the 3 cm offset
 
 
 def test_what_depth_is_plausible():

@@ -2,32 +2,31 @@
 so that noisy depth and a drifting pose estimate blur it rather than break it. Specified
 in docs/mapping.md; its settings are :class:`FusedConfig`.
 
+Depth: a pixel is plausible with a finite return inside the range, above ``floor_z``, and
+no 4-neighbour further than ``edge_rel`` of its depth away (mixed pixels at edges).
+
 Geometry: a sparse voxel map (``voxel`` m) with a hit and a miss weight per voxel, updated
 projectively as a truncated signed distance volume is (Curless and Levoy 1996; Voxblox):
-each frame's plausible depth pixels inside a detection create voxels, and every voxel
-held that projects into the frame onto a plausible pixel is seen again: a hit when the
+every voxel held that projects onto a plausible pixel of a new frame is a hit when the
 pixel's depth lies within ``truncation`` of the voxel's, a miss when the camera sees
-through it (the pixel lies more than ``truncation`` beyond it). A measurement weighs
-``min(1, sigma(1 m) / sigma(z))`` for the axial noise of a Kinect-class camera, sigma(z) =
-0.0012 + 0.0019 (z - 0.4)^2 m: far returns count less. Plausible pixels: a return inside
-the range, not an edge (no 4-neighbour further away in depth than ``edge_rel`` of it:
-mixed pixels), above ``floor_z``.
+through it. A return weighs ``min(1, sigma(1 m) / sigma(z))`` for the axial noise of a
+Kinect-class camera, sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m: far returns count less.
 
-Semantics: each detection votes its label, with its confidence, into the voxels of its
-segment (its box's plausible pixels on its nearest surface: within ``segment`` m of the
-box's ``near_quantile`` depth): a log posterior over the categories per voxel, updated the
-Bayesian way (the detector names the true category with probability ``confidence``, any
-other alike).
+Semantics: each detection's object points (the perceived mapper's depth segments, rules
+1-3 and 10 of docs/mapping.md, on the plausible pixels) vote its label, with its
+confidence, into their voxels (made where new): a log posterior over the categories per
+voxel, updated the Bayesian way (the detector names the true category with probability
+``confidence``, any other alike). The map keeps the first point of each half-voxel.
 
-Instances: the connected components (26-neighbourhood) of the occupied voxels (hits at
-least ``min_weight`` and more than misses) that share their posterior's mode; voxels a
-few centimetres apart (pose error) touch and stay one instance. An instance's label and
-confidence are the mode and mass of its voxels' distributions summed by hit weight; it
-needs ``min_voxels`` voxels and votes from ``min_views`` frames. The map exported and
-scored is the instances' voxel centres.
+Instances: the connected components of the occupied voxels (hits above ``min_weight`` and
+above misses) that share their posterior's mode, voxels within ``reach`` voxels along each
+axis joined (a pose error of a few centimetres keeps an object one instance). An
+instance's label and confidence are the mode and mass of its voxels' distributions summed
+by hit weight; it needs ``min_voxels`` voxels and votes from ``min_views`` frames. The map
+exported and scored is its voxels' points.
 
 Pose: each frame's pose is the robot's estimate (what the session hands every mapper).
-Shapes: H x W the frame, D detections, V voxels, C categories, P points.
+Shapes: H x W the frame, V voxels, C categories, P points.
 """
 
 from __future__ import annotations
@@ -39,24 +38,29 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from rosmeery_jax.mapping.config import PerceivedConfig
+from rosmeery_jax.mapping.perceived import PerceivedMapper
 from rosmeery_jax.mapping.protocol import Camera, Frame, Mapper, MapState
 
 _BIAS = 1 << 20  # voxel indices are offset by this before packing (21 bits each: +-5 km at 5 mm)
-_NEIGHBOURS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
-                        if (i, j, k) > (0, 0, 0)], np.int64)  # half of the 26: each pair once
+
+
+def _neighbours(reach: int) -> np.ndarray:
+    """Half the voxel offsets within ``reach`` voxels along each axis (each pair once)."""
+    r = range(-reach, reach + 1)
+    return np.array([(i, j, k) for i in r for j in r for k in r if (i, j, k) > (0, 0, 0)], np.int64)
 
 
 @dataclass(frozen=True)
 class FusedConfig:
     voxel: float = 0.05  # m: the voxels' edge
     truncation: float = 0.1  # m: a pixel this close to a voxel's depth sees it (>= voxel)
-    edge_rel: float = 0.05  # a pixel with a 4-neighbour further than this share of its depth away is mixed
+    edge_rel: float = 0.2  # a pixel with a 4-neighbour further than this share of its depth away is mixed
     floor_z: float = 0.03  # m: points lower than this are floor
-    segment: float = 0.3  # m: a detection's segment lies within this of its box's near depth
-    near_quantile: float = 0.1  # the box's near depth: this quantile of its plausible pixels' depths
-    min_weight: float = 0.3  # hit weight an occupied voxel needs (one return at 1 m weighs 1)
+    min_weight: float = 0.0  # hit weight an occupied voxel needs, besides more hits than misses (a return at 1 m weighs 1)
     min_voxels: int = 3  # voxels an instance needs
     min_views: int = 2  # frames whose detections voted into an instance
+    reach: int = 3  # voxels: occupied voxels this close along each axis join one instance
 
     def __post_init__(self):
         for f in fields(self):
@@ -66,8 +70,9 @@ class FusedConfig:
         if self.voxel <= 0 or self.truncation < self.voxel:
             raise ValueError(f"fused mapper: voxel must be > 0 m and truncation at least the voxel "
                              f"(voxel {self.voxel!r}, truncation {self.truncation!r})")
-        if not (0 < self.near_quantile < 1 and self.edge_rel > 0 and self.segment > 0):
-            raise ValueError("fused mapper: near_quantile must lie in (0, 1), edge_rel and segment be > 0")
+        if self.edge_rel <= 0 or self.reach < 1:
+            raise ValueError(f"fused mapper: edge_rel must be > 0 and reach at least 1 (edge_rel {self.edge_rel!r}, "
+                             f"reach {self.reach!r})")
 
 
 def weight(z: np.ndarray) -> np.ndarray:
@@ -101,9 +106,17 @@ class FusedMapper(Mapper):
         self.hit = np.zeros(0, np.float64)
         self.miss = np.zeros(0, np.float64)
         self.logp = np.zeros((0, self.c), np.float64)  # log posterior up to a constant
+        # the map's points: the first point voted into each half-voxel, with its voxel
+        self.point_keys = np.zeros(0, np.int64)
+        self._point_order = np.zeros(0, np.int64)
+        self.points = np.zeros((0, 3), np.float64)
+        self.point_voxel = np.zeros(0, np.int64)
         self.views = np.zeros(0, np.int64)  # frames that voted into each voxel
         self._voted = np.zeros(0, np.int64)  # the last frame that voted (counted once per frame)
         self.frames = 0
+        # each detection's object points: the perceived mapper's depth segments and rules
+        # 1-3 and 10 (docs/mapping.md), its association and instances unused
+        self._segmenter = PerceivedMapper(camera, categories, PerceivedConfig(voxel=cfg.voxel / 2))
 
     # -- feeding -----------------------------------------------------------------------
     def add(self, frame: Frame) -> None:
@@ -118,33 +131,26 @@ class FusedMapper(Mapper):
         ok &= world[..., 2] > cfg.floor_z
         self.frames += 1
         self._see(depth, ok, pose, k)
-        for box, label, conf in zip(np.asarray(frame.boxes, np.float64).reshape(-1, 4),
-                                    np.asarray(frame.labels, np.int64).reshape(-1),
-                                    np.asarray(frame.confidences, np.float64).reshape(-1)):
-            if 0 <= label < self.c and np.isfinite(conf) and np.isfinite(box).all():
-                seg = self._segment(depth, ok, box)
-                if seg.any():
-                    self._vote(world[seg], depth[seg], int(label), float(np.clip(conf, 1e-3, 1 - 1e-3)))
+        plain = np.where(ok, depth, 0.0).astype(np.float32)  # implausible pixels read as no return
+        keep = np.asarray(frame.labels) >= 0
+        boxes = np.asarray(frame.boxes, np.float64).reshape(-1, 4)[keep]
+        for boxed, label, conf in zip(self._segmenter._frame_voxels(np.asarray(frame.pose), plain, boxes),
+                                      np.asarray(frame.labels, np.int64)[keep],
+                                      np.asarray(frame.confidences, np.float64)[keep]):
+            if label < self.c and np.isfinite(conf) and len(boxed.points):
+                self._vote(boxed.points, self._depth_of(boxed.points, pose), int(label),
+                           float(np.clip(conf, 1e-3, 1 - 1e-3)))
+
+    @staticmethod
+    def _depth_of(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """(P,) the points' depth along the optical axis of the camera at ``pose`` (4, 4)."""
+        return (points - pose[:3, 3]) @ pose[:3, 2]
 
     def _backproject(self, depth: np.ndarray, pose: np.ndarray, k: np.ndarray) -> np.ndarray:
         h, w = depth.shape
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         cam = np.stack([(u - k[0, 2]) / k[0, 0] * depth, (v - k[1, 2]) / k[1, 1] * depth, depth], -1)
         return cam @ pose[:3, :3].T + pose[:3, 3]
-
-    def _segment(self, depth: np.ndarray, ok: np.ndarray, box: np.ndarray) -> np.ndarray:
-        """(H, W) bool: the box's plausible pixels on its nearest surface."""
-        h, w = depth.shape
-        x1, y1 = max(0, int(np.floor(box[0]))), max(0, int(np.floor(box[1])))
-        x2, y2 = min(w, int(np.ceil(box[2])) + 1), min(h, int(np.ceil(box[3])) + 1)
-        seg = np.zeros_like(ok)
-        inside = ok[y1:y2, x1:x2]
-        if not inside.any():
-            return seg
-        d = depth[y1:y2, x1:x2]
-        near = np.quantile(d[inside], self.cfg.near_quantile)
-        seg[y1:y2, x1:x2] = inside & (d <= near + self.cfg.segment)
-        return seg
 
     def _see(self, depth: np.ndarray, ok: np.ndarray, pose: np.ndarray, k: np.ndarray) -> None:
         """Every voxel held that projects onto a plausible pixel: a hit or a miss."""
@@ -172,7 +178,7 @@ class FusedMapper(Mapper):
         """One detection's segment (P, 3) with depths (P,): its voxels (made where new, with
         the return's hit weight) take the label's likelihood once each."""
         keys = self._keys(points)
-        uniq, first = np.unique(keys, return_index=True)
+        uniq, first, back = np.unique(keys, return_index=True, return_inverse=True)
         at = self._lookup(uniq)
         new = at < 0
         if new.any():
@@ -181,9 +187,22 @@ class FusedMapper(Mapper):
         like = np.full(self.c, math.log((1 - conf) / max(1, self.c - 1)))
         like[label] = math.log(conf)
         self.logp[at] += like
+        self._keep_points(points, at[back])
         fresh = self._voted[at] != self.frames
         self.views[at[fresh]] += 1
         self._voted[at] = self.frames
+
+    def _keep_points(self, points: np.ndarray, voxel: np.ndarray) -> None:
+        """The first of ``points`` (P, 3) in each half-voxel the map has no point in yet,
+        kept with its voxel (P,)."""
+        keys = _pack(np.floor(points / (self.cfg.voxel / 2)).astype(np.int64))
+        keys, first = np.unique(keys, return_index=True)
+        new = _find(self.point_keys, self._point_order, keys) < 0
+        if new.any():
+            self.point_keys = np.concatenate([self.point_keys, keys[new]])
+            self._point_order = np.argsort(self.point_keys, kind="stable")
+            self.points = np.concatenate([self.points, points[first[new]]])
+            self.point_voxel = np.concatenate([self.point_voxel, voxel[first[new]]])
 
     # -- voxels ---------------------------------------------------------------------------
     def _keys(self, points: np.ndarray) -> np.ndarray:
@@ -200,11 +219,7 @@ class FusedMapper(Mapper):
 
     def _lookup(self, keys: np.ndarray) -> np.ndarray:
         """Each key's voxel index (-1: not held)."""
-        if not len(self.keys):
-            return np.full(len(keys), -1, np.int64)
-        pos = np.minimum(np.searchsorted(self.keys, keys, sorter=self._order), len(self.keys) - 1)
-        at = self._order[pos]
-        return np.where(self.keys[at] == keys, at, -1)
+        return _find(self.keys, self._order, keys)
 
     def _grow(self, keys: np.ndarray, hit: np.ndarray) -> None:
         n = len(keys)
@@ -233,13 +248,14 @@ class FusedMapper(Mapper):
         views = np.zeros(n, np.int64)
         np.maximum.at(views, comp, self.views[occupied])
         keep = (size >= cfg.min_voxels) & (views >= cfg.min_views)
-        new_id = np.cumsum(keep) - 1
-        chosen = keep[comp]
         mass = mass[keep]
         label = np.argmax(mass, 1)
         conf = mass[np.arange(len(mass)), label] / np.maximum(mass.sum(1), 1e-300)
-        return MapState(self.centres()[occupied[chosen]], new_id[comp[chosen]].astype(np.int64),
-                        label.astype(np.int64), conf.astype(np.float32))
+        instance = np.full(len(self.keys), -1, np.int64)  # per voxel: its instance in the map (-1 none)
+        instance[occupied] = np.where(keep[comp], (np.cumsum(keep) - 1)[comp], -1)
+        point_instance = instance[self.point_voxel]
+        chosen = point_instance >= 0
+        return MapState(self.points[chosen], point_instance[chosen], label.astype(np.int64), conf.astype(np.float32))
 
     def _components(self, voxels: np.ndarray, mode: np.ndarray) -> np.ndarray:
         """(K,) component of each of ``voxels`` (K,): 26-neighbours with the same ``mode``."""
@@ -247,7 +263,7 @@ class FusedMapper(Mapper):
         keys = self.keys[voxels]
         order = np.argsort(keys)
         rows, cols = [], []
-        for off in _NEIGHBOURS:
+        for off in _neighbours(self.cfg.reach):
             nb = _pack(ijk + off)
             pos = np.minimum(np.searchsorted(keys, nb, sorter=order), len(keys) - 1)
             j = order[pos]
@@ -257,6 +273,15 @@ class FusedMapper(Mapper):
         r, c = np.concatenate(rows), np.concatenate(cols)
         graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(len(keys), len(keys)))
         return connected_components(graph, directed=False)[1]
+
+
+def _find(keys: np.ndarray, order: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Each of ``wanted``'s index in ``keys`` (sorted by ``order``), -1 where absent."""
+    if not len(keys):
+        return np.full(len(wanted), -1, np.int64)
+    pos = np.minimum(np.searchsorted(keys, wanted, sorter=order), len(keys) - 1)
+    at = order[pos]
+    return np.where(keys[at] == wanted, at, -1)
 
 
 def _pack(ijk: np.ndarray) -> np.ndarray:
