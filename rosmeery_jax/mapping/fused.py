@@ -258,21 +258,25 @@ class FusedMapper(Mapper):
         return MapState(self.points[chosen], point_instance[chosen], label.astype(np.int64), conf.astype(np.float32))
 
     def _components(self, voxels: np.ndarray, mode: np.ndarray) -> np.ndarray:
-        """(K,) component of each of ``voxels`` (K,): 26-neighbours with the same ``mode``."""
-        ijk = self._ijk(self.keys[voxels])
-        keys = self.keys[voxels]
-        order = np.argsort(keys)
-        rows, cols = [], []
-        for off in _neighbours(self.cfg.reach):
-            nb = _pack(ijk + off)
-            pos = np.minimum(np.searchsorted(keys, nb, sorter=order), len(keys) - 1)
-            j = order[pos]
-            link = (keys[j] == nb) & (mode[j] == mode)
-            rows.append(np.flatnonzero(link))
-            cols.append(j[link])
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(len(keys), len(keys)))
-        return connected_components(graph, directed=False)[1]
+        """(K,) component of each of ``voxels`` (K,): voxels of one ``mode`` in the same or
+        neighbouring (26) cells of ``reach`` voxels join."""
+        coarse = np.floor_divide(self._ijk(self.keys[voxels]), self.cfg.reach)
+        comp, base = np.zeros(len(voxels), np.int64), 0
+        for label in np.unique(mode):  # a few labels: the cells of each apart
+            mine = np.flatnonzero(mode == label)
+            cells, back = np.unique(_pack(coarse[mine]), return_inverse=True)
+            ijk = self._ijk(cells)
+            rows, cols = [np.arange(len(cells))], [np.arange(len(cells))]
+            for off in _neighbours(1):
+                j = _find(cells, np.arange(len(cells)), _pack(ijk + off))  # cells are sorted
+                rows.append(np.flatnonzero(j >= 0))
+                cols.append(j[j >= 0])
+            r, c = np.concatenate(rows), np.concatenate(cols)
+            n, labels = connected_components(coo_matrix((np.ones(len(r), np.int8), (r, c)),
+                                                        shape=(len(cells), len(cells))), directed=False)
+            comp[mine] = base + labels[back]
+            base += n
+        return comp
 
 
 def _find(keys: np.ndarray, order: np.ndarray, wanted: np.ndarray) -> np.ndarray:
