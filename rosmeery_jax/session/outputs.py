@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -34,7 +33,6 @@ import pandas as pd
 
 from rosmeery_jax import metrics
 from rosmeery_jax.core.files import write_atomic
-from rosmeery_jax.core.xla import cores
 from rosmeery_jax.env import Track
 from rosmeery_jax.mapping.protocol import MapState, OnlineScorer, mapper_label
 from rosmeery_jax.metrics import field
@@ -91,10 +89,6 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
     field_names, task = field.wanted(names), task_query(cfg)
     map_names = [n for n in names if n in MAP_METRICS]
     curves, objects, paths = [], [], []
-    oracle = ([{}] * len(run.seeds) if not (map_names and "oracle" in cfg.mappers) else
-              _each_seed(lambda i: oracle_maps(world, run.stamps[i, :s], step[keep],
-                                               jax.tree.map(lambda a: np.asarray(a[i])[keep], logs), field_names,
-                                               task), len(run.seeds)))
     for i, seed in enumerate(run.seeds):  # per seed, so a seed's numbers never depend on the batch shape
         log = jax.tree.map(lambda a: a[i], logs)
         if "oracle" in cfg.mappers:
@@ -102,7 +96,9 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
             k = k._replace(seen=k.seen[:s], label=k.label[:n], confidence=k.confidence[:n])
             write_semantic_map(out / "maps", f"{name}__seed{seed}", world, k, float(times[-1]))
             c = {m: v[keep] for m, v in metrics.compute(log, env.truth, names).items()}  # {name: (K,)}
-            c.update(oracle[i])
+            if map_names:
+                c.update(oracle_maps(world, run.stamps[i, :s], step[keep], jax.tree.map(lambda a: a[keep], log),
+                                     field_names, task))
             curves.append(tables.metric_frame({m: c[m] for m in names}, times[keep], seed=seed, mapper="oracle",
                                                **tags))
             objects.append(tables.object_frame(world, jax.tree.map(lambda a: a[-1], log), seed=seed,
@@ -141,14 +137,6 @@ def write_run(cfg: SessionConfig, run: RunResult, name: str, out: Path, timing: 
         tables.write_csv(run.tasks, runs / f"{name}.tasks.csv")
     tables.write_csv(pd.concat(curves, ignore_index=True), runs / f"{name}.metrics.csv")
     seal_run(out, name)
-
-
-def _each_seed(fn, seeds: int) -> list:
-    """``fn(i)`` for each seed index, on a thread per core: scoring a map over time is
-    numpy, scipy and numba code that mostly releases the GIL, and each seed's map is scored
-    apart from the others' (the same values as one after the other)."""
-    with ThreadPoolExecutor(max(1, min(seeds, cores()))) as pool:
-        return list(pool.map(fn, range(seeds)))
 
 
 def oracle_maps(world, stamps: np.ndarray, steps: np.ndarray, log: ObjectLog, names, task=None) -> dict:

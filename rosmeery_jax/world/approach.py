@@ -17,7 +17,6 @@ radius, L cells on a sight line, M nodes.
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
 from numba import njit
@@ -90,7 +89,6 @@ class Approach:
         self.slot = np.full(walls.size, -1, np.int64)
         self._start, self._length, self._flat = (np.zeros(0, np.int64) for _ in range(3))
         self.cells_kept, self.nodes_kept = 0, 0
-        self._laying = threading.Lock()  # scorers on several threads share a world's (a session's seeds)
 
     @property
     def start(self) -> np.ndarray:
@@ -115,11 +113,10 @@ class Approach:
     def slots(self, cells: np.ndarray) -> np.ndarray:
         """(C,) where each flat cell's nodes are kept (laid out first if new)."""
         cells = np.asarray(cells, np.int64)
-        with self._laying:  # the arrays only grow: a reader's cells, once laid, stay where they are
-            new = np.unique(cells[self.slot[cells] < 0])
-            for k in range(0, len(new), CHUNK):
-                self._lay(new[k:k + CHUNK])
-            return self.slot[cells]
+        new = np.unique(cells[self.slot[cells] < 0])
+        for k in range(0, len(new), CHUNK):
+            self._lay(new[k:k + CHUNK])
+        return self.slot[cells]
 
     def gather(self, cells: np.ndarray) -> np.ndarray:
         """The approach nodes of each of ``cells`` (flat, -1 ignored) one after the other."""
