@@ -45,10 +45,8 @@ from rosmeery_jax.mapping.protocol import Camera, Frame, Mapper, MapState
 _BIAS = 1 << 20  # voxel indices are offset by this before packing (21 bits each: +-5 km at 5 mm)
 
 
-def _neighbours(reach: int) -> np.ndarray:
-    """Half the voxel offsets within ``reach`` voxels along each axis (each pair once)."""
-    r = range(-reach, reach + 1)
-    return np.array([(i, j, k) for i in r for j in r for k in r if (i, j, k) > (0, 0, 0)], np.int64)
+_NEIGHBOURS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                        if (i, j, k) > (0, 0, 0)], np.int64)  # half of the 26 (each pair once)
 
 
 @dataclass(frozen=True)
@@ -127,8 +125,7 @@ class FusedMapper(Mapper):
             return  # nothing defined to fuse
         k = np.asarray(self.camera.intrinsics, np.float64)
         ok = plausible(depth, self.camera.config.max_range, cfg.edge_rel)
-        world = self._backproject(depth, pose, k)  # (H, W, 3)
-        ok &= world[..., 2] > cfg.floor_z
+        ok &= self._height(depth, pose, k) > cfg.floor_z
         self.frames += 1
         self._see(depth, ok, pose, k)
         plain = np.where(ok, depth, 0.0).astype(np.float32)  # implausible pixels read as no return
@@ -146,11 +143,13 @@ class FusedMapper(Mapper):
         """(P,) the points' depth along the optical axis of the camera at ``pose`` (4, 4)."""
         return (points - pose[:3, 3]) @ pose[:3, 2]
 
-    def _backproject(self, depth: np.ndarray, pose: np.ndarray, k: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _height(depth: np.ndarray, pose: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """(H, W) each pixel's world z (its back-projected point's height)."""
         h, w = depth.shape
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        cam = np.stack([(u - k[0, 2]) / k[0, 0] * depth, (v - k[1, 2]) / k[1, 1] * depth, depth], -1)
-        return cam @ pose[:3, :3].T + pose[:3, 3]
+        u, v = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)[:, None]
+        r = pose[2, :3]  # the world z row of the camera's rotation
+        return depth * (r[0] * (u - k[0, 2]) / k[0, 0] + r[1] * (v - k[1, 2]) / k[1, 1] + r[2]) + pose[2, 3]
 
     def _see(self, depth: np.ndarray, ok: np.ndarray, pose: np.ndarray, k: np.ndarray) -> None:
         """Every voxel held that projects onto a plausible pixel: a hit or a miss."""
@@ -267,7 +266,7 @@ class FusedMapper(Mapper):
             cells, back = np.unique(_pack(coarse[mine]), return_inverse=True)
             ijk = self._ijk(cells)
             rows, cols = [np.arange(len(cells))], [np.arange(len(cells))]
-            for off in _neighbours(1):
+            for off in _NEIGHBOURS:
                 j = _find(cells, np.arange(len(cells)), _pack(ijk + off))  # cells are sorted
                 rows.append(np.flatnonzero(j >= 0))
                 cols.append(j[j >= 0])
